@@ -1,0 +1,185 @@
+"""UMay arm kinematics from the thesis's modified (Craig) Denavit-Hartenberg table (Table 1.1).
+
+Conventions
+-----------
+- Base frame = DH frame 0 = the arm base ("shoulder") frame. In the simulated world it is placed
+  with z up (vertical), x forward (towards the table) and y to the robot's left, so target
+  positions given in the base frame read naturally.
+- Link transform: ``T(i-1, i) = Rx(alpha[i-1]) · Tx(a[i-1]) · Rz(theta[i]) · Tz(d[i])``.
+- Joint i rotates about the z axis of DH frame i. The end-effector frame is DH frame 6.
+- The geometric Jacobian maps joint rates (rad/s) to the end-effector twist ``(v, ω)`` in the
+  base frame, ``v`` being the velocity of the frame-6 origin (m/s), ``ω`` the angular velocity
+  (rad/s).
+
+All functions are pure: they take and return numpy arrays, lengths in metres, angles in radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+N_JOINTS = 6
+
+
+@dataclass(frozen=True)
+class DHRow:
+    """One row of the modified DH table (lengths in metres, angles in radians)."""
+
+    alpha_prev_rad: float
+    a_prev_m: float
+    d_m: float
+    theta_offset_rad: float = 0.0
+
+
+# Table 1.1 of the thesis, millimetres converted to metres.
+UMAY_DH: tuple[DHRow, ...] = (
+    DHRow(0.0, 0.0, 0.0),
+    DHRow(-np.pi / 2, 0.0, 0.020),
+    DHRow(np.pi / 2, 0.005, 0.264),
+    DHRow(-np.pi / 2, 0.0, 0.0),
+    DHRow(-np.pi / 2, 0.0, 0.212),
+    DHRow(np.pi / 2, 0.0, 0.0),
+)
+
+# Human-like joint limits (rad). The thesis gives none; these follow a child's right arm
+# mapped onto the DH joints (shoulder pitch/roll/yaw, elbow, forearm twist, wrist),
+# kept a little wider than the ranges the default scenarios use.
+JOINT_LOWER_RAD: FloatArray = np.deg2rad([-150.0, -100.0, -120.0, -150.0, -150.0, -100.0])
+JOINT_UPPER_RAD: FloatArray = np.deg2rad([150.0, 100.0, 120.0, 150.0, 150.0, 100.0])
+# Joint speed limits (rad/s), servo-class values for a child-sized arm.
+JOINT_VELOCITY_LIMIT_RAD_S: FloatArray = np.full(N_JOINTS, 1.5)
+
+
+def rot_x(angle_rad: float) -> FloatArray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_z(angle_rad: float) -> FloatArray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def homogeneous(rotation: FloatArray, translation: FloatArray) -> FloatArray:
+    """4×4 homogeneous transform from a 3×3 rotation and a 3-vector."""
+    t = np.eye(4)
+    t[:3, :3] = rotation
+    t[:3, 3] = translation
+    return t
+
+
+def dh_link_transform(row: DHRow, q_rad: float) -> FloatArray:
+    """``T(i-1, i) = Rx(alpha) · Tx(a) · Rz(theta) · Tz(d)`` as a 4×4 matrix."""
+    theta = q_rad + row.theta_offset_rad
+    rx = homogeneous(rot_x(row.alpha_prev_rad), np.zeros(3))
+    tx = homogeneous(np.eye(3), np.array([row.a_prev_m, 0.0, 0.0]))
+    rz = homogeneous(rot_z(theta), np.zeros(3))
+    tz = homogeneous(np.eye(3), np.array([0.0, 0.0, row.d_m]))
+    return rx @ tx @ rz @ tz
+
+
+def frame_transforms(q_rad: FloatArray, dh: tuple[DHRow, ...] = UMAY_DH) -> list[FloatArray]:
+    """Poses of DH frames 1..6 in the base frame (list of six 4×4 matrices)."""
+    q = np.asarray(q_rad, dtype=float)
+    if q.shape != (len(dh),):
+        raise ValueError(f"q_rad must have shape ({len(dh)},), got {q.shape}")
+    poses = []
+    t = np.eye(4)
+    for row, qi in zip(dh, q, strict=True):
+        t = t @ dh_link_transform(row, float(qi))
+        poses.append(t)
+    return poses
+
+
+def forward_kinematics(q_rad: FloatArray, dh: tuple[DHRow, ...] = UMAY_DH) -> FloatArray:
+    """Pose of the end-effector frame (DH frame 6) in the base frame, 4×4."""
+    return frame_transforms(q_rad, dh)[-1]
+
+
+def geometric_jacobian(q_rad: FloatArray, dh: tuple[DHRow, ...] = UMAY_DH) -> FloatArray:
+    """6×n geometric Jacobian in the base frame at the end-effector origin.
+
+    Rows 0-2: linear velocity of the frame-6 origin (m/s per rad/s); rows 3-5: angular velocity.
+    """
+    poses = frame_transforms(q_rad, dh)
+    p_e = poses[-1][:3, 3]
+    jac = np.zeros((6, len(dh)))
+    for i, pose in enumerate(poses):
+        z_i = pose[:3, 2]
+        p_i = pose[:3, 3]
+        jac[:3, i] = np.cross(z_i, p_e - p_i)
+        jac[3:, i] = z_i
+    return jac
+
+
+def manipulability(jacobian: FloatArray) -> float:
+    """Yoshikawa's manipulability measure sqrt(det(J Jᵀ))."""
+    return float(np.sqrt(max(np.linalg.det(jacobian @ jacobian.T), 0.0)))
+
+
+def skew(v: FloatArray) -> FloatArray:
+    """Cross-product matrix: ``skew(a) @ b == cross(a, b)``."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def rotation_error_rad(r_a: FloatArray, r_b: FloatArray) -> float:
+    """Angle of the rotation taking ``r_a`` to ``r_b`` (rad, in [0, π])."""
+    cos_angle = (np.trace(r_a.T @ r_b) - 1.0) / 2.0
+    return float(np.arccos(np.clip(cos_angle, -1.0, 1.0)))
+
+
+def rotation_log(r: FloatArray) -> FloatArray:
+    """Axis-angle vector θ·u of a rotation matrix (rad)."""
+    angle = rotation_error_rad(np.eye(3), r)
+    if angle < 1e-9:
+        return np.zeros(3)
+    if np.pi - angle < 1e-6:
+        # Near π the antisymmetric part vanishes; take the axis from the symmetric part.
+        m = (r + np.eye(3)) / 2.0
+        axis = m[:, int(np.argmax(np.diag(m)))]
+        return angle * axis / np.linalg.norm(axis)
+    w = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    return angle * w / (2.0 * np.sin(angle))
+
+
+def inverse_kinematics(
+    target_pose: FloatArray,
+    q_seed_rad: FloatArray,
+    tool_in_ee: FloatArray | None = None,
+    iterations: int = 200,
+    damping: float = 1e-2,
+    tolerance: float = 1e-7,
+) -> tuple[FloatArray, float, float]:
+    """Damped least-squares IK for the pose of a tool frame rigidly attached to frame 6.
+
+    Returns ``(q_rad, position_error_m, orientation_error_rad)``; joint limits are enforced by
+    clipping at each step. Used to check that a scenario's target is reachable before launch.
+    """
+    tool = np.eye(4) if tool_in_ee is None else tool_in_ee
+    q = np.clip(np.asarray(q_seed_rad, dtype=float).copy(), JOINT_LOWER_RAD, JOINT_UPPER_RAD)
+    for _ in range(iterations):
+        ee = forward_kinematics(q)
+        pose = ee @ tool
+        e_pos = target_pose[:3, 3] - pose[:3, 3]
+        e_rot = pose[:3, :3] @ rotation_log(pose[:3, :3].T @ target_pose[:3, :3])
+        err = np.concatenate([e_pos, e_rot])
+        if np.linalg.norm(err) < tolerance:
+            break
+        jac = geometric_jacobian(q)
+        # Twist at the tool origin: v_tool = v_ee + ω × (p_tool - p_ee).
+        lever = pose[:3, 3] - ee[:3, 3]
+        jac_tool = jac.copy()
+        jac_tool[:3] = jac[:3] - skew(lever) @ jac[3:]
+        dq = jac_tool.T @ np.linalg.solve(jac_tool @ jac_tool.T + damping**2 * np.eye(6), err)
+        q = np.clip(q + dq, JOINT_LOWER_RAD, JOINT_UPPER_RAD)
+    pose = forward_kinematics(q) @ tool
+    return (
+        q,
+        float(np.linalg.norm(target_pose[:3, 3] - pose[:3, 3])),
+        rotation_error_rad(pose[:3, :3], target_pose[:3, :3]),
+    )
