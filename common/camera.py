@@ -82,7 +82,7 @@ def look_at_rotation(eye_m: FloatArray, target_m: FloatArray, up: FloatArray) ->
     looking at ``target``, with image-up as close as possible to ``up``."""
     z = np.asarray(target_m, dtype=float) - np.asarray(eye_m, dtype=float)
     z /= np.linalg.norm(z)
-    x = np.cross(z, -np.asarray(up, dtype=float))  # image right = forward × down
+    x = np.cross(-np.asarray(up, dtype=float), z)  # image right = down × forward
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return np.column_stack([x, y, z])

@@ -2,9 +2,12 @@
 
 Conventions
 -----------
-- Base frame = DH frame 0 = the arm base ("shoulder") frame. In the simulated world it is placed
-  with z up (vertical), x forward (towards the table) and y to the robot's left, so target
-  positions given in the base frame read naturally.
+- Base frame = DH frame 0 = the arm base (right shoulder) frame, which is also the simulated
+  world frame: **x forward** (towards the table), **y up** (vertical), **z to the robot's
+  right**. Joint 1 is thus the shoulder pitch (axis through both shoulders), and at q = 0 the
+  upper arm points sideways with the forearm folded back onto it. This mounting keeps the
+  shoulder's singularity (joint 1 and joint 3 axes aligned when q2 = 0) away from the reaching
+  workspace in front of the robot; with z up instead, half the table is unreachable.
 - Link transform: ``T(i-1, i) = Rx(alpha[i-1]) · Tx(a[i-1]) · Rz(theta[i]) · Tz(d[i])``.
 - Joint i rotates about the z axis of DH frame i. The end-effector frame is DH frame 6.
 - The geometric Jacobian maps joint rates (rad/s) to the end-effector twist ``(v, ω)`` in the
@@ -49,8 +52,8 @@ UMAY_DH: tuple[DHRow, ...] = (
 # Human-like joint limits (rad). The thesis gives none; these follow a child's right arm
 # mapped onto the DH joints (shoulder pitch/roll/yaw, elbow, forearm twist, wrist),
 # kept a little wider than the ranges the default scenarios use.
-JOINT_LOWER_RAD: FloatArray = np.deg2rad([-150.0, -100.0, -120.0, -150.0, -150.0, -100.0])
-JOINT_UPPER_RAD: FloatArray = np.deg2rad([150.0, 100.0, 120.0, 150.0, 150.0, 100.0])
+JOINT_LOWER_RAD: FloatArray = np.deg2rad([-150.0, -100.0, -150.0, -150.0, -150.0, -100.0])
+JOINT_UPPER_RAD: FloatArray = np.deg2rad([150.0, 100.0, 150.0, 150.0, 150.0, 100.0])
 # Joint speed limits (rad/s), servo-class values for a child-sized arm.
 JOINT_VELOCITY_LIMIT_RAD_S: FloatArray = np.full(N_JOINTS, 1.5)
 
@@ -182,4 +185,58 @@ def inverse_kinematics(
         q,
         float(np.linalg.norm(target_pose[:3, 3] - pose[:3, 3])),
         rotation_error_rad(pose[:3, :3], target_pose[:3, :3]),
+    )
+
+
+# --- the hand and its green marker (shared by the sim's URDF and the reachability check) ---
+# The hand is a box rigidly attached to DH frame 6: fingers along +y6 (the forearm direction at
+# q6 = 0), wrist flexion about z6, so the palm's normal is ±x6. The green marker lies on the back
+# of the hand (+x6 side).
+HAND_THICKNESS_M = 0.025
+HAND_LENGTH_M = 0.09
+HAND_WIDTH_M = 0.08
+HAND_OFFSET_M = 0.01  # gap between the wrist centre and the hand box along +y6
+MARKER_THICKNESS_M = 0.001
+
+
+def hand_marker_in_ee() -> FloatArray:
+    """Pose of the green marker frame in DH frame 6 (4×4).
+
+    Marker frame: origin at the centre of the square's visible face, z along its outward normal,
+    x towards the fingertips. The red target marker uses the same convention (z up), so the task
+    is "bring the green marker frame onto the red one" (modulo the square's 90° symmetry).
+    """
+    z_m = np.array([1.0, 0.0, 0.0])
+    x_m = np.array([0.0, 1.0, 0.0])
+    y_m = np.cross(z_m, x_m)
+    centre = np.array(
+        [HAND_THICKNESS_M / 2 + MARKER_THICKNESS_M, HAND_OFFSET_M + HAND_LENGTH_M / 2, 0.0]
+    )
+    return homogeneous(np.column_stack([x_m, y_m, z_m]), centre)
+
+
+def marker_corners(pose: FloatArray, size_m: float) -> FloatArray:
+    """4×3 corners of a square marker (visible face) in the pose's parent frame.
+
+    Physical order in the marker frame: (-,-), (+,-), (+,+), (-,+).
+    """
+    h = size_m / 2.0
+    local = np.array([[-h, -h, 0.0, 1.0], [h, -h, 0.0, 1.0], [h, h, 0.0, 1.0], [-h, h, 0.0, 1.0]])
+    return (pose @ local.T).T[:, :3]
+
+
+BASE_UP = np.array([0.0, 1.0, 0.0])  # the vertical, in the base frame
+
+
+def target_marker_pose(position_m: FloatArray, yaw_rad: float) -> FloatArray:
+    """Red marker frame: centre of its visible face at ``position_m``, normal (z) up.
+
+    At yaw 0 the marker x axis points forward (base x) and y to the robot's left (base -z);
+    positive yaw turns it counter-clockwise seen from above.
+    """
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    x_m = np.array([c, 0.0, -s])
+    z_m = BASE_UP
+    return homogeneous(
+        np.column_stack([x_m, np.cross(z_m, x_m), z_m]), np.asarray(position_m, dtype=float)
     )

@@ -1,0 +1,70 @@
+"""Every Zenoh key expression of the system, in one place, under one configurable prefix.
+
+Default prefix: ``umay/<robot_id>`` with ``robot_id`` from ``UMAY_ROBOT_ID`` (default
+``umay1``); ``UMAY_PREFIX`` or ``--prefix`` replaces the whole prefix (tests use a unique one
+per test so parallel runs never cross).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+SERVICES: tuple[str, ...] = ("sim", "vision", "controller", "actuation")
+
+
+def default_prefix() -> str:
+    explicit = os.environ.get("UMAY_PREFIX")
+    if explicit:
+        return explicit
+    return f"umay/{os.environ.get('UMAY_ROBOT_ID', 'umay1')}"
+
+
+@dataclass(frozen=True)
+class Keys:
+    prefix: str
+
+    def __post_init__(self) -> None:
+        if not self.prefix or any(c in self.prefix for c in "*$?#") or self.prefix.endswith("/"):
+            raise ValueError(f"invalid key prefix {self.prefix!r}")
+
+    # sim
+    @property
+    def rgbd(self) -> str:
+        return f"{self.prefix}/sim/rgbd"
+
+    @property
+    def joint_state(self) -> str:
+        return f"{self.prefix}/sim/joint_state"
+
+    @property
+    def truth(self) -> str:
+        """Ground truth for evaluation only (supervisor, tests); never for perception/control."""
+        return f"{self.prefix}/sim/truth"
+
+    # vision → controller → actuation → sim
+    @property
+    def features(self) -> str:
+        return f"{self.prefix}/vision/features"
+
+    @property
+    def twist(self) -> str:
+        return f"{self.prefix}/controller/twist"
+
+    @property
+    def joint_command(self) -> str:
+        return f"{self.prefix}/actuation/joint_command"
+
+    def status(self, service: str) -> str:
+        return f"{self.prefix}/{service}/status"
+
+    def alive(self, service: str) -> str:
+        return f"{self.prefix}/alive/{service}"
+
+    @property
+    def all_status(self) -> str:
+        return f"{self.prefix}/*/status"
+
+    @property
+    def all_alive(self) -> str:
+        return f"{self.prefix}/alive/*"

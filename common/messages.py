@@ -1,0 +1,162 @@
+"""Wire format: one pydantic model per payload. Every message carries a :class:`Header`.
+
+Units are in the field names (``_m``, ``_rad``, ``_px``, ``_s``). Every float must be finite
+(``allow_inf_nan=False``) and every array has a fixed shape, so a message that validates is
+safe to act on. Images travel as raw bytes with their shape and dtype (:class:`ImageData`).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from common.camera import CameraIntrinsics
+
+N_JOINTS = 6
+
+Vec2 = Annotated[list[float], Field(min_length=2, max_length=2)]
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Joints = Annotated[list[float], Field(min_length=N_JOINTS, max_length=N_JOINTS)]
+Corners2 = Annotated[list[Vec2], Field(min_length=4, max_length=4)]
+Corners3 = Annotated[list[Vec3], Field(min_length=4, max_length=4)]
+Depths4 = Annotated[list[float], Field(min_length=4, max_length=4)]
+Pose16 = Annotated[list[float], Field(min_length=16, max_length=16)]
+
+
+class Message(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Header(Message):
+    """Traceability: ``frame_seq`` is the camera frame a message derives from (-1: none)."""
+
+    seq: int = Field(ge=0, description="per-publisher sequence number")
+    sim_time_s: float = Field(ge=0.0, description="simulation time of the source data")
+    send_time_s: float = Field(ge=0.0, description="wall-clock time at publication (Unix s)")
+    frame_seq: int = Field(-1, ge=-1, description="camera frame this message derives from")
+
+
+class ImageData(Message):
+    """A raw image: C-contiguous ``data`` of ``shape`` and ``dtype``."""
+
+    shape: Annotated[list[int], Field(min_length=2, max_length=3)]
+    dtype: Literal["uint8", "float32"]
+    data: bytes
+
+    @model_validator(mode="after")
+    def _size_matches_shape(self) -> ImageData:
+        if any(d <= 0 or d > 8192 for d in self.shape):
+            raise ValueError(f"image shape {self.shape} out of range (1..8192 per axis)")
+        expected = int(np.prod(self.shape)) * np.dtype(self.dtype).itemsize
+        if len(self.data) != expected:
+            raise ValueError(f"image data has {len(self.data)} bytes, shape needs {expected}")
+        return self
+
+    @classmethod
+    def from_array(cls, array: np.ndarray) -> ImageData:
+        a = np.ascontiguousarray(array)
+        return cls(shape=list(a.shape), dtype=str(a.dtype), data=a.tobytes())
+
+    def to_array(self) -> np.ndarray:
+        """Read-only view on the bytes (no copy)."""
+        return np.frombuffer(self.data, dtype=self.dtype).reshape(self.shape)
+
+
+class RgbdFrame(Message):
+    """Registered RGB (uint8, H×W×3) and depth (float32 metres along the optical axis, H×W;
+    0 = invalid) from the torso camera."""
+
+    header: Header
+    intrinsics: CameraIntrinsics
+    rgb: ImageData
+    depth_m: ImageData
+
+    @model_validator(mode="after")
+    def _consistent(self) -> RgbdFrame:
+        h, w = self.intrinsics.height_px, self.intrinsics.width_px
+        if self.rgb.shape != [h, w, 3] or self.rgb.dtype != "uint8":
+            raise ValueError(
+                f"rgb must be uint8 [{h}, {w}, 3], got {self.rgb.dtype} {self.rgb.shape}"
+            )
+        if self.depth_m.shape != [h, w] or self.depth_m.dtype != "float32":
+            raise ValueError(
+                f"depth_m must be float32 [{h}, {w}], got {self.depth_m.dtype} {self.depth_m.shape}"
+            )
+        return self
+
+
+class JointState(Message):
+    """Encoder readings of joint_1..joint_6, sampled with camera frame ``header.frame_seq``."""
+
+    header: Header
+    position_rad: Joints
+    velocity_rad_s: Joints
+
+
+class MarkerFeatures(Message):
+    """One square marker: four corners in canonical order, their depths and 3-D points."""
+
+    visible: bool
+    corners_px: Corners2
+    depth_m: Depths4
+    points_m: Corners3 = Field(description="corners in the camera optical frame")
+    reason: str = Field("", max_length=200, description="why not visible")
+
+
+class Features(Message):
+    """Output of vision: the hand (green) and target (red) markers of one frame."""
+
+    header: Header
+    intrinsics: CameraIntrinsics
+    hand: MarkerFeatures
+    target: MarkerFeatures
+
+
+class EndEffectorTwist(Message):
+    """Commanded end-effector twist in the arm base frame: ``linear_m_s`` is the velocity of
+    the DH-frame-6 origin, ``angular_rad_s`` the angular velocity."""
+
+    header: Header
+    linear_m_s: Vec3
+    angular_rad_s: Vec3
+    valid: bool = Field(description="False: hold (features missing); the twist is zero")
+    mode: str = Field(max_length=32)
+    error_px_rms: float = Field(ge=0.0, description="RMS of e = s - s* over the 8 coordinates")
+    converged: bool
+
+
+class JointVelocityCommand(Message):
+    """Joint velocity set-points for joint_1..joint_6 (rad/s)."""
+
+    header: Header
+    velocity_rad_s: Joints
+    reason: Literal["track", "hold", "deadman"] = "track"
+
+
+class SimTruth(Message):
+    """Simulator ground truth, for evaluation only: no perception or control may use it."""
+
+    header: Header
+    hand_marker_pose: Pose16 = Field(description="row-major 4×4, base frame")
+    target_marker_pose: Pose16
+    hand_corners_px: Corners2
+    target_corners_px: Corners2
+    ee_position_m: Vec3
+    joint_position_rad: Joints
+
+
+class ServiceStatus(Message):
+    """Answer of ``<prefix>/<service>/status``."""
+
+    service: str
+    pid: int
+    host: str
+    uptime_s: float
+    state: Literal["starting", "running", "degraded", "stopping"]
+    received: dict[str, int] = {}
+    published: dict[str, int] = {}
+    rejected: int = 0
+    last_rejection: str = ""
+    fields: dict[str, Any] = {}

@@ -1,0 +1,248 @@
+"""Zenoh helpers: session configuration and a small node base with one event inbox.
+
+A node declares typed publishers and subscribers; subscriber callbacks (Zenoh threads) only
+decode and validate, then hand the message to the node's single event loop through
+:meth:`Node.next_event`, so service state is touched by one thread only (as in dora-rs nodes).
+A payload that fails validation is counted, its reason kept and logged at a limited rate; it
+never reaches the service and never kills it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+import zenoh
+from pydantic import BaseModel
+
+from common.codec import DEFAULT_MAX_BYTES, MessageError, decode, encode
+from common.keys import Keys
+from common.messages import Header, ServiceStatus
+
+M = TypeVar("M", bound=BaseModel)
+
+ENV_CONFIG = "UMAY_ZENOH_CONFIG"  # path of a Zenoh JSON5 config file: used as is
+ENV_CONNECT = "UMAY_ZENOH_CONNECT"  # comma-separated endpoints to connect to
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # where `umay up` listens and tools connect
+
+log = logging.getLogger("umay")
+
+
+def zenoh_config(
+    config_path: str | None = None,
+    connect: list[str] | None = None,
+    listen: list[str] | None = None,
+) -> zenoh.Config:
+    """Peer mode, loopback only, multicast scouting off, unless a config file says otherwise.
+
+    Precedence: ``config_path`` argument, then ``$UMAY_ZENOH_CONFIG``, then the defaults with
+    ``connect`` (argument, else ``$UMAY_ZENOH_CONNECT``, else :data:`DEFAULT_ENDPOINT`).
+    Peers find each other through gossip over the first connection.
+    """
+    path = config_path or os.environ.get(ENV_CONFIG)
+    if path:
+        return zenoh.Config.from_file(path)
+    if connect is None:
+        env = os.environ.get(ENV_CONNECT, "")
+        connect = [e for e in env.split(",") if e] or [DEFAULT_ENDPOINT]
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("listen/endpoints", json.dumps(listen or ["tcp/127.0.0.1:0"]))
+    cfg.insert_json5("connect/endpoints", json.dumps(connect))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return cfg
+
+
+def open_session(
+    config_path: str | None = None,
+    connect: list[str] | None = None,
+    listen: list[str] | None = None,
+) -> zenoh.Session:
+    return zenoh.open(zenoh_config(config_path, connect, listen))
+
+
+def free_tcp_endpoint() -> str:
+    """A loopback endpoint on a port that is free right now (for tests and the supervisor)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+@dataclass
+class TypedPublisher(Generic[M]):
+    key: str
+    publisher: Any
+    count: int = 0
+
+    def put(self, message: M) -> None:
+        self.publisher.put(encode(message))
+        self.count += 1
+
+
+class Node:
+    """One service: a Zenoh session, typed pub/sub, a status queryable, a liveliness token.
+
+    ``status_fields`` returns the service-specific part of the status answer.
+    """
+
+    def __init__(
+        self,
+        service: str,
+        keys: Keys,
+        session: zenoh.Session,
+        status_fields: Callable[[], dict[str, Any]] = dict,
+    ) -> None:
+        self.service = service
+        self.keys = keys
+        self.session = session
+        self.state = "starting"
+        self._status_fields = status_fields
+        self._started = time.monotonic()
+        self._seq = 0
+        self._cond = threading.Condition()
+        self._inbox: deque[tuple[str, BaseModel]] = deque()
+        self._latest_only: set[str] = set()
+        self._publishers: dict[str, TypedPublisher[Any]] = {}
+        self._subscribers: list[Any] = []
+        self.received: dict[str, int] = {}
+        self.dropped: dict[str, int] = {}
+        self.rejected = 0
+        self.last_rejection = ""
+        self._last_reject_log = 0.0
+        self._closed = False
+        self._queryable = session.declare_queryable(keys.status(service), self._answer_status)
+        self._token = session.liveliness().declare_token(keys.alive(service))
+
+    # --- publishing -------------------------------------------------------------------
+    def publisher(self, key: str, block: bool = True) -> TypedPublisher[Any]:
+        """``block``: back-pressure instead of dropping when the network is congested."""
+        cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+        pub = TypedPublisher(key, self.session.declare_publisher(key, congestion_control=cc))
+        self._publishers[key] = pub
+        return pub
+
+    def header(self, sim_time_s: float, frame_seq: int) -> Header:
+        """A fresh header: per-node sequence number, wall-clock send time."""
+        h = Header(
+            seq=self._seq, sim_time_s=sim_time_s, send_time_s=time.time(), frame_seq=frame_seq
+        )
+        self._seq += 1
+        return h
+
+    # --- subscribing ------------------------------------------------------------------
+    def subscribe(
+        self,
+        key: str,
+        model: type[M],
+        max_bytes: int = DEFAULT_MAX_BYTES,
+        latest_only: bool = False,
+    ) -> None:
+        """Deliver validated ``model`` messages on ``key`` to :meth:`next_event`.
+
+        ``latest_only``: an undelivered older message on the same key is replaced (and counted
+        as dropped), so a slow consumer always works on the newest data.
+        """
+        self.received[key] = 0
+        self.dropped[key] = 0
+        if latest_only:
+            self._latest_only.add(key)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                message = decode(sample.payload.to_bytes(), model, max_bytes)
+            except MessageError as exc:
+                self._reject(key, str(exc))
+                return
+            with self._cond:
+                self.received[key] += 1
+                if key in self._latest_only:
+                    for i, (k, _) in enumerate(self._inbox):
+                        if k == key:
+                            del self._inbox[i]
+                            self.dropped[key] += 1
+                            break
+                self._inbox.append((key, message))
+                self._cond.notify()
+
+        self._subscribers.append(self.session.declare_subscriber(key, on_sample))
+
+    def next_event(self, timeout_s: float | None) -> tuple[str, Any] | None:
+        """The next ``(key, message)``, or None after ``timeout_s`` or when closed."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        with self._cond:
+            while not self._inbox and not self._closed:
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    return None
+                self._cond.wait(remaining)
+            return self._inbox.popleft() if self._inbox else None
+
+    def _reject(self, key: str, reason: str) -> None:
+        with self._cond:
+            self.rejected += 1
+            self.last_rejection = f"{key}: {reason}"
+        now = time.monotonic()
+        if now - self._last_reject_log > 1.0:  # rate-limited: a flood must not flood the log
+            self._last_reject_log = now
+            log.warning(
+                "%s rejected a message (%d so far): %s", self.service, self.rejected, reason
+            )
+
+    # --- status -----------------------------------------------------------------------
+    def status(self) -> ServiceStatus:
+        return ServiceStatus(
+            service=self.service,
+            pid=os.getpid(),
+            host=socket.gethostname(),
+            uptime_s=time.monotonic() - self._started,
+            state=self.state,  # type: ignore[arg-type]
+            received=dict(self.received),
+            published={k: p.count for k, p in self._publishers.items()},
+            rejected=self.rejected,
+            last_rejection=self.last_rejection,
+            fields={"dropped": dict(self.dropped), **self._status_fields()},
+        )
+
+    def _answer_status(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(self.keys.status(self.service), encode(self.status()))
+        except Exception:  # a status reply must never take the service down
+            log.exception("%s: status reply failed", self.service)
+
+    def close(self) -> None:
+        self.state = "stopping"
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        for s in self._subscribers:
+            s.undeclare()
+        self._queryable.undeclare()
+        self._token.undeclare()
+        self.session.close()
+
+
+def query_status(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -> list[ServiceStatus]:
+    """Ask every service under ``keys.prefix`` for its status."""
+    out = []
+    for reply in session.get(keys.all_status, timeout=timeout_s):
+        if reply.ok is not None:
+            try:
+                out.append(decode(reply.ok.payload.to_bytes(), ServiceStatus, DEFAULT_MAX_BYTES))
+            except MessageError as exc:
+                log.warning("bad status reply: %s", exc)
+    return out
+
+
+def setup_logging(service: str) -> None:
+    logging.basicConfig(
+        level=os.environ.get("UMAY_LOG_LEVEL", "INFO"),
+        format=f"%(asctime)s {service} %(levelname)s %(message)s",
+    )

@@ -1,0 +1,108 @@
+"""URDF of the UMay robot (torso + right arm + hand), generated from the DH table.
+
+Each arm link frame *is* the DH frame of the same index: the modified DH transform
+``Rx(α)·Tx(a)·Rz(θ)·Tz(d)`` equals ``[Rx(α)·Tx(a)·Tz(d)]·Rz(θ)`` (rotation and translation
+along z commute), so joint_i's fixed origin is ``Rx(α)·Tx(a)·Tz(d)`` and it turns about its z.
+``base_link`` is DH frame 0 and ``ee_link`` is DH frame 6.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from common import kinematics as kin
+
+GREY = "0.75 0.75 0.78 1"
+DARK = "0.35 0.37 0.42 1"
+SKIN = "0.92 0.90 0.86 1"
+GREEN = "0.10 0.75 0.15 1"
+
+
+def _origin(xyz: np.ndarray, rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> str:
+    x, y, z = (float(v) for v in xyz)
+    return f'<origin xyz="{x:.9f} {y:.9f} {z:.9f}" rpy="{rpy[0]:.9f} {rpy[1]:.9f} {rpy[2]:.9f}"/>'
+
+
+def _material(rgba: str) -> str:
+    name = "c" + rgba.replace(" ", "_")
+    return f'<material name="{name}"><color rgba="{rgba}"/></material>'
+
+
+def _box_visual(size: tuple[float, float, float], xyz: np.ndarray, rgba: str, collide: bool) -> str:
+    geom = f'<geometry><box size="{size[0]} {size[1]} {size[2]}"/></geometry>'
+    vis = f"<visual>{_origin(xyz)}{geom}{_material(rgba)}</visual>"
+    col = f"<collision>{_origin(xyz)}{geom}</collision>" if collide else ""
+    return vis + col
+
+
+def _capsule_between(p0: np.ndarray, p1: np.ndarray, radius: float, rgba: str) -> str:
+    """A cylinder visual/collision from p0 to p1 (link frame), for upper arm and forearm."""
+    d = p1 - p0
+    length = float(np.linalg.norm(d))
+    if length < 1e-6:
+        return ""
+    mid = (p0 + p1) / 2
+    z = d / length
+    # rpy that maps the cylinder's z axis onto d: yaw about z, then pitch about y.
+    pitch = float(np.arccos(np.clip(z[2], -1.0, 1.0)))
+    yaw = float(np.arctan2(z[1], z[0]))
+    geom = f'<geometry><cylinder radius="{radius}" length="{length:.9f}"/></geometry>'
+    o = _origin(mid, (0.0, pitch, yaw))
+    return f"<visual>{o}{geom}{_material(rgba)}</visual><collision>{o}{geom}</collision>"
+
+
+def _inertial(mass: float) -> str:
+    return (
+        f'<inertial><mass value="{mass}"/>'
+        '<inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.001"/></inertial>'
+    )
+
+
+def robot_urdf(marker_size_m: float) -> str:
+    """The URDF text. Torso geometry is in the base frame (x forward, y up, z right)."""
+    dh = kin.UMAY_DH
+    links: list[str] = []
+    joints: list[str] = []
+    # Torso: the right shoulder (DH frame 0) sits at the torso's upper right corner.
+    torso = _box_visual((0.14, 0.42, 0.26), np.array([-0.06, -0.17, -0.13]), DARK, False)
+    shoulder = _box_visual((0.05, 0.04, 0.05), np.array([0.0, 0.0, 0.0]), GREY, False)
+    links.append(f'<link name="base_link">{_inertial(0.0)}{torso}{shoulder}</link>')
+
+    # Where the next joint's origin is, expressed in link i's frame (for drawing the limbs).
+    names = ["link_1", "link_2", "link_3", "link_4", "link_5", "ee_link"]
+    for i, row in enumerate(dh):
+        parent = "base_link" if i == 0 else names[i - 1]
+        xyz = kin.rot_x(row.alpha_prev_rad) @ np.array([row.a_prev_m, 0.0, row.d_m])
+        lower, upper = kin.JOINT_LOWER_RAD[i], kin.JOINT_UPPER_RAD[i]
+        vel = kin.JOINT_VELOCITY_LIMIT_RAD_S[i]
+        joints.append(
+            f'<joint name="joint_{i + 1}" type="revolute"><parent link="{parent}"/>'
+            f'<child link="{names[i]}"/>{_origin(xyz, (row.alpha_prev_rad, 0.0, 0.0))}'
+            f'<axis xyz="0 0 1"/><limit lower="{lower:.9f}" upper="{upper:.9f}" effort="100" '
+            f'velocity="{vel}"/></joint>'
+        )
+    # Limb shapes: each link draws a segment to the next joint's origin.
+    shapes = {name: "" for name in names}
+    for i in range(len(dh) - 1):
+        nxt = dh[i + 1]
+        p_next = kin.rot_x(nxt.alpha_prev_rad) @ np.array([nxt.a_prev_m, 0.0, nxt.d_m])
+        if np.linalg.norm(p_next) > 0.03:
+            shapes[names[i]] += _capsule_between(np.zeros(3), p_next, 0.022, GREY)
+    # The upper arm: link_2 → joint_3 origin (0.264 m); forearm: link_4 → joint_5 (0.212 m).
+    # The hand: a box on ee_link, the green marker on its back (visual only).
+    hand_centre = np.array([0.0, kin.HAND_OFFSET_M + kin.HAND_LENGTH_M / 2, 0.0])
+    shapes["ee_link"] += _box_visual(
+        (kin.HAND_THICKNESS_M, kin.HAND_LENGTH_M, kin.HAND_WIDTH_M), hand_centre, SKIN, True
+    )
+    marker = kin.hand_marker_in_ee()
+    marker_centre = marker[:3, 3] - marker[:3, 2] * kin.MARKER_THICKNESS_M / 2
+    geom = (
+        f'<geometry><box size="{kin.MARKER_THICKNESS_M} {marker_size_m} {marker_size_m}"/>'
+        "</geometry>"
+    )
+    # The marker box is axis-aligned in ee_link: thin along x6 (its normal), square in y6-z6.
+    shapes["ee_link"] += f"<visual>{_origin(marker_centre)}{geom}{_material(GREEN)}</visual>"
+    for name in names:
+        links.append(f'<link name="{name}">{_inertial(0.3)}{shapes[name]}</link>')
+    body = "\n".join(links + joints)
+    return f'<?xml version="1.0"?>\n<robot name="umay">\n{body}\n</robot>\n'
