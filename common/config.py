@@ -50,6 +50,12 @@ class RobotConfig(_Strict):
 class TargetConfig(_Strict):
     position: Vec3 = Field(description="red marker centre in the arm base frame (m)")
     yaw: float = Field(0.0, ge=-math.pi, le=math.pi, description="about the vertical (rad)")
+    approach_height_m: float = Field(
+        0.03,
+        ge=0.0,
+        le=0.2,
+        description="the hand's marker stops this far above the red one, along its normal (m)",
+    )
 
 
 class MarkerConfig(_Strict):

@@ -228,6 +228,11 @@ def marker_corners(pose: FloatArray, size_m: float) -> FloatArray:
 BASE_UP = np.array([0.0, 1.0, 0.0])  # the vertical, in the base frame
 
 
+def goal_marker_pose(target_pose: FloatArray, approach_height_m: float) -> FloatArray:
+    """Where the green marker must end: the red marker's frame raised along its normal."""
+    return target_pose @ homogeneous(np.eye(3), np.array([0.0, 0.0, approach_height_m]))
+
+
 def target_marker_pose(position_m: FloatArray, yaw_rad: float) -> FloatArray:
     """Red marker frame: centre of its visible face at ``position_m``, normal (z) up.
 

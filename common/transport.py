@@ -119,7 +119,12 @@ class Node:
         self._last_reject_log = 0.0
         self._closed = False
         self._queryable = session.declare_queryable(keys.status(service), self._answer_status)
-        self._token = session.liveliness().declare_token(keys.alive(service))
+        self._token: Any = None
+
+    def ready(self) -> None:
+        """Subscriptions are in place: announce liveliness and report ``running``."""
+        self.state = "running"
+        self._token = self.session.liveliness().declare_token(self.keys.alive(self.service))
 
     # --- publishing -------------------------------------------------------------------
     def publisher(self, key: str, block: bool = True) -> TypedPublisher[Any]:
@@ -225,7 +230,8 @@ class Node:
         for s in self._subscribers:
             s.undeclare()
         self._queryable.undeclare()
-        self._token.undeclare()
+        if self._token is not None:
+            self._token.undeclare()
         self.session.close()
 
 
@@ -246,3 +252,12 @@ def setup_logging(service: str) -> None:
         level=os.environ.get("UMAY_LOG_LEVEL", "INFO"),
         format=f"%(asctime)s {service} %(levelname)s %(message)s",
     )
+
+
+def alive_services(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -> set[str]:
+    """Services whose liveliness token is present under ``keys.prefix``."""
+    names = set()
+    for reply in session.liveliness().get(keys.all_alive, timeout=timeout_s):
+        if reply.ok is not None:
+            names.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+    return names

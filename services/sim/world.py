@@ -25,6 +25,7 @@ TABLE_TOP_Y_M = -0.40  # table top height in the base frame (y up)
 TABLE_COLOUR = (0.86, 0.84, 0.80, 1.0)
 FLOOR_COLOUR = (0.55, 0.57, 0.60, 1.0)
 RED = (0.85, 0.08, 0.08, 1.0)
+OBJECT_COLOUR = (0.45, 0.55, 0.70, 1.0)  # a blue-grey toy block under the red marker
 MOTOR_FORCE_N_M = 200.0
 
 
@@ -155,8 +156,18 @@ class World:
         self._box((1.5, 0.01, 1.5), np.array([0.3, -0.76, 0.0]), FLOOR_COLOUR, True)
         top = np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0])
         self._box((0.28, 0.02, 0.45), top, TABLE_COLOUR, True)
-        # The target: a thin red square, visual only, so the hand can reach it.
+        # The object: a box from the table top up to the red marker, which lies on its top face.
         size = self.scenario.marker.size_m
+        top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M
+        height = top_y - TABLE_TOP_Y_M
+        if height > 0.005:
+            side = size * 1.25
+            centre_obj = np.array(
+                [self.target_pose[0, 3], TABLE_TOP_Y_M + height / 2, self.target_pose[2, 3]]
+            )
+            quat_obj = self.client.getQuaternionFromEuler([0.0, self.scenario.target.yaw, 0.0])
+            self._box((side / 2, height / 2, side / 2), centre_obj, OBJECT_COLOUR, True, quat_obj)
+        # The red square itself: visual only.
         centre = self.target_pose[:3, 3] - self.target_pose[:3, 2] * kin.MARKER_THICKNESS_M / 2
         quat = self.client.getQuaternionFromEuler([0.0, self.scenario.target.yaw, 0.0])
         self.target_body = self._box(

@@ -1,0 +1,65 @@
+"""What every service process does the same way: arguments, logging, signals, session."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import tomllib
+
+from common.config import Scenario, ScenarioError, load_scenario
+from common.keys import Keys, default_prefix
+from common.transport import open_session, setup_logging
+
+
+def service_arguments(service: str, argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog=f"umay service {service}")
+    parser.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
+    parser.add_argument("--prefix", default=None, help="Zenoh key prefix (default: umay/<id>)")
+    parser.add_argument("--connect", default=None, help="Zenoh endpoint(s), comma-separated")
+    parser.add_argument("--zenoh-config", default=None, help="Zenoh JSON5 config file")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="TABLE.FIELD=VALUE",
+        help="override a scenario field, VALUE in TOML syntax (repeatable)",
+    )
+    return parser.parse_args(argv)
+
+
+def parse_overrides(items: list[str]) -> dict[str, dict]:
+    """``["run.clock='realtime'", "controller.gain=2"]`` → ``{"run": {"clock": ...}, ...}``."""
+    out: dict[str, dict] = {}
+    for item in items:
+        path, sep, value = item.partition("=")
+        table, dot, name = path.strip().partition(".")
+        if not sep or not dot or not name:
+            raise ScenarioError(f"--set {item!r}: expected TABLE.FIELD=VALUE")
+        try:
+            parsed = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            parsed = value  # a bare word such as realtime is taken as a string
+        out.setdefault(table, {})[name] = parsed
+    return out
+
+
+class ServiceContext:
+    """Parsed arguments, validated scenario, keys, an open Zenoh session and a stop event that
+    SIGINT/SIGTERM set."""
+
+    def __init__(self, service: str, argv: list[str] | None) -> None:
+        args = service_arguments(service, argv)
+        setup_logging(service)
+        try:
+            self.scenario: Scenario = load_scenario(args.scenario, parse_overrides(args.set))
+        except ScenarioError as exc:
+            print(exc, file=sys.stderr)
+            raise SystemExit(2) from exc
+        self.keys = Keys(args.prefix or default_prefix())
+        connect = args.connect.split(",") if args.connect else None
+        self.session = open_session(args.zenoh_config, connect)
+        self.stop = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: self.stop.set())

@@ -1,0 +1,180 @@
+"""The ``umay`` command: run, up, service, status."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from common.config import ClockMode, JacobianMode, ScenarioError
+from common.keys import SERVICES, Keys, default_prefix
+from common.transport import alive_services, open_session, query_status, setup_logging
+
+EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def _scenario_options(p: argparse.ArgumentParser, clock_default: str) -> None:
+    p.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
+    p.add_argument("--mode", default=None, help="Jacobian strategy: constant|dynamic|pmj|mpj")
+    p.add_argument("--clock", default=clock_default, help="lockstep|realtime")
+    p.add_argument("--prefix", default=None, help="Zenoh key prefix (default: umay/<id>)")
+    p.add_argument("--listen", default=None, help="Zenoh endpoint the services connect to")
+    p.add_argument("--log-dir", default="out/logs", help="per-service log files")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+
+
+def _overrides(args: argparse.Namespace) -> list[str]:
+    """Command-line options as scenario overrides, checked here so the message names them."""
+    out = list(args.set)
+    if args.mode is not None:
+        if args.mode not in {m.value for m in JacobianMode}:
+            choices = ", ".join(m.value for m in JacobianMode)
+            raise ScenarioError(f"--mode: unknown mode {args.mode!r} (choose from {choices})")
+        out.append(f"controller.mode='{args.mode}'")
+    if args.clock is not None:
+        if args.clock not in {c.value for c in ClockMode}:
+            raise ScenarioError(f"--clock: unknown clock {args.clock!r} (lockstep or realtime)")
+        out.append(f"run.clock='{args.clock}'")
+    if getattr(args, "timeout", None) is not None:
+        out.append(f"run.timeout_s={float(args.timeout)}")
+    return out
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from deploy.run import format_result, prepare, run_once, write_result
+
+    try:
+        overrides = _overrides(args)
+        scenario = prepare(args.scenario, overrides)
+    except ScenarioError as exc:
+        print(f"umay run: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    result = run_once(
+        args.scenario,
+        scenario,
+        overrides,
+        args.prefix or default_prefix(),
+        Path(args.log_dir),
+        listen=args.listen,
+        quiet=args.quiet,
+    )
+    print(format_result(result))
+    if args.result:
+        write_result(result, args.result)
+    return EXIT_CONVERGED if result.converged else EXIT_NOT_CONVERGED
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    from deploy.run import default_listen_endpoint, prepare
+    from deploy.supervisor import Supervisor
+
+    try:
+        overrides = _overrides(args)
+        prepare(args.scenario, overrides)
+    except ScenarioError as exc:
+        print(f"umay up: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    endpoint = args.listen or default_listen_endpoint()
+    session = open_session(connect=[], listen=[endpoint])
+    prefix = args.prefix or default_prefix()
+    sup = Supervisor(args.scenario, prefix, endpoint, Path(args.log_dir), overrides)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    sup.start()
+    print(f"umay up: services running under {prefix}, Zenoh at {endpoint}; Ctrl-C stops them")
+    backoff_s = 1.0
+    try:
+        while not stop.wait(0.2):
+            for child in sup.exited():
+                print(
+                    f"umay up: {child.name} exited ({child.exit_codes[-1]}); restarting",
+                    file=sys.stderr,
+                )
+                time.sleep(min(backoff_s * child.restarts, 5.0))
+                sup.restart(child)
+    finally:
+        sup.stop()
+        session.close()
+    return 0
+
+
+def cmd_service(args: argparse.Namespace) -> int:
+    module = importlib.import_module(f"services.{args.name}.node")
+    return int(module.main(args.rest))
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    keys = Keys(args.prefix or default_prefix())
+    connect = args.connect.split(",") if args.connect else None
+    session = open_session(connect=connect)
+    try:
+        time.sleep(0.3)  # let the session connect and learn the peers
+        statuses = {s.service: s for s in query_status(session, keys, args.timeout)}
+        alive = alive_services(session, keys, args.timeout)
+    finally:
+        session.close()
+    names = sorted(set(SERVICES) | set(statuses) | alive)
+    if args.json:
+        out = {
+            n: {
+                "alive": n in alive,
+                "status": statuses[n].model_dump() if n in statuses else None,
+            }
+            for n in names
+        }
+        print(json.dumps(out, indent=2, default=str))
+        return 0
+    print(f"{'service':<11} {'alive':<6} {'state':<9} {'pid':>7} {'uptime s':>9}  fields")
+    for n in names:
+        s = statuses.get(n)
+        if s is None:
+            print(f"{n:<11} {'yes' if n in alive else 'no':<6} {'no answer':<9}")
+            continue
+        fields = ", ".join(f"{k}={v}" for k, v in s.fields.items() if k != "dropped")
+        live = "yes" if n in alive else "LOST"
+        print(f"{n:<11} {live:<6} {s.state:<9} {s.pid:>7} {s.uptime_s:>9.1f}  {fields}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="umay", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("run", help="bounded run: servo until converged or timeout, then report")
+    _scenario_options(p, clock_default=None)
+    p.add_argument("--timeout", type=float, default=None, help="simulated seconds")
+    p.add_argument("--result", default=None, help="write the result JSON here")
+    p.add_argument("--quiet", action="store_true", help="no live progress line")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("up", help="launch the four services and keep them running")
+    _scenario_options(p, clock_default="realtime")
+    p.set_defaults(func=cmd_up)
+
+    p = sub.add_parser("service", help="run one service alone")
+    p.add_argument("name", choices=SERVICES)
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="options of the service")
+    p.set_defaults(func=cmd_service)
+
+    p = sub.add_parser("status", help="ask every service for its status over Zenoh")
+    p.add_argument("--prefix", default=None)
+    p.add_argument("--connect", default=None, help="Zenoh endpoint(s) of the running system")
+    p.add_argument("--timeout", type=float, default=1.0)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_status)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    setup_logging(os.path.basename(sys.argv[0]) or "umay")
+    logging.getLogger().setLevel(os.environ.get("UMAY_LOG_LEVEL", "WARNING"))
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))

@@ -1,0 +1,60 @@
+"""Pre-launch check: can the hand put its green marker on the red target, seen by the camera?"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from common import kinematics as kin
+from common.camera import look_at_rotation, project
+from common.config import Scenario, ScenarioError
+
+IMAGE_MARGIN_PX = 8.0
+
+
+def marker_in_image(corners_base: np.ndarray, scenario: Scenario) -> bool:
+    cam = scenario.camera
+    t_base_cam = kin.homogeneous(
+        look_at_rotation(np.array(cam.position), np.array(cam.look_at), kin.BASE_UP),
+        np.array(cam.position),
+    )
+    cam_pts = (np.linalg.inv(t_base_cam) @ np.column_stack([corners_base, np.ones(4)]).T).T
+    if np.any(cam_pts[:, 2] <= cam.near_m):
+        return False
+    k = cam.intrinsics()
+    uv = project(cam_pts[:, :3], k)
+    return bool(
+        np.all(uv >= IMAGE_MARGIN_PX)
+        and np.all(uv[:, 0] <= k.width_px - 1 - IMAGE_MARGIN_PX)
+        and np.all(uv[:, 1] <= k.height_px - 1 - IMAGE_MARGIN_PX)
+    )
+
+
+def check_scenario(scenario: Scenario, seeds: int = 12) -> np.ndarray:
+    """Raise :class:`ScenarioError` naming the field if the scenario cannot work; return a joint
+    configuration that reaches the target."""
+    q0 = np.array(scenario.robot.q0)
+    outside = np.flatnonzero((q0 < kin.JOINT_LOWER_RAD) | (q0 > kin.JOINT_UPPER_RAD))
+    if outside.size:
+        joints = ", ".join(f"joint_{i + 1}" for i in outside)
+        raise ScenarioError(f"robot.q0: {joints} outside the joint limits")
+    size = scenario.marker.size_m
+    target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
+    goal_pose = kin.goal_marker_pose(target, scenario.target.approach_height_m)
+    if not marker_in_image(kin.marker_corners(target, size), scenario):
+        raise ScenarioError("target.position: the target marker is not fully in the camera image")
+    start = kin.forward_kinematics(q0) @ kin.hand_marker_in_ee()
+    if not marker_in_image(kin.marker_corners(start, size), scenario):
+        raise ScenarioError("robot.q0: the hand marker is not fully in the camera image at start")
+    rng = np.random.default_rng(0)
+    tool = kin.hand_marker_in_ee()
+    for i in range(seeds):
+        seed = q0 if i == 0 else rng.uniform(kin.JOINT_LOWER_RAD, kin.JOINT_UPPER_RAD)
+        for k in range(4):  # the square looks the same turned by 90°
+            goal = goal_pose @ kin.homogeneous(kin.rot_z(k * np.pi / 2), np.zeros(3))
+            q, pos_err, rot_err = kin.inverse_kinematics(goal, seed, tool, iterations=100)
+            if pos_err < 1e-4 and rot_err < 1e-3:
+                return q
+    raise ScenarioError(
+        "target.position: the hand cannot place its marker on the target "
+        "(out of reach or beyond the joint limits)"
+    )

@@ -1,0 +1,5 @@
+import sys
+
+from services.actuation.node import main
+
+sys.exit(main())

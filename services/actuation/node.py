@@ -1,0 +1,103 @@
+"""Actuation service: twist + joint encoders → joint velocity commands, limits, deadman.
+
+The deadman runs on the wall clock: without a fresh valid twist for ``deadman_timeout_s`` it
+commands zero velocity (again every ``deadman_timeout_s`` while it lasts).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from common import kinematics as kin
+from common.messages import EndEffectorTwist, JointState, JointVelocityCommand
+from common.pairing import FramePairer
+from common.runtime import ServiceContext
+from common.transport import Node
+from services.actuation.inverse import deadman_expired, twist_to_joint_velocities
+
+
+class ActuationService:
+    def __init__(self, ctx: ServiceContext) -> None:
+        self.ctx = ctx
+        self.config = ctx.scenario.actuation
+        self.node = Node("actuation", ctx.keys, ctx.session, self.status_fields)
+        self.pub = self.node.publisher(ctx.keys.joint_command)
+        self.node.subscribe(ctx.keys.twist, EndEffectorTwist)
+        self.node.subscribe(ctx.keys.joint_state, JointState)
+        self.pairer: FramePairer[EndEffectorTwist, JointState] = FramePairer()
+        self.last_valid_twist_s: float | None = None
+        self.last_deadman_s = 0.0
+        self.deadman_stops = 0
+        self.saturated: list[int] = []
+        self.manipulability = float("nan")
+
+    def status_fields(self) -> dict:
+        return {
+            "deadman": deadman_expired(
+                time.monotonic(), self.last_valid_twist_s, self.config.deadman_timeout_s
+            ),
+            "deadman_stops": self.deadman_stops,
+            "saturated_joints": self.saturated,
+            "manipulability": self.manipulability,
+        }
+
+    def publish(self, velocity: np.ndarray, reason: str, sim_time_s: float, frame_seq: int) -> None:
+        self.pub.put(
+            JointVelocityCommand(
+                header=self.node.header(sim_time_s, frame_seq),
+                velocity_rad_s=velocity.tolist(),
+                reason=reason,  # type: ignore[arg-type]
+            )
+        )
+
+    def on_pair(self, twist: EndEffectorTwist, joints: JointState) -> None:
+        t, seq = twist.header.sim_time_s, twist.header.frame_seq
+        if not twist.valid:
+            self.publish(np.zeros(kin.N_JOINTS), "hold", t, seq)
+            return
+        self.last_valid_twist_s = time.monotonic()
+        cmd = twist_to_joint_velocities(
+            np.array(twist.linear_m_s + twist.angular_rad_s),
+            np.array(joints.position_rad),
+            self.config.damping,
+            self.config.manipulability_threshold,
+        )
+        self.saturated, self.manipulability = cmd.saturated, cmd.manipulability
+        self.publish(cmd.velocity_rad_s, "track", t, seq)
+
+    def check_deadman(self) -> None:
+        now = time.monotonic()
+        timeout = self.config.deadman_timeout_s
+        if self.last_valid_twist_s is None:
+            return  # nothing commanded yet: the motors are at rest
+        if deadman_expired(now, self.last_valid_twist_s, timeout) and (
+            now - self.last_deadman_s > timeout
+        ):
+            self.last_deadman_s = now
+            self.deadman_stops += 1
+            self.publish(np.zeros(kin.N_JOINTS), "deadman", 0.0, -1)
+
+    def run(self) -> None:
+        self.node.ready()
+        try:
+            while not self.ctx.stop.is_set():
+                event = self.node.next_event(0.02)
+                if event is not None:
+                    key, msg = event
+                    seq = msg.header.frame_seq
+                    if key == self.ctx.keys.twist:
+                        pair = self.pairer.add_a(seq, msg)
+                    else:
+                        pair = self.pairer.add_b(seq, msg)
+                    if pair is not None:
+                        self.on_pair(*pair)
+                self.check_deadman()
+        finally:
+            self.node.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ActuationService(ServiceContext("actuation", argv)).run()
+    return 0

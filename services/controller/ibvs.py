@@ -1,0 +1,205 @@
+"""Eye-to-hand IBVS: features, interaction matrix and control law kept apart (as in ViSP).
+
+Sign convention (Chaumette & Hutchinson, Part II). The classic point interaction matrix ``L``
+relates feature motion to the twist of a *moving camera*. Here the camera is fixed and the
+points ride on the hand: a hand twist ``(v, ω)`` expressed in the camera frame and referenced at
+the camera origin moves a point by ``Ṗ = v + ω × P``, which is the opposite of a camera moving
+with ``(v, ω)``. Hence ``ṡ = -L · (v, ω)`` and imposing ``ė = -λ e`` gives ``(v, ω) = +λ L⁺ e``.
+The four strategies of the thesis only differ in the matrix that replaces ``L⁺``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from common.camera import CameraIntrinsics, pixel_to_normalized, project
+from common.config import ControllerConfig, JacobianMode
+from common.kinematics import skew
+
+FloatArray = NDArray[np.float64]
+
+
+def interaction_matrix(xy: FloatArray, depth_m: FloatArray) -> FloatArray:
+    """Stacked 2N×6 point interaction matrix at normalized points ``xy`` (N×2), depths Z (N,).
+
+    Row pair per point (thesis eq. 5.30):
+    ``[-1/Z, 0, x/Z, x·y, -(1+x²), y]`` and ``[0, -1/Z, y/Z, 1+y², -x·y, -x]``.
+    """
+    x, y = xy[:, 0], xy[:, 1]
+    inv_z = 1.0 / np.asarray(depth_m, dtype=float)
+    zeros = np.zeros_like(x)
+    rows_u = np.column_stack([-inv_z, zeros, x * inv_z, x * y, -(1.0 + x * x), y])
+    rows_v = np.column_stack([zeros, -inv_z, y * inv_z, 1.0 + y * y, -x * y, -x])
+    out = np.empty((2 * len(x), 6))
+    out[0::2] = rows_u
+    out[1::2] = rows_v
+    return out
+
+
+def feature_error_px_rms(s_px: FloatArray, s_star_px: FloatArray) -> float:
+    """RMS over the 2N pixel coordinates of ``s - s*``."""
+    return float(np.sqrt(np.mean((np.asarray(s_px) - np.asarray(s_star_px)) ** 2)))
+
+
+def control_matrix(
+    mode: JacobianMode, l_current: FloatArray, l_desired: FloatArray, l_constant: FloatArray
+) -> FloatArray:
+    """The 6×2N matrix ``M`` of ``(v, ω) = λ · M · e`` for each strategy.
+
+    - constant: ``L_c⁺`` (frozen at the desired features with one depth taken at the start);
+    - dynamic:  ``L_n⁺`` (current features, current per-point depths);
+    - pmj:      ``((L_n + L*)/2)⁺``  (Malis: pseudo-inverse of the mean);
+    - mpj:      ``(L_n⁺ + L*⁺)/2``   (mean of the pseudo-inverses).
+    """
+    if mode is JacobianMode.CONSTANT:
+        return np.linalg.pinv(l_constant)
+    if mode is JacobianMode.DYNAMIC:
+        return np.linalg.pinv(l_current)
+    if mode is JacobianMode.PMJ:
+        return np.linalg.pinv(0.5 * (l_current + l_desired))
+    if mode is JacobianMode.MPJ:
+        return 0.5 * (np.linalg.pinv(l_current) + np.linalg.pinv(l_desired))
+    raise ValueError(f"unknown Jacobian mode {mode!r}")
+
+
+def camera_twist_to_base_ee(
+    twist_cam: FloatArray, t_base_cam: FloatArray, p_ee_base_m: FloatArray
+) -> FloatArray:
+    """Carry a hand twist from the camera frame (referenced at the camera origin) to the base
+    frame, referenced at the end-effector origin: ``ω_b = R ω``, ``v_e = R v + ω_b × (p_e - t)``.
+    """
+    rot, origin = t_base_cam[:3, :3], t_base_cam[:3, 3]
+    omega_b = rot @ twist_cam[3:]
+    v_e = rot @ twist_cam[:3] + np.cross(omega_b, p_ee_base_m - origin)
+    return np.concatenate([v_e, omega_b])
+
+
+def base_ee_twist_to_camera(
+    twist_base_ee: FloatArray, t_base_cam: FloatArray, p_ee_base_m: FloatArray
+) -> FloatArray:
+    """Inverse of :func:`camera_twist_to_base_ee` (used to predict feature motion)."""
+    rot, origin = t_base_cam[:3, :3], t_base_cam[:3, 3]
+    omega_b = twist_base_ee[3:]
+    v_origin = twist_base_ee[:3] + skew(omega_b) @ (origin - p_ee_base_m)
+    return np.concatenate([rot.T @ v_origin, rot.T @ omega_b])
+
+
+def clamp_twist(twist: FloatArray, max_linear_m_s: float, max_angular_rad_s: float) -> FloatArray:
+    """Scale the whole twist down (direction kept) so both norms respect their limits."""
+    scale = 1.0
+    lin, ang = np.linalg.norm(twist[:3]), np.linalg.norm(twist[3:])
+    if lin > max_linear_m_s:
+        scale = min(scale, max_linear_m_s / lin)
+    if ang > max_angular_rad_s:
+        scale = min(scale, max_angular_rad_s / ang)
+    return twist * scale
+
+
+@dataclass(frozen=True)
+class MarkerObservation:
+    """What the controller needs of one marker: pixel corners (4×2), depths (4,) and the
+    corners' 3-D points in the camera frame (4×3)."""
+
+    visible: bool
+    corners_px: FloatArray
+    depth_m: FloatArray
+    points_m: FloatArray
+
+
+def desired_observation(
+    target: MarkerObservation, approach_height_m: float, k: CameraIntrinsics
+) -> MarkerObservation:
+    """Desired features s*: the red marker's measured 3-D corners raised by the approach
+    height along the marker's normal (pointing towards the camera), then projected.
+
+    The depth camera makes this possible: the hand stops just above the object instead of
+    having to pass through it; with a zero height s* is the red square itself.
+    """
+    if approach_height_m == 0.0:
+        return target
+    p = target.points_m
+    normal = np.cross(p[2] - p[0], p[3] - p[1])
+    normal /= np.linalg.norm(normal)
+    if normal @ p.mean(axis=0) > 0:  # make it face the camera (at the origin)
+        normal = -normal
+    raised = p + approach_height_m * normal
+    return MarkerObservation(True, project(raised, k), raised[:, 2].copy(), raised)
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    twist_base_ee: FloatArray  # (v, ω) in the base frame at the end-effector origin
+    valid: bool
+    error_px_rms: float
+    converged: bool
+    target_remembered: bool = False  # s* from memory: the hand hides the target
+
+
+# The hand counts as hiding the target when its marker's centre is within this many target
+# diagonals of where the target was last seen (the hand box and forearm are larger than the marker).
+OCCLUSION_RADIUS_DIAGONALS = 2.0
+
+
+def hand_hides_target(hand: MarkerObservation, last_target: MarkerObservation) -> bool:
+    """In eye-to-hand servoing the hand must end up in front of the target, hiding it."""
+    if not hand.visible:
+        return False
+    diagonal = np.linalg.norm(last_target.corners_px[0] - last_target.corners_px[2])
+    gap = np.linalg.norm(hand.corners_px.mean(axis=0) - last_target.corners_px.mean(axis=0))
+    return bool(gap < OCCLUSION_RADIUS_DIAGONALS * diagonal)
+
+
+@dataclass
+class IbvsController:
+    """Per-frame IBVS step.
+
+    State: the frozen constant Jacobian, the convergence counter, and the last fully seen target.
+    As the hand closes in it necessarily hides the target from the fixed camera; the desired
+    features are then taken from that memory. A target that vanishes with the hand far from it
+    is lost: the controller holds (zero twist).
+    """
+
+    config: ControllerConfig
+    t_base_cam: FloatArray  # assumed camera pose (calibration), never the simulator's truth
+    approach_height_m: float = 0.0
+    l_constant: FloatArray | None = None
+    frames_below: int = 0
+    last_target: MarkerObservation | None = None
+    _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
+
+    def step(
+        self,
+        hand: MarkerObservation,
+        target: MarkerObservation,
+        k: CameraIntrinsics,
+        p_ee_base_m: FloatArray,
+    ) -> ControlOutput:
+        remembered = False
+        if target.visible:
+            self.last_target = target
+        elif self.last_target is not None and hand_hides_target(hand, self.last_target):
+            target, remembered = self.last_target, True
+        if not (hand.visible and target.visible):
+            self.frames_below = 0
+            return ControlOutput(self._zero.copy(), False, 0.0, False)
+        target = desired_observation(target, self.approach_height_m, k)
+        s = pixel_to_normalized(hand.corners_px, k)
+        s_star = pixel_to_normalized(target.corners_px, k)
+        error = (s - s_star).reshape(-1)
+        l_current = interaction_matrix(s, hand.depth_m)
+        l_desired = interaction_matrix(s_star, target.depth_m)
+        if self.l_constant is None:
+            # One depth for all points, taken once at the start: the target's mean depth.
+            z0 = float(np.mean(target.depth_m))
+            self.l_constant = interaction_matrix(s_star, np.full(len(s_star), z0))
+        m = control_matrix(self.config.mode, l_current, l_desired, self.l_constant)
+        twist_cam = self.config.gain * (m @ error)
+        twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
+        twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
+        err_px = feature_error_px_rms(hand.corners_px, target.corners_px)
+        self.frames_below = self.frames_below + 1 if err_px < self.config.converged_px else 0
+        converged = self.frames_below >= self.config.converged_frames
+        return ControlOutput(twist, True, err_px, converged, remembered)

@@ -1,0 +1,96 @@
+"""Controller service: features + joint encoders → end-effector twist (eye-to-hand IBVS).
+
+It uses only what the camera and the joint encoders give, plus the *assumed* camera pose (the
+scenario's camera mount, i.e. the calibration); never the simulator's ground truth.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from common import kinematics as kin
+from common.camera import look_at_rotation
+from common.messages import EndEffectorTwist, Features, JointState, MarkerFeatures
+from common.pairing import FramePairer
+from common.runtime import ServiceContext
+from common.transport import Node
+from services.controller.ibvs import IbvsController, MarkerObservation
+
+
+def observation(m: MarkerFeatures) -> MarkerObservation:
+    return MarkerObservation(
+        m.visible, np.array(m.corners_px), np.array(m.depth_m), np.array(m.points_m)
+    )
+
+
+class ControllerService:
+    def __init__(self, ctx: ServiceContext) -> None:
+        self.ctx = ctx
+        cam = ctx.scenario.camera
+        rot = look_at_rotation(np.array(cam.position), np.array(cam.look_at), kin.BASE_UP)
+        self.controller = IbvsController(
+            ctx.scenario.controller,
+            kin.homogeneous(rot, np.array(cam.position)),
+            ctx.scenario.target.approach_height_m,
+        )
+        self.node = Node("controller", ctx.keys, ctx.session, self.status_fields)
+        self.pub = self.node.publisher(ctx.keys.twist)
+        self.node.subscribe(ctx.keys.features, Features)
+        self.node.subscribe(ctx.keys.joint_state, JointState)
+        self.pairer: FramePairer[Features, JointState] = FramePairer()
+        self.error_px = float("nan")
+        self.converged = False
+        self.process_ms = 0.0
+
+    def status_fields(self) -> dict:
+        return {
+            "mode": self.controller.config.mode.value,
+            "error_px_rms": self.error_px,
+            "converged": self.converged,
+            "process_ms": round(self.process_ms, 3),
+        }
+
+    def on_pair(self, features: Features, joints: JointState) -> None:
+        started = time.perf_counter()
+        p_ee = kin.forward_kinematics(np.array(joints.position_rad))[:3, 3]
+        out = self.controller.step(
+            observation(features.hand), observation(features.target), features.intrinsics, p_ee
+        )
+        self.error_px, self.converged = out.error_px_rms, out.converged
+        self.pub.put(
+            EndEffectorTwist(
+                header=self.node.header(features.header.sim_time_s, features.header.frame_seq),
+                linear_m_s=out.twist_base_ee[:3].tolist(),
+                angular_rad_s=out.twist_base_ee[3:].tolist(),
+                valid=out.valid,
+                mode=self.controller.config.mode.value,
+                error_px_rms=out.error_px_rms,
+                converged=out.converged,
+            )
+        )
+        self.process_ms = 1000.0 * (time.perf_counter() - started)
+
+    def run(self) -> None:
+        self.node.ready()
+        try:
+            while not self.ctx.stop.is_set():
+                event = self.node.next_event(0.1)
+                if event is None:
+                    continue
+                key, msg = event
+                seq = msg.header.frame_seq
+                if key == self.ctx.keys.features:
+                    pair = self.pairer.add_a(seq, msg)
+                else:
+                    pair = self.pairer.add_b(seq, msg)
+                if pair is not None:
+                    self.on_pair(*pair)
+        finally:
+            self.node.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ControllerService(ServiceContext("controller", argv)).run()
+    return 0

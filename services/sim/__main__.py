@@ -1,0 +1,5 @@
+import sys
+
+from services.sim.node import main
+
+sys.exit(main())

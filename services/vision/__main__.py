@@ -1,0 +1,5 @@
+import sys
+
+from services.vision.node import main
+
+sys.exit(main())

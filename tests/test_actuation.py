@@ -1,0 +1,61 @@
+"""Twist → joint velocities: damped inverse, limits, deadman."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from common import kinematics as kin
+from services.actuation.inverse import (
+    damped_pinv,
+    damping_for,
+    deadman_expired,
+    limit_joint_velocities,
+    twist_to_joint_velocities,
+)
+
+
+def test_undamped_inverse_reproduces_the_twist() -> None:
+    q = np.array([-1.5, 0.9, -2.0, 1.6, 0.8, -0.3])
+    twist = np.array([0.02, -0.01, 0.03, 0.1, -0.2, 0.05])
+    cmd = twist_to_joint_velocities(twist, q, damping_max=0.02, threshold=0.0)
+    np.testing.assert_allclose(kin.geometric_jacobian(q) @ cmd.velocity_rad_s, twist, atol=1e-9)
+    assert cmd.saturated == []
+
+
+def test_damping_grows_as_manipulability_falls_and_bounds_the_rates() -> None:
+    assert damping_for(0.01, 0.05, 0.002) == 0.0
+    assert 0.0 < damping_for(0.001, 0.05, 0.002) < damping_for(0.0001, 0.05, 0.002) <= 0.05
+    q_singular = np.zeros(6)  # joints 1 and 3 aligned
+    jac = kin.geometric_jacobian(q_singular)
+    twist = np.array([0.0, 0.0, 0.05, 0.0, 0.0, 0.0])
+    damped = damped_pinv(jac, 0.05) @ twist
+    assert np.all(np.isfinite(damped)) and np.abs(damped).max() < 10.0
+
+
+def test_speed_limit_scales_the_whole_vector() -> None:
+    q = np.zeros(6)
+    qdot = np.array([3.0, 1.0, 0.0, 0.0, 0.0, 0.0])
+    out, saturated = limit_joint_velocities(qdot, q)
+    assert np.abs(out).max() <= kin.JOINT_VELOCITY_LIMIT_RAD_S.max() + 1e-12
+    np.testing.assert_allclose(out[1] / out[0], 1.0 / 3.0)
+    assert saturated == [0]
+
+
+def test_position_limit_stops_motion_towards_it_only() -> None:
+    q = kin.JOINT_UPPER_RAD.copy()
+    out, saturated = limit_joint_velocities(np.full(6, 0.5), q)
+    np.testing.assert_allclose(out, 0.0)
+    out, _ = limit_joint_velocities(np.full(6, -0.5), q)
+    np.testing.assert_allclose(out, -0.5)
+    assert saturated == list(range(6))
+
+
+def test_nan_twist_never_reaches_the_motors() -> None:
+    cmd = twist_to_joint_velocities(np.full(6, np.nan), np.full(6, 0.5), 0.02, 0.002)
+    np.testing.assert_array_equal(cmd.velocity_rad_s, np.zeros(6))
+
+
+def test_deadman() -> None:
+    assert deadman_expired(10.0, None, 0.25)
+    assert not deadman_expired(10.0, 9.9, 0.25)
+    assert deadman_expired(10.0, 9.7, 0.25)

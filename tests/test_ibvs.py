@@ -1,0 +1,132 @@
+"""Controller maths: interaction matrix, eye-to-hand sign, twist transforms, strategies."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common import kinematics as kin
+from common.camera import CameraIntrinsics, project
+from common.config import ControllerConfig, JacobianMode
+from services.controller.ibvs import (
+    IbvsController,
+    MarkerObservation,
+    base_ee_twist_to_camera,
+    camera_twist_to_base_ee,
+    clamp_twist,
+    desired_observation,
+    interaction_matrix,
+)
+
+K = CameraIntrinsics.from_fov(640, 480, 57.0)
+RNG = np.random.default_rng(7)
+
+
+def square_points(centre: np.ndarray, size: float = 0.06) -> np.ndarray:
+    h = size / 2
+    return centre + np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
+
+
+def moved(points: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
+    """Points riding on the hand, twist (v, ω) in the camera frame at the camera origin."""
+    rot = kin.homogeneous(np.eye(3), np.zeros(3))[:3, :3]
+    angle = np.linalg.norm(twist[3:]) * dt
+    if angle > 0:
+        axis = twist[3:] / np.linalg.norm(twist[3:])
+        rot = _axis_angle(axis, angle)
+    return (rot @ points.T).T + twist[:3] * dt
+
+
+def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    s = kin.skew(axis)
+    return np.eye(3) + np.sin(angle) * s + (1 - np.cos(angle)) * s @ s
+
+
+def test_eye_to_hand_feature_motion_is_minus_l_times_hand_twist() -> None:
+    points = square_points(np.array([0.05, -0.02, 0.5]))
+    xy = points[:, :2] / points[:, 2:]
+    jac = interaction_matrix(xy, points[:, 2])
+    for _ in range(20):
+        twist = RNG.normal(size=6) * np.array([0.05, 0.05, 0.05, 0.3, 0.3, 0.3])
+        dt = 1e-6
+        after = moved(points, twist, dt)
+        s_dot = ((after[:, :2] / after[:, 2:]) - xy).reshape(-1) / dt
+        np.testing.assert_allclose(s_dot, -jac @ twist, rtol=1e-4, atol=1e-6)
+
+
+def test_twist_transforms_are_inverse_and_consistent() -> None:
+    axis = np.array([0.3, 0.8, 0.5]) / np.linalg.norm([0.3, 0.8, 0.5])
+    t_base_cam = kin.homogeneous(_axis_angle(axis, 0.7), RNG.normal(size=3))
+    p_ee = RNG.normal(size=3)
+    twist_cam = RNG.normal(size=6)
+    twist_base = camera_twist_to_base_ee(twist_cam, t_base_cam, p_ee)
+    np.testing.assert_allclose(base_ee_twist_to_camera(twist_base, t_base_cam, p_ee), twist_cam)
+    # The velocity of the camera-origin point computed both ways agrees.
+    origin = t_base_cam[:3, 3]
+    v_origin_base = twist_base[:3] + np.cross(twist_base[3:], origin - p_ee)
+    np.testing.assert_allclose(t_base_cam[:3, :3].T @ v_origin_base, twist_cam[:3])
+
+
+def test_clamp_keeps_direction() -> None:
+    twist = np.array([1.0, 0.0, 0.0, 0.0, 5.0, 0.0])
+    out = clamp_twist(twist, 0.1, 1.0)
+    assert np.linalg.norm(out[:3]) <= 0.1 + 1e-12 and np.linalg.norm(out[3:]) <= 1.0 + 1e-12
+    np.testing.assert_allclose(out / np.linalg.norm(out), twist / np.linalg.norm(twist))
+
+
+def observe(points: np.ndarray) -> MarkerObservation:
+    return MarkerObservation(True, project(points, K), points[:, 2].copy(), points)
+
+
+@pytest.mark.parametrize("mode", list(JacobianMode))
+def test_every_strategy_converges_in_a_kinematic_loop(mode: JacobianMode) -> None:
+    """Points on a free-flying hand (camera = base frame): the error must vanish."""
+    target = square_points(np.array([0.0, 0.05, 0.55]))
+    start_rot = _axis_angle(np.array([0.2, 0.3, 0.93]) / np.linalg.norm([0.2, 0.3, 0.93]), 0.4)
+    hand = (start_rot @ (square_points(np.zeros(3))).T).T + np.array([0.08, -0.04, 0.5])
+    ctrl = IbvsController(ControllerConfig(mode=mode, gain=1.0), np.eye(4))
+    dt = 1 / 30
+    first = None
+    for _ in range(600):
+        centre = hand.mean(axis=0)
+        out = ctrl.step(observe(hand), observe(target), K, centre)
+        first = first or out.error_px_rms
+        if out.converged:
+            break
+        # The twist is referenced at the "end effector" (the square's centre) in the base frame.
+        v, w = out.twist_base_ee[:3], out.twist_base_ee[3:]
+        hand = centre + v * dt + (_axis_angle_safe(w, dt) @ (hand - centre).T).T
+    assert out.converged, f"{mode}: error still {out.error_px_rms:.3f} px (started {first:.1f})"
+    np.testing.assert_allclose(hand, target, atol=2e-3)
+
+
+def _axis_angle_safe(w: np.ndarray, dt: float) -> np.ndarray:
+    angle = np.linalg.norm(w) * dt
+    return np.eye(3) if angle == 0 else _axis_angle(w / np.linalg.norm(w), angle)
+
+
+def test_hold_when_a_marker_is_missing_and_memory_when_the_hand_hides_the_target() -> None:
+    target = observe(square_points(np.array([0.0, 0.05, 0.55])))
+    hand_far = observe(square_points(np.array([0.15, -0.1, 0.5])))
+    hand_near = observe(square_points(np.array([0.01, 0.05, 0.53])))
+    lost = MarkerObservation(False, np.zeros((4, 2)), np.zeros(4), np.zeros((4, 3)))
+    ctrl = IbvsController(ControllerConfig(), np.eye(4))
+    assert not ctrl.step(hand_far, lost, K, np.zeros(3)).valid  # never seen: hold
+    assert ctrl.step(hand_far, target, K, np.zeros(3)).valid
+    out = ctrl.step(hand_far, lost, K, np.zeros(3))
+    assert not out.valid and not np.any(out.twist_base_ee)  # lost far from the hand: hold
+    out = ctrl.step(hand_near, lost, K, np.zeros(3))
+    assert out.valid and out.target_remembered  # hidden by the hand: remembered
+    assert not ctrl.step(lost, target, K, np.zeros(3)).valid
+
+
+def test_desired_features_rise_towards_the_camera() -> None:
+    target = observe(square_points(np.array([0.0, 0.05, 0.55])))
+    assert desired_observation(target, 0.0, K) is target
+    raised = desired_observation(target, 0.03, K)
+    np.testing.assert_allclose(raised.depth_m, target.depth_m - 0.03)
+    # Closer to the camera, the same square looks bigger.
+    def diagonal(o: MarkerObservation) -> float:
+        return float(np.linalg.norm(o.corners_px[0] - o.corners_px[2]))
+
+    assert diagonal(raised) > diagonal(target) * 1.05
