@@ -59,5 +59,5 @@ def test_inverse_kinematics_reaches_a_reachable_pose() -> None:
     q_true = random_configurations(1, seed=3)[0] * 0.5
     goal = kin.forward_kinematics(q_true) @ kin.hand_marker_in_ee()
     seed = q_true + 0.2  # (q = 0 itself is singular: joints 1 and 3 align)
-    q, pos_err, rot_err = kin.inverse_kinematics(goal, seed, kin.hand_marker_in_ee())
+    _, pos_err, rot_err = kin.inverse_kinematics(goal, seed, kin.hand_marker_in_ee())
     assert pos_err < 1e-6 and rot_err < 1e-6

@@ -1,0 +1,189 @@
+"""Multi-process tests: the real services as separate OS processes over Zenoh on loopback.
+
+Each test uses its own key prefix and its own listening port, and multicast scouting is off,
+so parallel runs never cross.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.codec import encode
+from common.keys import Keys
+from common.messages import EndEffectorTwist, Features, Header, JointState, MarkerFeatures
+from common.transport import free_tcp_endpoint, open_session, query_status
+
+UMAY = [sys.executable, "-m", "deploy"]
+RUN_TIMEOUT_S = 900
+_results: dict[str, list[dict]] = {}
+
+
+def unique_prefix() -> str:
+    return f"test/{uuid.uuid4().hex[:12]}"
+
+
+def umay_run(tmp_path: Path, *args: str) -> tuple[subprocess.CompletedProcess, dict | None]:
+    result = tmp_path / f"result-{uuid.uuid4().hex[:6]}.json"
+    proc = subprocess.run(
+        [
+            *UMAY,
+            "run",
+            "--quiet",
+            "--prefix",
+            unique_prefix(),
+            "--listen",
+            free_tcp_endpoint(),
+            "--log-dir",
+            str(tmp_path / "logs"),
+            "--result",
+            str(result),
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=RUN_TIMEOUT_S,
+    )
+    data = json.loads(result.read_text()) if result.exists() else None
+    return proc, data
+
+
+def lockstep_result(mode: str, tmp_path: Path) -> dict:
+    """Run the default scenario once per mode; later calls reuse the result."""
+    if mode not in _results:
+        proc, data = umay_run(tmp_path, "--mode", mode)
+        assert data is not None, f"no result; stderr:\n{proc.stderr}\nstdout:\n{proc.stdout}"
+        _results[mode] = [data]
+        print(f"\n{mode}: {json.dumps(data)}")
+    return _results[mode][0]
+
+
+@pytest.mark.parametrize("mode", ["constant", "dynamic", "pmj", "mpj"])
+def test_each_strategy_converges_from_the_default_scenario(mode: str, tmp_path: Path) -> None:
+    r = lockstep_result(mode, tmp_path)
+    assert r["converged"] and r["reason"] == "converged", r
+    assert r["final_pixel_rms"] < 1.0, r
+    assert r["final_position_error_m"] < 0.005, r
+    assert r["mode"] == mode and r["frames"] > 10 and r["path_length_m"] > 0.02
+
+
+def test_two_lockstep_runs_give_identical_results(tmp_path: Path) -> None:
+    first = lockstep_result("dynamic", tmp_path)
+    _, second = umay_run(tmp_path, "--mode", "dynamic")
+    assert second is not None
+    a = {k: v for k, v in first.items() if k != "wall_time_s"}
+    b = {k: v for k, v in second.items() if k != "wall_time_s"}
+    assert a == b
+
+
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["--mode", "fastest"], "--mode"),
+        (["--clock", "sometimes"], "--clock"),
+        (["--set", "controller.gain=-1"], "controller.gain"),
+        (["--set", "target.position=[2.0, -0.3, 0.0]"], "target.position"),
+        (["--set", "robot.q0=[0.0, 0.0]"], "robot.q0"),
+        (["--scenario", "/nonexistent.toml"], "no such scenario"),
+    ],
+)
+def test_bad_input_exits_2_naming_the_field_and_launches_nothing(
+    args: list[str], fragment: str, tmp_path: Path
+) -> None:
+    proc, data = umay_run(tmp_path, *args)
+    assert proc.returncode == 2, proc.stderr
+    assert fragment in proc.stderr
+    assert data is None
+    assert not (tmp_path / "logs").exists()  # no service was started
+
+
+def marker(u0: float) -> MarkerFeatures:
+    corners = [[u0, 200.0], [u0 + 50, 200.0], [u0 + 50, 250.0], [u0, 250.0]]
+    return MarkerFeatures(
+        visible=True,
+        corners_px=corners,
+        depth_m=[0.5] * 4,
+        points_m=[[(u - 319.5) * 0.5 / 589.0, (v - 239.5) * 0.5 / 589.0, 0.5] for u, v in corners],
+    )
+
+
+def test_a_service_survives_malformed_payloads_and_counts_them(tmp_path: Path) -> None:
+    endpoint = free_tcp_endpoint()
+    keys = Keys(unique_prefix())
+    session = open_session(connect=[], listen=[endpoint])
+    twists: list[EndEffectorTwist] = []
+    from common.codec import DEFAULT_MAX_BYTES, decode
+
+    sub = session.declare_subscriber(
+        keys.twist,
+        lambda s: twists.append(decode(s.payload.to_bytes(), EndEffectorTwist, DEFAULT_MAX_BYTES)),
+    )
+    env = dict(os.environ, UMAY_ZENOH_CONNECT=endpoint)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.controller", "--prefix", keys.prefix],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        deadline = time.monotonic() + 20
+        while not query_status(session, keys, 0.5) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        header = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
+        good_features = Features(
+            header=header,
+            intrinsics={
+                "width_px": 640,
+                "height_px": 480,
+                "fx_px": 589.0,
+                "fy_px": 589.0,
+                "cx_px": 319.5,
+                "cy_px": 239.5,
+            },
+            hand=marker(300.0),
+            target=marker(340.0),
+        )
+        bad = [
+            b"",
+            b"\xff\xfe\xfd",
+            encode(good_features)[:40],
+            encode(header),
+            encode(good_features).replace(b"visible", b"visibel"),
+        ]
+        nan_joints = JointState(header=header, position_rad=[0.1] * 6, velocity_rad_s=[0.0] * 6)
+        nan_payload = encode(nan_joints).replace(
+            np.float64(0.1).tobytes()[::-1], np.float64("nan").tobytes()[::-1]
+        )
+        for payload in bad:
+            session.put(keys.features, payload)
+        session.put(keys.joint_state, nan_payload)
+        time.sleep(0.5)
+        assert proc.poll() is None, "the controller died"
+        status = query_status(session, keys, 1.0)[0]
+        assert status.rejected == len(bad) + 1, status
+        assert status.last_rejection
+        # Still working: a valid pair of messages gives a twist.
+        q = [-1.5, 0.9, -2.0, 1.6, 0.8, -0.3]
+        session.put(
+            keys.joint_state,
+            encode(JointState(header=header, position_rad=q, velocity_rad_s=[0.0] * 6)),
+        )
+        session.put(keys.features, encode(good_features))
+        deadline = time.monotonic() + 5
+        while not twists and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert twists and twists[0].valid and twists[0].error_px_rms > 10.0
+        assert np.linalg.norm(twists[0].linear_m_s) > 0.0
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        sub.undeclare()
+        session.close()
