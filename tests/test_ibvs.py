@@ -125,6 +125,7 @@ def test_desired_features_rise_towards_the_camera() -> None:
     assert desired_observation(target, 0.0, K) is target
     raised = desired_observation(target, 0.03, K)
     np.testing.assert_allclose(raised.depth_m, target.depth_m - 0.03)
+
     # Closer to the camera, the same square looks bigger.
     def diagonal(o: MarkerObservation) -> float:
         return float(np.linalg.norm(o.corners_px[0] - o.corners_px[2]))

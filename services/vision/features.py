@@ -1,0 +1,679 @@
+"""Marker detection for the vision service: colour mask → square corners → corner depths.
+
+Pure functions on numpy arrays (no networking, no global state). Conventions:
+
+- Images are RGB ``uint8`` (H, W, 3) in RGB channel order; depth is ``float32`` (H, W), Z along
+  the optical axis in metres, with 0 or non-finite meaning "no measurement".
+- Pixel ``(u, v)``: column, row; pixel centres sit at integer coordinates (OpenCV style, see
+  :mod:`common.camera`). A renderer without anti-aliasing marks a pixel when its CENTRE is
+  inside a polygon; the corners returned here estimate the TRUE polygon vertices under that
+  model, not the outermost pixel centres (which lie up to one pixel inside).
+- Corner order is canonical (:func:`order_corners`): clockwise in the image, starting at the
+  top-left corner, or following the previous frame's order when one is given.
+
+Pipeline per marker: :func:`segment` (colour threshold + morphology) → :func:`square_corners`
+(largest blob, rough quadrilateral, one straight edge estimated per side, adjacent edges
+intersected) → :func:`corner_depths` (plane fitted to the depth inside the eroded blob,
+corner rays intersected with it). :func:`measure_markers` does this for both markers on a
+frame, thresholding colour at full resolution only around each marker for speed.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
+from common.config import VisionConfig
+from services.vision.occlusion import is_occluded
+
+FloatArray = NDArray[np.float64]
+Color = Literal["red", "green"]
+
+MARKERS: dict[str, Color] = {"hand": "green", "target": "red"}
+
+# --- tuning constants (geometry of a clean, non-anti-aliased rendering) -----------------------
+MORPH_KERNEL = np.ones((3, 3), np.uint8)  # square: leaves straight digital edges untouched
+COARSE_STEP = 2  # colour is first thresholded on every 2nd pixel to find each marker...
+ROI_PAD_PX = 8  # ...then at full resolution in its bounding box grown by this margin
+APPROX_EPSILON_FRACTIONS = (0.01, 0.02, 0.03, 0.05, 0.08)  # of the hull perimeter
+MIN_CORNER_ANGLE_RAD = math.radians(20.0)  # sharper or flatter: not a square in perspective
+MAX_CORNER_ANGLE_RAD = math.radians(165.0)
+CORNER_EXCLUSION_PX = 3.0  # contour points this close to a rough corner are not fitted...
+CORNER_EXCLUSION_FRACTION = 0.1  # ...nor those within this fraction of the side length...
+CORNER_EXCLUSION_ACUTE_PX = 2.0  # ...nor, at a corner of angle θ, within this / tan(θ/2)
+MIN_POINTS_PER_SIDE = 4
+MAX_SIDE_RESIDUAL_PX = 1.5  # a straight digital edge stays within ~1 px of its fitted line
+MAX_CORNER_SHIFT_PX = 6.0  # refined vs rough corner: farther means the fit went wrong
+PREIMAGE_MAX_SLOPE = 0.25  # edge slope search range about the fitted line (≈ rad)
+DEPTH_ERODE_FRACTION = 0.1  # erosion radius as a fraction of the blob side...
+DEPTH_ERODE_MIN_PX = 2  # ...but at least this many pixels
+DEPTH_MIN_PLANE_PIXELS = 20  # fewer valid pixels: use their median depth instead of a plane
+DEPTH_MIN_PIXELS = 3  # fewer: no depth at all
+DEPTH_MAX_PLANE_PIXELS = 400  # subsample beyond this (a plane needs few points; keeps it fast)
+DEPTH_OUTLIER_SIGMAS = 3.0
+DEPTH_OUTLIER_MIN_M = 0.001  # plane residuals below this are never outliers
+DEPTH_GATE_MIN_M = 0.01  # depths this close to the median are never gross outliers
+MAD_TO_SIGMA = 1.4826  # median absolute deviation → standard deviation for Gaussian noise
+
+
+@dataclass(frozen=True)
+class MarkerMeasurement:
+    """One marker in one frame.
+
+    ``corners_px`` (4, 2) sub-pixel (u, v) in canonical order; ``depths_m`` (4,) Z of each
+    corner (m); ``points_m`` (4, 3) corners in the camera optical frame (m); ``area_px`` the
+    blob's pixel count (0 when there is no blob). When not visible the arrays are zeros and
+    ``reason`` says why ("no blob", "blob too small", "touches image border",
+    "not a quadrilateral", "no valid depth"); otherwise ``reason`` is "".
+    """
+
+    visible: bool
+    corners_px: FloatArray
+    depths_m: FloatArray
+    points_m: FloatArray
+    area_px: float
+    reason: str
+
+
+def _invisible(reason: str, area_px: float = 0.0) -> MarkerMeasurement:
+    return MarkerMeasurement(
+        visible=False,
+        corners_px=np.zeros((4, 2)),
+        depths_m=np.zeros(4),
+        points_m=np.zeros((4, 3)),
+        area_px=float(area_px),
+        reason=reason,
+    )
+
+
+# --- segmentation ------------------------------------------------------------------------------
+def _threshold_space(rgb: np.ndarray, cfg: VisionConfig) -> np.ndarray:
+    """The image in the colour space ``cfg.segmentation`` thresholds: OpenCV HSV, or RGB."""
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV) if cfg.segmentation == "hsv" else rgb
+
+
+def _threshold(image: np.ndarray, color: Color, cfg: VisionConfig) -> np.ndarray:
+    """0/255 mask of an image already in :func:`_threshold_space`."""
+    if cfg.segmentation == "hsv":
+        ranges = cfg.red_hsv if color == "red" else cfg.green_hsv
+        mask = cv2.inRange(
+            image, np.array(ranges[0].lower, np.uint8), np.array(ranges[0].upper, np.uint8)
+        )
+        for r in ranges[1:]:  # red wraps around H = 0: several ranges, OR-ed
+            mask |= cv2.inRange(image, np.array(r.lower, np.uint8), np.array(r.upper, np.uint8))
+        return mask
+    ref = np.array(cfg.red_rgb if color == "red" else cfg.green_rgb, dtype=int)
+    lower = np.clip(ref - cfg.rgb_tolerance, 0, 255).astype(np.uint8)
+    upper = np.clip(ref + cfg.rgb_tolerance, 0, 255).astype(np.uint8)
+    return cv2.inRange(image, lower, upper)
+
+
+def _open_close(mask: np.ndarray) -> np.ndarray:
+    """3×3 opening then closing: drops isolated pixels and fills pinholes. With a square
+    kernel a straight digital edge is left exactly as it was (a 3×3 block fits inside any
+    digital half-plane next to each of its pixels); only corners are nibbled, and the corner
+    fit ignores them."""
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, MORPH_KERNEL)
+    return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, MORPH_KERNEL)
+
+
+def segment(rgb: np.ndarray, color: Color, cfg: VisionConfig) -> np.ndarray:
+    """Binary mask (uint8, 0 or 255, shape (H, W)) of the pixels of one marker colour.
+
+    ``cfg.segmentation == "hsv"``: OpenCV HSV (H 0..179) inside any of the colour's ranges,
+    which tolerates the brightness changes of diffuse lighting. ``"rgb"``: every channel
+    within ``cfg.rgb_tolerance`` of the reference colour (brightness-sensitive). Then a small
+    morphological open/close.
+    """
+    _check_rgb(rgb)
+    return _open_close(_threshold(_threshold_space(rgb, cfg), color, cfg))
+
+
+def _check_rgb(rgb: np.ndarray) -> None:
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"expected an RGB uint8 (H, W, 3) image, got {rgb.dtype} {rgb.shape}")
+
+
+def _coarse_image(rgb: np.ndarray, cfg: VisionConfig) -> np.ndarray:
+    """Every COARSE_STEP-th pixel, in the threshold colour space (4× fewer pixels to convert)."""
+    h, w = rgb.shape[:2]
+    size = ((w + COARSE_STEP - 1) // COARSE_STEP, (h + COARSE_STEP - 1) // COARSE_STEP)
+    return _threshold_space(cv2.resize(rgb, size, interpolation=cv2.INTER_NEAREST), cfg)
+
+
+def _marker_mask(
+    rgb: np.ndarray, coarse: np.ndarray, color: Color, cfg: VisionConfig
+) -> np.ndarray:
+    """Full-size 0/255 mask equal to :func:`segment` around the largest coarse blob of the
+    colour and 0 elsewhere (so the largest blob is the same, at a fraction of the cost)."""
+    mask = np.zeros(rgb.shape[:2], np.uint8)
+    contours, _ = cv2.findContours(
+        _threshold(coarse, color, cfg), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE
+    )
+    if not contours:
+        return mask
+    x, y, w, h = cv2.boundingRect(max(contours, key=cv2.contourArea))
+    r0 = max(y * COARSE_STEP - ROI_PAD_PX, 0)
+    r1 = min((y + h) * COARSE_STEP + ROI_PAD_PX, mask.shape[0])
+    c0 = max(x * COARSE_STEP - ROI_PAD_PX, 0)
+    c1 = min((x + w) * COARSE_STEP + ROI_PAD_PX, mask.shape[1])
+    mask[r0:r1, c0:c1] = segment(rgb[r0:r1, c0:c1], color, cfg)
+    return mask
+
+
+# --- corner ordering ---------------------------------------------------------------------------
+def order_corners(corners_px: np.ndarray, previous_px: np.ndarray | None = None) -> np.ndarray:
+    """Reorder 4 corners (4, 2) canonically; returns a new (4, 2) float64 array.
+
+    Corners are sorted clockwise in the image (v points down, so by increasing
+    ``atan2(v - v_c, u - u_c)`` about the centroid). Without ``previous_px`` the first corner
+    is the one whose direction from the centroid is closest to the image's top-left direction
+    (-3π/4). With ``previous_px`` (the same marker's corners in the previous frame, canonical
+    order) the cyclic shift closest to it (least sum of squared distances) is chosen instead,
+    so the labelling follows the physical corners as the square rotates past 45°.
+    """
+    c = np.asarray(corners_px, dtype=float).reshape(4, 2)
+    pts = c.tolist()  # 4 points: plain Python is faster than numpy here
+    cu, cv = sum(p[0] for p in pts) / 4.0, sum(p[1] for p in pts) / 4.0
+    angles = [math.atan2(v - cv, u - cu) for u, v in pts]
+    clockwise = sorted(range(4), key=angles.__getitem__)
+    if previous_px is None:
+
+        def off_top_left(i: int) -> float:
+            return abs(math.remainder(angles[i] + 0.75 * math.pi, 2.0 * math.pi))
+
+        start = min(range(4), key=lambda s: off_top_left(clockwise[s]))
+    else:
+        prev = np.asarray(previous_px, dtype=float).reshape(4, 2).tolist()
+
+        def cost(s: int) -> float:
+            return sum(
+                (pts[clockwise[(s + i) % 4]][0] - prev[i][0]) ** 2
+                + (pts[clockwise[(s + i) % 4]][1] - prev[i][1]) ** 2
+                for i in range(4)
+            )
+
+        start = min(range(4), key=cost)
+    return c[[clockwise[(start + i) % 4] for i in range(4)]]
+
+
+# --- quadrilateral checks ----------------------------------------------------------------------
+def _interior_angles_rad(quad_px: FloatArray) -> list[float]:
+    q = np.asarray(quad_px, dtype=float).tolist()
+    angles = []
+    for i in range(4):
+        (pu, pv), (u, v), (nu, nv) = q[i - 1], q[i], q[(i + 1) % 4]
+        a = math.atan2(pv - v, pu - u) - math.atan2(nv - v, nu - u)
+        angles.append(abs(math.remainder(a, 2.0 * math.pi)))
+    return angles
+
+
+def _is_plausible_quad(quad_px: FloatArray) -> bool:
+    """Convex, with no needle-sharp or nearly flat corner, as a square seen in perspective."""
+    q = np.asarray(quad_px, dtype=float).tolist()
+    turns = []
+    for i in range(4):
+        (u0, v0), (u1, v1), (u2, v2) = q[i], q[(i + 1) % 4], q[(i + 2) % 4]
+        turns.append((u1 - u0) * (v2 - v1) - (v1 - v0) * (u2 - u1))
+    if not (all(t > 0 for t in turns) or all(t < 0 for t in turns)):
+        return False
+    return all(MIN_CORNER_ANGLE_RAD < a < MAX_CORNER_ANGLE_RAD for a in _interior_angles_rad(q))
+
+
+# --- corners -----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _QuadResult:
+    corners_px: FloatArray | None  # canonical order (no previous), or None with a reason
+    reason: str
+    area_px: float
+
+
+def _blob_pixel_count(contour: np.ndarray) -> float:
+    """Pixel count of a blob from its 8-connected outer contour (Pick's theorem, I + B).
+
+    ``cv2.contourArea`` of the pixel-centre polygon is A = I + B/2 - 1, and the contour lists
+    the B boundary pixels, so the count is A + B/2 + 1 (exact unless the blob has 1-px
+    spurs, which are traversed twice). Holes are included, as the marker's own area should be.
+    """
+    return float(cv2.contourArea(contour)) + len(contour) / 2.0 + 1.0
+
+
+def _touches_border(contour: np.ndarray, shape: tuple[int, ...]) -> bool:
+    x, y, w, h = cv2.boundingRect(contour)
+    return x <= 0 or y <= 0 or x + w >= shape[1] or y + h >= shape[0]
+
+
+def _rough_quad(contour: np.ndarray) -> FloatArray | None:
+    """4 vertices (~1 px) of the blob's convex hull simplified with growing tolerance, or None."""
+    hull = cv2.convexHull(contour)
+    perimeter_px = cv2.arcLength(hull, True)
+    for fraction in APPROX_EPSILON_FRACTIONS:
+        approx = cv2.approxPolyDP(hull, fraction * perimeter_px, True)
+        if len(approx) == 4:
+            return order_corners(approx.reshape(4, 2).astype(float))
+        if len(approx) < 4:
+            return None  # a triangle (or a sliver): it will not become a quadrilateral
+    return None
+
+
+def _side_runs(contour: np.ndarray, rough_px: FloatArray) -> list[np.ndarray] | None:
+    """Contour points (int32 (n, 2)) of each side i (rough corner i → i+1), in contour order,
+    without the points near the rough corners (which are only good to ~1 px and rounded by
+    the morphology, more so when acute). None if the corners are not in contour order."""
+    q = rough_px.tolist()
+    shortest_side_px = min(math.dist(q[i], q[(i + 1) % 4]) for i in range(4))
+    exclusion_px = [
+        max(
+            CORNER_EXCLUSION_PX,
+            CORNER_EXCLUSION_FRACTION * shortest_side_px,
+            CORNER_EXCLUSION_ACUTE_PX / math.tan(angle / 2.0),
+        )
+        for angle in _interior_angles_rad(rough_px)
+    ]
+    d2 = np.sum((contour[:, None, :] - rough_px[None, :, :]) ** 2, axis=2)  # (N, 4)
+    at_corner = np.argmin(d2, axis=0).tolist()  # rough corners are hull points of the contour
+    far = np.all(d2 >= np.square(exclusion_px), axis=1)
+    n = len(contour)
+
+    def offsets(corner_index: list[int]) -> list[int]:
+        return [(i - corner_index[0]) % n for i in corner_index]
+
+    if not offsets(at_corner)[1] < offsets(at_corner)[2] < offsets(at_corner)[3]:
+        contour, far = contour[::-1], far[::-1]  # the contour runs anticlockwise: reverse it
+        at_corner = [n - 1 - i for i in at_corner]
+    rel = offsets(at_corner)
+    if not rel[1] < rel[2] < rel[3]:
+        return None
+    twice, far_twice = np.concatenate([contour, contour]), np.concatenate([far, far])  # wrap
+    bounds = [at_corner[0] + r for r in [*rel, n]]
+    return [twice[a:b][far_twice[a:b]] for a, b in itertools.pairwise(bounds)]
+
+
+@dataclass(frozen=True)
+class _EdgeFits:
+    """Total-least-squares lines ``normals[s]·p = offsets_px[s]`` of S sides."""
+
+    normals: FloatArray  # (S, 2) unit, pointing out of the blob
+    offsets_px: FloatArray  # (S,) already moved out by half a lattice step
+    centres_px: FloatArray  # (S, 2) centroid of each side's points
+    max_residual_px: float  # largest distance of a point from its side's line (any side)
+
+
+def _fit_edges_tls(points: np.ndarray, side: np.ndarray, inward_px: FloatArray) -> _EdgeFits:
+    """Lines behind the boundary pixel centres of S sides (``points`` (N, 2), grouped by side,
+    ``side`` (N,) their side index), normals pointing away from ``inward_px``.
+
+    Total least squares gives the line through the pixel centres. The boundary pixels of a
+    polygon rasterised by pixel-centre sampling lie between the true edge and one lattice
+    step ``m = max(|n_u|, |n_v|)`` inside it (the largest projection of a 4-neighbour step
+    on the normal: 1 px for an axis-aligned edge, 1/√2 for a diagonal one), on average m/2
+    inside, so each line is moved out by m/2 (a flat 0.5 px would put corners of diagonal
+    edges ~0.1 px outside). All sides at once, from per-side moments.
+    """
+    u, v = points[:, 0].astype(float), points[:, 1].astype(float)
+    count = np.bincount(side)
+    centres = np.column_stack([np.bincount(side, u), np.bincount(side, v)]) / count[:, None]
+    du, dv = u - centres[side, 0], v - centres[side, 1]
+    suu, svv, suv = (
+        np.bincount(side, du * du),
+        np.bincount(side, dv * dv),
+        np.bincount(side, du * dv),
+    )
+    theta = 0.5 * np.arctan2(2.0 * suv, suu - svv)  # direction of largest spread: the edge
+    normals = np.column_stack([-np.sin(theta), np.cos(theta)])
+    normals *= np.sign(np.sum(normals * (centres - inward_px), axis=1) + 1e-300)[:, None]
+    max_residual_px = float(np.max(np.abs(du * normals[side, 0] + dv * normals[side, 1])))
+    half_step_px = 0.5 * np.max(np.abs(normals), axis=1)
+    offsets = np.sum(normals * centres, axis=1) + half_step_px
+    return _EdgeFits(normals, offsets, centres, max_residual_px)
+
+
+def _outside_neighbours(
+    points: np.ndarray, side: np.ndarray, normals: FloatArray, mask: np.ndarray
+) -> list[np.ndarray]:
+    """Per side, the 4-neighbours one step out along the normal's dominant axis of its
+    boundary pixels (outside the blob for a straight edge), keeping those the mask says
+    are outside."""
+    dominant_u = np.abs(normals[:, 0]) >= np.abs(normals[:, 1])
+    steps = np.where(dominant_u[:, None], [[1, 0]], [[0, 1]]) * np.sign(normals).astype(np.int32)
+    outside = points + steps[side].astype(np.int32)
+    keep = mask[outside[:, 1], outside[:, 0]] == 0
+    kept_side = side[keep]
+    return np.split(outside[keep], np.searchsorted(kept_side, np.arange(1, len(normals))))
+
+
+def _padded_hulls(point_sets: list[np.ndarray]) -> np.ndarray:
+    """(S, K, 2) float convex-hull vertices of S int32 point sets, each padded to K points by
+    repeating its first vertex (a repeated point changes no envelope)."""
+    hulls = [cv2.convexHull(p).reshape(-1, 2) for p in point_sets]
+    out = np.empty((len(hulls), max(len(h) for h in hulls), 2))
+    for i, h in enumerate(hulls):
+        out[i, : len(h)] = h
+        out[i, len(h) :] = h[0]
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _pair_indices(n: int) -> np.ndarray:
+    """Flat indices into an n×n matrix of its n·(n-1)/2 entries above the diagonal
+    (memoised: pure, and np.triu_indices is slow for its size)."""
+    i, j = np.triu_indices(n, 1)
+    return i * n + j
+
+
+def _preimage_centroids(inside: np.ndarray, outside: np.ndarray) -> tuple[FloatArray, ...]:
+    """Centroid (α, β) of the lines ``t = α·s + β`` that keep every inside pixel centre on or
+    below them and every outside one on or above, for S edges at once (s along the edge, t
+    outwards, px; ``inside`` (S, K, 2), ``outside`` (S, K', 2) hull vertices).
+
+    This "preimage" of a digital edge is the exact set of edges that rasterise to the
+    observed pixels; its centroid is the least-squares-optimal estimate under a flat prior.
+    It beats the fitted line where the staircase has only a step or two (edges within a few
+    degrees of a lattice direction) but cannot remove the up-to-one-step ambiguity of an edge
+    exactly parallel to one. The region lies between the convex L(α) = max(t_i − α s_i) and
+    the concave U(α) = min(t_j − α s_j), piecewise linear with breakpoints among the slopes
+    between hull vertices, so integrating over those breakpoints is exact. (Written with
+    few, batched numpy calls: on these tiny arrays the per-call overhead is the cost.)
+
+    Returns (α, β, ok): ok is False where the region is empty (pixels not from one straight
+    edge, or a renderer that does not sample at pixel centres) or unbounded.
+    """
+    n_edges, limit = len(inside), PREIMAGE_MAX_SLOPE
+    both = np.concatenate([inside, outside], axis=1)
+    n = both.shape[1]
+    diff = (both[:, :, None, :] - both[:, None, :, :]).reshape(n_edges, n * n, 2)
+    ds, dt = diff[:, _pair_indices(n), 0], diff[:, _pair_indices(n), 1]
+    valid = np.abs(dt) < limit * np.abs(ds)  # |slope| < limit, and ds ≠ 0
+    alphas = np.empty((n_edges, ds.shape[1] + 2))
+    alphas[:, :-2] = np.where(valid, dt / np.where(valid, ds, 1.0), limit)  # repeats harmless
+    alphas[:, -2:] = (-limit, limit)
+    alphas.sort(axis=1)
+    lower = np.maximum.reduce(inside[:, :, 1:2] - inside[:, :, 0:1] * alphas[:, None, :], axis=1)
+    upper = np.minimum.reduce(outside[:, :, 1:2] - outside[:, :, 0:1] * alphas[:, None, :], axis=1)
+    gap = upper - lower
+    feasible = gap >= -1e-9  # U − L is concave: the feasible α form an interval
+    lo = np.minimum.reduce(np.where(feasible, alphas, np.inf), axis=1)
+    hi = np.maximum.reduce(np.where(feasible, alphas, -np.inf), axis=1)
+    span = (alphas >= lo[:, None]) & (alphas <= hi[:, None])
+    # width; a tiny floor keeps a zero-width preimage (a segment of lines) well defined
+    w = np.where(span, np.maximum(gap, 0.0) + 1e-12, 0.0)
+    f = np.stack([np.ones_like(alphas), alphas, 0.5 * (upper + lower)])  # 1, α, middle β
+    da = np.diff(alphas, axis=1) * (span[:, 1:] & span[:, :-1])
+    f0, f1, w0, w1 = f[..., :-1], f[..., 1:], w[:, :-1], w[:, 1:]
+    # ∫ f·w dα, exact for f and w linear between breakpoints (×6)
+    moments = np.add.reduce(da * ((2 * f0 + f1) * w0 + (f0 + 2 * f1) * w1), axis=-1)
+    ok = (lo > -limit) & (hi < limit) & (moments[0] > 0)  # bounded, non-empty, not a point
+    area = np.where(ok, moments[0], 1.0)
+    return moments[1] / area, moments[2] / area, ok
+
+
+def _edge_lines(
+    runs: list[np.ndarray], inward_px: FloatArray, mask: np.ndarray
+) -> list[tuple[FloatArray, float]] | None:
+    """Edge line ``n·p = c`` (n outward unit normal, px) of each side from its boundary pixel
+    centres: the preimage centroid, expressed in the frame of the side's total-least-squares
+    line, or that line moved out by half a lattice step where the preimage is empty. None if
+    a side has too few points or is not straight."""
+    counts = [len(run) for run in runs]
+    if min(counts) < MIN_POINTS_PER_SIDE:
+        return None
+    points = np.concatenate(runs)
+    side = np.repeat(np.arange(len(runs)), counts)
+    fits = _fit_edges_tls(points, side, inward_px)
+    if fits.max_residual_px > MAX_SIDE_RESIDUAL_PX:
+        return None
+    outside_runs = _outside_neighbours(points, side, fits.normals, mask)
+    if min(len(o) for o in outside_runs) < 2:  # too little to bound the edge: keep the TLS
+        return list(zip(fits.normals, fits.offsets_px.tolist(), strict=True))
+    origins = fits.centres_px[:, None, :]
+    alongs = np.column_stack([-fits.normals[:, 1], fits.normals[:, 0]])
+    frames = np.stack([alongs, fits.normals], axis=2)  # (p - origin) @ frame = (s along, t out)
+    alphas, betas, oks = _preimage_centroids(
+        (_padded_hulls(runs) - origins) @ frames, (_padded_hulls(outside_runs) - origins) @ frames
+    )
+    # t = α·s + β in a side's frame is the line n'·p = c' with n' ∝ n − α·along
+    norms = np.hypot(1.0, alphas)
+    refined = (fits.normals - alphas[:, None] * alongs) / norms[:, None]
+    refined_offsets = betas / norms + np.sum(refined * fits.centres_px, axis=1)
+    normals = np.where(oks[:, None], refined, fits.normals)
+    offsets = np.where(oks, refined_offsets, fits.offsets_px)
+    return list(zip(normals, offsets.tolist(), strict=True))
+
+
+def _intersect_lines(n1: FloatArray, c1: float, n2: FloatArray, c2: float) -> FloatArray | None:
+    det = n1[0] * n2[1] - n1[1] * n2[0]
+    if abs(det) < math.sin(MIN_CORNER_ANGLE_RAD / 2.0):  # near-parallel sides
+        return None
+    return np.array([(c1 * n2[1] - c2 * n1[1]) / det, (n1[0] * c2 - n2[0] * c1) / det])
+
+
+def _refine_corners(
+    contour: np.ndarray, rough_px: FloatArray, mask: np.ndarray
+) -> FloatArray | None:
+    """Sub-pixel corners: one edge line per side from its contour points away from the rough
+    corners, then adjacent lines intersected: corner i is side (i-1) ∩ side i. None if a
+    side is not straight or two lines meet far from the rough corner."""
+    runs = _side_runs(contour, rough_px)
+    lines = None if runs is None else _edge_lines(runs, rough_px.mean(axis=0), mask)
+    if lines is None:
+        return None
+    corners = np.empty((4, 2))
+    for i in range(4):
+        p = _intersect_lines(*lines[i - 1], *lines[i])
+        if p is None or math.dist(p, rough_px[i]) > MAX_CORNER_SHIFT_PX:
+            return None
+        corners[i] = p
+    return corners
+
+
+def _find_quad(mask: np.ndarray, min_area_px: int) -> _QuadResult:
+    """Largest blob of ``mask`` as a refined quadrilateral, or None with the reason."""
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return _QuadResult(None, "no blob", 0.0)
+    contour = max(contours, key=cv2.contourArea)
+    area_px = _blob_pixel_count(contour)
+    if area_px < min_area_px:
+        return _QuadResult(None, "blob too small", area_px)
+    if _touches_border(contour, mask.shape):
+        return _QuadResult(None, "touches image border", area_px)
+    rough = _rough_quad(contour)
+    if rough is None or not _is_plausible_quad(rough):
+        return _QuadResult(None, "not a quadrilateral", area_px)
+    refined = _refine_corners(contour.reshape(-1, 2), rough, mask)
+    if refined is None or not _is_plausible_quad(refined):
+        return _QuadResult(None, "not a quadrilateral", area_px)
+    return _QuadResult(order_corners(refined), "", area_px)
+
+
+def square_corners(mask: np.ndarray, min_area_px: int) -> np.ndarray | None:
+    """Sub-pixel corners (4, 2) float64 (u, v) of the largest blob of a 0/255 uint8 mask.
+
+    The corners estimate the vertices of the rendered polygon (pixel-centre sampling), in
+    canonical order (:func:`order_corners` without a previous frame). None when there is no
+    blob, it has fewer than ``min_area_px`` pixels, touches the image border, or is not a
+    convex quadrilateral with straight sides.
+    """
+    return _find_quad(mask, min_area_px).corners_px
+
+
+# --- depth -------------------------------------------------------------------------------------
+def _marker_depth_pixels(
+    depth_m: np.ndarray, mask: np.ndarray, corners_px: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """(uv (N, 2) px, Z (N,) m) of the valid depth pixels well inside the marker.
+
+    Only the mask inside the corners' quadrilateral counts (other blobs stay out), eroded
+    (radius 10 % of the side, at least 2 px) so that the outline and the pixels next to
+    occluders, where depth jumps to what lies behind or in front, are dropped.
+    """
+    side_px = math.sqrt(max(abs(float(cv2.contourArea(corners_px.astype(np.float32)))), 1.0))
+    radius_px = max(DEPTH_ERODE_MIN_PX, round(DEPTH_ERODE_FRACTION * side_px))
+    h, w = mask.shape
+    c0, r0 = (max(int(x), 0) for x in np.floor(corners_px.min(axis=0)))
+    c1, r1 = (
+        min(int(x) + 2, n) for x, n in zip(np.ceil(corners_px.max(axis=0)), (w, h), strict=True)
+    )
+    if r1 <= r0 or c1 <= c0:
+        return np.zeros((0, 2)), np.zeros(0)
+    quad = np.zeros((r1 - r0, c1 - c0), np.uint8)
+    shift_bits = 4  # sub-pixel vertices for fillConvexPoly, 1/16 px
+    vertices = np.round((corners_px - (c0, r0)) * (1 << shift_bits)).astype(np.int32)
+    cv2.fillConvexPoly(quad, vertices, 255, cv2.LINE_8, shift_bits)
+    inner = cv2.erode(
+        cv2.bitwise_and(quad, mask[r0:r1, c0:c1]),
+        cv2.getStructuringElement(cv2.MORPH_RECT, (2 * radius_px + 1, 2 * radius_px + 1)),
+        borderType=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )
+    # A regular grid of about DEPTH_MAX_PLANE_PIXELS samples is plenty for a plane; all
+    # pixels only if that leaves too few (sparse depth).
+    step = max(1, math.isqrt(int(side_px * side_px) // DEPTH_MAX_PLANE_PIXELS))
+    while True:
+        z = depth_m[r0:r1:step, c0:c1:step]
+        vv, uu = np.nonzero((inner[::step, ::step] > 0) & (z > 0) & (z < np.inf))  # NaN: neither
+        if step == 1 or len(vv) >= DEPTH_MIN_PLANE_PIXELS:
+            break
+        step = 1
+    uv = np.column_stack([uu * step + c0, vv * step + r0]).astype(float)
+    return uv, z[vv, uu].astype(float)
+
+
+def _median(values: FloatArray) -> float:
+    """Median (upper median for even sizes); np.partition is several times faster than
+    np.median on these small arrays."""
+    k = len(values) // 2
+    return float(np.partition(values, k)[k])
+
+
+def _outlier_threshold(values: FloatArray, floor: float) -> float:
+    """max(3 robust σ (from the median absolute deviation), floor)."""
+    sigma = MAD_TO_SIGMA * _median(np.abs(values - _median(values)))
+    return max(DEPTH_OUTLIER_SIGMAS * sigma, floor)
+
+
+def _fit_plane(points_m: FloatArray) -> tuple[FloatArray, float]:
+    """Least-squares plane ``n·p = d`` (unit n, d in m) through N×3 points."""
+    centre, axes, _ = cv2.PCACompute2(points_m, mean=None)
+    normal = axes[2]  # least spread: across the plane
+    return normal, float(normal @ centre[0])
+
+
+def _robust_plane(points_m: FloatArray) -> tuple[FloatArray, float]:
+    """Plane through the marker's 3-D points despite holes, edge jumps and flying pixels.
+
+    A few percent of pixels far behind would dominate a least-squares plane (its normal
+    would follow them), so gross outliers go first: Z farther from the median Z than 3
+    robust σ (at least 1 cm; a tilted 6 cm marker spans a few cm). Then a least-squares
+    plane, and one refit without points off it by more than 3 robust σ (at least 1 mm).
+    """
+    z = points_m[:, 2]
+    near = np.abs(z - _median(z)) <= _outlier_threshold(z, DEPTH_GATE_MIN_M)
+    if np.count_nonzero(near) >= DEPTH_MIN_PLANE_PIXELS:
+        points_m = points_m[near]
+    normal, offset = _fit_plane(points_m)
+    residuals = points_m @ normal - offset
+    inliers = np.abs(residuals) <= _outlier_threshold(residuals, DEPTH_OUTLIER_MIN_M)
+    if np.count_nonzero(inliers) >= DEPTH_MIN_PLANE_PIXELS:
+        normal, offset = _fit_plane(points_m[inliers])
+    return normal, offset
+
+
+def corner_depths(
+    depth_m: np.ndarray, mask: np.ndarray, corners_px: np.ndarray, k: CameraIntrinsics
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Depth Z (4,) in m and optical-frame points (4, 3) in m of a flat marker's corners.
+
+    The corners themselves sit on the depth discontinuity, so their depth comes from a plane
+    fitted (with outlier rejection, see :func:`_robust_plane`) to the back-projected valid
+    depth pixels well inside the marker, intersected with each corner's viewing ray
+    ``(x, y, 1)·Z``. With fewer than 20 valid pixels (but at least 3) all corners get the
+    median depth; with fewer than 3, or a plane seen edge-on, the result is None.
+    """
+    corners = np.asarray(corners_px, dtype=float).reshape(4, 2)
+    uv, z = _marker_depth_pixels(depth_m, mask, corners)
+    if len(z) < DEPTH_MIN_PIXELS:
+        return None
+    if len(z) < DEPTH_MIN_PLANE_PIXELS:
+        depths = np.full(4, _median(z))
+    else:
+        normal, offset = _robust_plane(back_project(uv, z, k))
+        rays = np.column_stack([pixel_to_normalized(corners, k), np.ones(4)])
+        denom = rays @ normal
+        if np.any(np.abs(denom) < 1e-6):
+            return None
+        depths = offset / denom
+        if not np.all((depths > 0) & (depths < np.inf)):
+            return None
+    return depths, back_project(corners, depths, k)
+
+
+# --- per frame ---------------------------------------------------------------------------------
+def _measure(
+    mask: np.ndarray,
+    depth_m: np.ndarray,
+    k: CameraIntrinsics,
+    cfg: VisionConfig,
+    previous_corners_px: np.ndarray | None,
+) -> MarkerMeasurement:
+    quad = _find_quad(mask, cfg.min_area_px)
+    if quad.corners_px is None:
+        return _invisible(quad.reason, quad.area_px)
+    corners = order_corners(quad.corners_px, previous_corners_px)
+    depth = corner_depths(depth_m, mask, corners, k)
+    if depth is None:
+        return _invisible("no valid depth", quad.area_px)
+    depths, points = depth
+    if is_occluded(depth_m, mask, depths):
+        return _invisible("occluded", quad.area_px)
+    return MarkerMeasurement(True, corners, depths, points, quad.area_px, "")
+
+
+def _check_frame(rgb: np.ndarray, depth_m: np.ndarray) -> None:
+    _check_rgb(rgb)
+    if depth_m.shape != rgb.shape[:2]:
+        raise ValueError(f"depth {depth_m.shape} does not match image {rgb.shape[:2]}")
+
+
+def measure_marker(
+    rgb: np.ndarray,
+    depth_m: np.ndarray,
+    k: CameraIntrinsics,
+    color: Color,
+    cfg: VisionConfig,
+    previous_corners_px: np.ndarray | None = None,
+) -> MarkerMeasurement:
+    """Corners (px), corner depths (m) and 3-D corners (m, optical frame) of one marker.
+
+    ``previous_corners_px``: the same marker's corners from the previous frame, to keep the
+    corner labelling stable (see :func:`order_corners`).
+    """
+    _check_frame(rgb, depth_m)
+    mask = _marker_mask(rgb, _coarse_image(rgb, cfg), color, cfg)
+    return _measure(mask, depth_m, k, cfg, previous_corners_px)
+
+
+def measure_markers(
+    rgb: np.ndarray,
+    depth_m: np.ndarray,
+    k: CameraIntrinsics,
+    cfg: VisionConfig,
+    previous: dict[str, np.ndarray] | None = None,
+) -> dict[str, MarkerMeasurement]:
+    """Both markers, keyed ``"hand"`` (green) and ``"target"`` (red); ``previous`` maps the
+    same keys to last frame's corners (missing keys: no previous)."""
+    _check_frame(rgb, depth_m)
+    previous = previous or {}
+    coarse = _coarse_image(rgb, cfg)  # shared: the colour conversion is the costliest step
+    return {
+        name: _measure(_marker_mask(rgb, coarse, color, cfg), depth_m, k, cfg, previous.get(name))
+        for name, color in MARKERS.items()
+    }

@@ -1,0 +1,411 @@
+"""Unit tests of the vision core (services/vision/features.py) on synthetic renderings.
+
+The renderer below mimics pybullet's TinyRenderer without anti-aliasing: a pixel (row i,
+column j) belongs to a polygon when its centre (u=j, v=i) is inside it; depth is the exact Z
+of a plane along each pixel centre's ray.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from common.camera import CameraIntrinsics, pixel_to_normalized, project
+from common.config import VisionConfig
+from services.vision import features as vf
+
+K = CameraIntrinsics.from_fov(640, 480, 57.0)
+SHAPE = (K.height_px, K.width_px)
+RED = (200, 25, 25)
+GREEN = (30, 180, 40)
+BACKGROUND = (128, 128, 128)
+CLUTTER = [  # low-saturation robot / table / floor colours: (rgb, (row0, row1, col0, col1))
+    ((220, 205, 180), (300, 470, 10, 630)),  # beige table
+    ((140, 150, 165), (20, 200, 480, 560)),  # blue-grey arm
+    ((235, 235, 235), (40, 120, 20, 120)),  # white torso part
+    ((90, 90, 95), (380, 460, 200, 260)),  # dark grey
+]
+BACKGROUND_Z_M = 1.6
+
+
+# --- synthetic renderer ------------------------------------------------------------------------
+def polygon_mask(corners_px: np.ndarray, shape: tuple[int, int] = SHAPE) -> np.ndarray:
+    """Pixels whose centre lies inside a convex polygon (any orientation), vectorised."""
+    c = np.asarray(corners_px, dtype=float)
+    e = np.roll(c, -1, axis=0) - c
+    orientation = np.sign(
+        np.sum(e[:, 0] * np.roll(e, -1, 0)[:, 1] - e[:, 1] * np.roll(e, -1, 0)[:, 0])
+    )
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
+    inside = np.ones(shape, bool)
+    for a, d in zip(c, e, strict=True):
+        inside &= orientation * (d[0] * (v - a[1]) - d[1] * (u - a[0])) >= 0
+    return inside
+
+
+def distance_to_outline_px(corners_px: np.ndarray, shape: tuple[int, int] = SHAPE) -> np.ndarray:
+    """Distance (px) of every pixel centre to the nearest side line of a convex polygon."""
+    c = np.asarray(corners_px, dtype=float)
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
+    dist = np.full(shape, np.inf)
+    for a, b in zip(c, np.roll(c, -1, axis=0), strict=True):
+        n = np.array([b[1] - a[1], a[0] - b[0]]) / np.linalg.norm(b - a)
+        dist = np.minimum(dist, np.abs((u - a[0]) * n[0] + (v - a[1]) * n[1]))
+    return dist
+
+
+def plane_depth_m(points_m: np.ndarray, shape: tuple[int, int] = SHAPE) -> np.ndarray:
+    """Z (m) at every pixel centre of the plane through 3-D points (optical frame)."""
+    n = np.cross(points_m[1] - points_m[0], points_m[3] - points_m[0])
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
+    xy = pixel_to_normalized(np.column_stack([u.ravel(), v.ravel()]), K)
+    rays = np.column_stack([xy, np.ones(len(xy))])
+    return (n @ points_m[0] / (rays @ n)).reshape(shape)
+
+
+def rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """Rz(roll about the optical axis) · Rx(pitch) · Ry(yaw)."""
+    cz, sz, cx, sx, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch),
+                              math.cos(yaw), math.sin(yaw))  # fmt: skip
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    return rz @ rx @ ry
+
+
+def square_3d(centre_m: np.ndarray, side_m: float, rot: np.ndarray) -> np.ndarray:
+    """4×3 corners (optical frame) of a square facing the camera before rotation ``rot``."""
+    h = side_m / 2.0
+    local = np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
+    return np.asarray(centre_m) + local @ rot.T
+
+
+def square_at_pixel(uv_px: tuple[float, float], side_px: float, rot: np.ndarray) -> np.ndarray:
+    """A 6 cm square whose centre projects to ``uv_px``, ~``side_px`` on a side on screen."""
+    side_m = 0.06
+    z = side_m * K.fx_px / side_px
+    xy = pixel_to_normalized(np.array([uv_px]), K)[0]
+    return square_3d(np.array([xy[0] * z, xy[1] * z, z]), side_m, rot)
+
+
+@dataclass
+class Marker:
+    points_m: np.ndarray  # 4×3 optical frame
+    colour: tuple[int, int, int]
+
+    @property
+    def corners_px(self) -> np.ndarray:
+        return project(self.points_m, K)
+
+
+def render(markers: list[Marker], clutter: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """RGB uint8 and depth float32 (m) of the markers over a grey, cluttered background."""
+    rgb = np.empty((*SHAPE, 3), np.uint8)
+    rgb[:] = BACKGROUND
+    if clutter:
+        for colour, (r0, r1, c0, c1) in CLUTTER:
+            rgb[r0:r1, c0:c1] = colour
+    v = np.arange(SHAPE[0], dtype=float)[:, None]
+    depth = np.broadcast_to(BACKGROUND_Z_M - 0.0008 * (v - 240.0), SHAPE).astype(np.float32)
+    for m in markers:
+        inside = polygon_mask(m.corners_px)
+        rgb[inside] = m.colour
+        depth[inside] = plane_depth_m(m.points_m)[inside]
+    return rgb, depth
+
+
+def scaled(colour: tuple[int, int, int], factor: float) -> tuple[int, int, int]:
+    r, g, b = (int(np.clip(round(c * factor), 0, 255)) for c in colour)
+    return r, g, b
+
+
+def match_order(found_px: np.ndarray, true_px: np.ndarray) -> np.ndarray:
+    """Found corners relabelled like the true ones (same cyclic order, nearest shift)."""
+    return vf.order_corners(found_px, previous_px=vf.order_corners(true_px))
+
+
+def random_marker(rng: np.random.Generator, colour: tuple[int, int, int]) -> Marker:
+    """A square tilted up to 60° from facing the camera, any roll, 40-150 px before tilt."""
+    tilt_axis = rng.uniform(0.0, math.pi)
+    tilt = math.radians(rng.uniform(0.0, 60.0))
+    rot = rotation(tilt * math.cos(tilt_axis), tilt * math.sin(tilt_axis), rng.uniform(-3.2, 3.2))
+    uv = (rng.uniform(160, 480), rng.uniform(130, 350))
+    return Marker(square_at_pixel(uv, rng.uniform(40, 150), rot), colour)
+
+
+CFG = VisionConfig()
+
+
+# --- 1. sub-pixel corners ----------------------------------------------------------------------
+def test_corners_are_subpixel_accurate_and_unbiased():
+    """50 random quads, marker colours at ×0.6, ×1, ×1.3 brightness, HSV segmentation.
+
+    The max error cannot be held below 0.5 px: an edge within ~1° of a lattice direction
+    (0°, 45°, 90°) can move by up to one lattice step (1 px, or 0.71 px diagonally) without
+    changing a single pixel, so its corners are ambiguous by up to ~0.5·√2 px whatever the
+    estimator. Hence the bounds: RMS (the brief's 0.15 px), 95th percentile, a loose max.
+    """
+    rng = np.random.default_rng(1)
+    variants = [
+        RED,
+        GREEN,
+        scaled(RED, 0.6),
+        scaled(GREEN, 0.6),
+        scaled(RED, 1.3),
+        scaled(GREEN, 1.3),
+    ]
+    rms_per_quad, errors, outward = [], [], []
+    for trial in range(50):
+        colour = variants[trial % len(variants)]
+        marker = random_marker(rng, colour)
+        rgb, _ = render([marker])
+        color = "red" if colour[0] > colour[1] else "green"
+        found = vf.square_corners(vf.segment(rgb, color, CFG), CFG.min_area_px)
+        assert found is not None, f"trial {trial}: marker {marker.corners_px.tolist()} not found"
+        truth = vf.order_corners(marker.corners_px)
+        err = match_order(found, truth) - truth
+        rms_per_quad.append(math.sqrt(np.mean(np.sum(err**2, axis=1))))
+        errors.append(np.linalg.norm(err, axis=1))
+        radial = truth - truth.mean(axis=0)
+        outward.append(np.sum(err * radial, axis=1) / np.linalg.norm(radial, axis=1))
+    mean_rms = float(np.mean(rms_per_quad))
+    p95, max_err = np.percentile(errors, [95, 100])
+    bias = float(np.mean(outward))
+    report = f"RMS {mean_rms:.3f} px, p95 {p95:.3f} px, max {max_err:.3f} px, bias {bias:+.3f} px"
+    assert mean_rms <= 0.15, report
+    assert p95 <= 0.3, report
+    assert max_err < 0.8, report
+    # Without the outward shift of the fitted edges corners sit ~0.5 px inside: this catches it.
+    assert abs(bias) < 0.05, report
+
+
+def test_corners_of_an_axis_aligned_square_within_the_digitisation_limit():
+    """Edges parallel to the pixel grid are known only to within one pixel step: the estimate
+    must be the middle of that step, i.e. at most 0.5 px off per coordinate."""
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        u0, v0 = rng.uniform(100, 400), rng.uniform(100, 300)
+        side = rng.uniform(40, 120)
+        truth = np.array([[u0, v0], [u0 + side, v0], [u0 + side, v0 + side], [u0, v0 + side]])
+        rgb, _ = paint(truth)
+        found = vf.square_corners(vf.segment(rgb, "red", CFG), CFG.min_area_px)
+        assert found is not None
+        assert np.max(np.abs(found - truth)) <= 0.5 + 1e-6, (found - truth).tolist()
+
+
+# --- 2. canonical order ------------------------------------------------------------------------
+def test_order_of_an_unrotated_square_is_top_left_clockwise():
+    tl, tr, br, bl = [100.0, 50.0], [180.0, 50.0], [180.0, 130.0], [100.0, 130.0]
+    shuffled = np.array([br, tl, bl, tr])
+    np.testing.assert_array_equal(vf.order_corners(shuffled), [tl, tr, br, bl])
+    marker = Marker(square_at_pixel((300.2, 200.7), 80.0, np.eye(3)), GREEN)
+    rgb, _ = render([marker])
+    found = vf.square_corners(vf.segment(rgb, "green", CFG), CFG.min_area_px)
+    assert found is not None
+    np.testing.assert_allclose(found, marker.corners_px, atol=0.3)  # (-,-) first = top-left
+
+
+def test_order_follows_previous_frame_through_45_degrees():
+    previous = None
+    flipped_without_previous = False
+    for step in range(19):  # 0°..90° in 5° steps
+        rot = rotation(0.15, -0.2, math.radians(5.0 * step))
+        marker = Marker(square_at_pixel((320.4, 240.3), 100.0, rot), RED)
+        rgb, depth = render([marker])
+        m = vf.measure_marker(rgb, depth, K, "red", CFG, previous_corners_px=previous)
+        assert m.visible, m.reason
+        physical_first = marker.corners_px[0]  # the corner that was top-left at 0°
+        assert np.linalg.norm(m.corners_px[0] - physical_first) < 0.5, f"flipped at {5 * step}°"
+        no_previous = vf.measure_marker(rgb, depth, K, "red", CFG)
+        flipped_without_previous |= np.linalg.norm(no_previous.corners_px[0] - physical_first) > 1
+        previous = m.corners_px
+    assert flipped_without_previous, "the top-left rule should relabel past 45°"
+
+
+def test_order_is_clockwise_in_the_image():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        quad = random_marker(rng, RED).corners_px[rng.permutation(4)]
+        ordered = vf.order_corners(quad)
+        e = np.roll(ordered, -1, axis=0) - ordered
+        cross = e[:, 0] * np.roll(e, -1, 0)[:, 1] - e[:, 1] * np.roll(e, -1, 0)[:, 0]
+        assert np.all(cross > 0)  # v down: positive cross product = clockwise on screen
+
+
+# --- 3. corner depths --------------------------------------------------------------------------
+def tilted_target() -> Marker:
+    rot = rotation(math.radians(35.0), math.radians(-40.0), math.radians(20.0))
+    return Marker(square_3d(np.array([0.05, -0.03, 0.65]), 0.06, rot), RED)
+
+
+def test_corner_depths_exact_on_clean_plane():
+    marker = tilted_target()
+    rgb, depth = render([marker])
+    result = vf.corner_depths(depth, vf.segment(rgb, "red", CFG), marker.corners_px, K)
+    assert result is not None
+    depths, points = result
+    assert np.ptp(marker.points_m[:, 2]) > 0.02, "the test plane should be clearly tilted"
+    np.testing.assert_allclose(depths, marker.points_m[:, 2], atol=1e-3)
+    np.testing.assert_allclose(points, marker.points_m, atol=1e-3)
+
+
+def test_corner_depths_robust_to_holes_and_edge_jumps():
+    marker = tilted_target()
+    rgb, depth = render([marker])
+    inside = polygon_mask(marker.corners_px)
+    rng = np.random.default_rng(7)
+    depth[inside & (rng.random(SHAPE) < 0.3)] = 0.0  # 30 % holes
+    band = inside & (distance_to_outline_px(marker.corners_px) < 3.0)
+    depth[band] = BACKGROUND_Z_M  # mixed / background depth along the outline
+    depth[inside & (rng.random(SHAPE) < 0.01)] = np.nan
+    depth[inside & (rng.random(SHAPE) < 0.03)] = BACKGROUND_Z_M  # flying pixels: erosion misses
+    result = vf.corner_depths(depth, vf.segment(rgb, "red", CFG), marker.corners_px, K)
+    assert result is not None
+    err_m = np.abs(result[0] - marker.points_m[:, 2])
+    assert np.max(err_m) <= 2e-3, f"corner depth errors {err_m} m"
+
+
+def test_corner_depths_fallback_and_failure():
+    marker = tilted_target()
+    rgb, depth = render([marker])
+    mask = vf.segment(rgb, "red", CFG)
+    inside = polygon_mask(marker.corners_px) & (distance_to_outline_px(marker.corners_px) > 12)
+    few = np.zeros_like(depth)
+    rows, cols = np.nonzero(inside)
+    few[rows[:10], cols[:10]] = 0.7  # 10 valid pixels: median fallback
+    result = vf.corner_depths(few, mask, marker.corners_px, K)
+    assert result is not None
+    np.testing.assert_allclose(result[0], 0.7)
+    assert vf.corner_depths(np.zeros_like(depth), mask, marker.corners_px, K) is None
+    m = vf.measure_marker(rgb, np.zeros_like(depth), K, "red", CFG)
+    assert not m.visible and m.reason == "no valid depth"
+
+
+# --- 4. segmentation and rejection -------------------------------------------------------------
+def two_markers() -> tuple[Marker, Marker]:
+    hand = Marker(square_3d(np.array([-0.12, 0.02, 0.7]), 0.06, rotation(0.5, 0.3, 0.2)), GREEN)
+    target = Marker(square_3d(np.array([0.1, 0.05, 0.6]), 0.06, rotation(-0.4, 0.6, -0.3)), RED)
+    return hand, target
+
+
+@pytest.mark.parametrize("brightness", [0.5, 1.0, 1.5])
+def test_hsv_finds_both_markers_across_brightness(brightness):
+    hand, target = two_markers()
+    rgb, depth = render([hand, target])
+    rgb = np.clip(rgb * brightness, 0, 255).astype(np.uint8)  # markers and background
+    result = vf.measure_markers(rgb, depth, K, CFG)
+    for name, marker in (("hand", hand), ("target", target)):
+        assert result[name].visible, f"{name} at ×{brightness}: {result[name].reason}"
+        err = match_order(result[name].corners_px, marker.corners_px) - vf.order_corners(
+            marker.corners_px
+        )
+        assert np.max(np.abs(err)) < 0.5
+
+
+def test_rgb_mode_finds_both_markers_at_nominal_brightness():
+    hand, target = two_markers()
+    rgb, depth = render([hand, target])
+    result = vf.measure_markers(rgb, depth, K, VisionConfig(segmentation="rgb"))
+    assert result["hand"].visible, result["hand"].reason
+    assert result["target"].visible, result["target"].reason
+
+
+def test_missing_marker_is_not_visible():
+    hand, _ = two_markers()
+    rgb, depth = render([hand])
+    result = vf.measure_markers(rgb, depth, K, CFG)
+    assert result["hand"].visible
+    assert not result["target"].visible
+    assert result["target"].reason == "no blob"
+    assert not result["target"].corners_px.any()
+
+
+def paint(corners_px: np.ndarray, colour=RED) -> tuple[np.ndarray, np.ndarray]:
+    rgb, depth = render([])
+    inside = polygon_mask(np.asarray(corners_px, dtype=float))
+    rgb[inside] = colour
+    depth[inside] = 0.6
+    return rgb, depth
+
+
+def test_tiny_blob_is_too_small():
+    rgb, depth = paint([[300.2, 200.3], [306.1, 200.2], [306.3, 206.4], [300.1, 206.2]])
+    m = vf.measure_marker(rgb, depth, K, "red", CFG)
+    assert not m.visible and m.reason == "blob too small"
+    assert 0 < m.area_px < CFG.min_area_px
+
+
+def test_blob_touching_the_border_is_not_visible():
+    rgb, depth = paint([[-20.0, 100.0], [40.0, 95.0], [45.0, 160.0], [-15.0, 165.0]])
+    m = vf.measure_marker(rgb, depth, K, "red", CFG)
+    assert not m.visible and m.reason == "touches image border"
+
+
+@pytest.mark.parametrize(
+    "corners",
+    [
+        [[300.0, 150.0], [380.0, 290.0], [220.0, 280.0]],  # triangle
+        [[300, 150], [360, 190], [340, 260], [260, 260], [240, 190]],  # pentagon
+        [[320 + 50 * math.cos(a), 240 + 50 * math.sin(a)] for a in np.linspace(0, 6.28, 40)],
+    ],
+    ids=["triangle", "pentagon", "disc"],
+)
+def test_non_quadrilaterals_are_rejected(corners):
+    rgb, depth = paint(corners)
+    m = vf.measure_marker(rgb, depth, K, "red", CFG)
+    assert not m.visible and m.reason == "not a quadrilateral"
+    assert vf.square_corners(vf.segment(rgb, "red", CFG), CFG.min_area_px) is None
+
+
+def test_area_is_the_pixel_count():
+    marker = Marker(square_at_pixel((320.4, 240.3), 70.0, rotation(0.3, 0.2, 0.6)), RED)
+    rgb, depth = render([marker])
+    m = vf.measure_marker(rgb, depth, K, "red", CFG)
+    blob = vf.segment(rgb, "red", CFG)  # the opening nibbles a few corner pixels off
+    assert m.area_px == np.count_nonzero(blob)
+    assert abs(m.area_px - np.count_nonzero(polygon_mask(marker.corners_px))) < 10
+
+
+# --- 5. per-frame result -----------------------------------------------------------------------
+def test_measure_markers_shapes_and_3d_points():
+    hand, target = two_markers()
+    rgb, depth = render([hand, target])
+    result = vf.measure_markers(rgb, depth, K, CFG, previous={"hand": hand.corners_px})
+    assert set(result) == {"hand", "target"} == set(vf.MARKERS)
+    for name, marker in (("hand", hand), ("target", target)):
+        m = result[name]
+        assert m.visible and m.reason == ""
+        assert m.corners_px.shape == (4, 2) and m.corners_px.dtype == np.float64
+        assert m.depths_m.shape == (4,) and m.depths_m.dtype == np.float64
+        assert m.points_m.shape == (4, 3) and m.points_m.dtype == np.float64
+        assert isinstance(m.area_px, float) and m.area_px > 0
+        nearest = [np.argmin(np.linalg.norm(marker.corners_px - c, axis=1)) for c in m.corners_px]
+        np.testing.assert_allclose(m.points_m, marker.points_m[nearest], atol=2e-3)
+        np.testing.assert_allclose(m.points_m[:, 2], m.depths_m)
+    np.testing.assert_allclose(result["hand"].corners_px, hand.corners_px, atol=0.5)
+    invisible = vf.measure_markers(render([])[0], depth, K, CFG)
+    for m in invisible.values():
+        assert m.corners_px.shape == (4, 2) and m.depths_m.shape == (4,)
+        assert m.points_m.shape == (4, 3) and not m.visible
+
+
+def test_mismatched_depth_is_an_error():
+    rgb, depth = render([])
+    with pytest.raises(ValueError):
+        vf.measure_markers(rgb, depth[:-1], K, CFG)
+
+
+def test_a_frame_is_processed_quickly():
+    """Loose bound (the target is well under 5 ms); catches per-pixel Python loops."""
+    rgb, depth = render(list(two_markers()))
+    vf.measure_markers(rgb, depth, K, CFG)
+    times = []
+    for _ in range(15):
+        t0 = time.perf_counter()
+        vf.measure_markers(rgb, depth, K, CFG)
+        times.append(time.perf_counter() - t0)
+    assert np.median(times) < 0.025, f"median {1e3 * np.median(times):.1f} ms per frame"
