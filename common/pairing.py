@@ -39,6 +39,10 @@ class FramePairer(Generic[A, B]):
         while len(store) > self.capacity:
             store.popitem(last=False)
 
+    def add(self, first: bool, seq: int, item: A | B) -> tuple[A, B] | None:
+        """``add_a`` when ``first`` else ``add_b``."""
+        return self.add_a(seq, item) if first else self.add_b(seq, item)  # type: ignore[arg-type]
+
     def add_a(self, seq: int, item: A) -> tuple[A, B] | None:
         if self._stale(seq):
             return None

@@ -222,6 +222,28 @@ class Node:
         except Exception:  # a status reply must never take the service down
             log.exception("%s: status reply failed", self.service)
 
+    def spin(
+        self,
+        stop: threading.Event,
+        on_event: Callable[[str, Any], None],
+        timeout_s: float = 0.1,
+        on_idle: Callable[[], None] | None = None,
+    ) -> None:
+        """The node's one event loop: announce readiness, handle events until ``stop``, close.
+
+        ``on_idle`` runs after every wake-up (an event or ``timeout_s`` without one).
+        """
+        self.ready()
+        try:
+            while not stop.is_set():
+                event = self.next_event(timeout_s)
+                if event is not None:
+                    on_event(*event)
+                if on_idle is not None:
+                    on_idle()
+        finally:
+            self.close()
+
     def close(self) -> None:
         self.state = "stopping"
         with self._cond:

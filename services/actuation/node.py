@@ -79,23 +79,13 @@ class ActuationService:
             self.deadman_stops += 1
             self.publish(np.zeros(kin.N_JOINTS), "deadman", 0.0, -1)
 
+    def on_event(self, key: str, msg: EndEffectorTwist | JointState) -> None:
+        pair = self.pairer.add(key == self.ctx.keys.twist, msg.header.frame_seq, msg)
+        if pair is not None:
+            self.on_pair(*pair)
+
     def run(self) -> None:
-        self.node.ready()
-        try:
-            while not self.ctx.stop.is_set():
-                event = self.node.next_event(0.02)
-                if event is not None:
-                    key, msg = event
-                    seq = msg.header.frame_seq
-                    if key == self.ctx.keys.twist:
-                        pair = self.pairer.add_a(seq, msg)
-                    else:
-                        pair = self.pairer.add_b(seq, msg)
-                    if pair is not None:
-                        self.on_pair(*pair)
-                self.check_deadman()
-        finally:
-            self.node.close()
+        self.node.spin(self.ctx.stop, self.on_event, timeout_s=0.02, on_idle=self.check_deadman)
 
 
 def main(argv: list[str] | None = None) -> int:

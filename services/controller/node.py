@@ -72,23 +72,13 @@ class ControllerService:
         )
         self.process_ms = 1000.0 * (time.perf_counter() - started)
 
+    def on_event(self, key: str, msg: Features | JointState) -> None:
+        pair = self.pairer.add(key == self.ctx.keys.features, msg.header.frame_seq, msg)
+        if pair is not None:
+            self.on_pair(*pair)
+
     def run(self) -> None:
-        self.node.ready()
-        try:
-            while not self.ctx.stop.is_set():
-                event = self.node.next_event(0.1)
-                if event is None:
-                    continue
-                key, msg = event
-                seq = msg.header.frame_seq
-                if key == self.ctx.keys.features:
-                    pair = self.pairer.add_a(seq, msg)
-                else:
-                    pair = self.pairer.add_b(seq, msg)
-                if pair is not None:
-                    self.on_pair(*pair)
-        finally:
-            self.node.close()
+        self.node.spin(self.ctx.stop, self.on_event)
 
 
 def main(argv: list[str] | None = None) -> int:

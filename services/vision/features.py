@@ -21,7 +21,6 @@ frame, thresholding colour at full resolution only around each marker for speed.
 from __future__ import annotations
 
 import functools
-import itertools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -36,6 +35,7 @@ from services.vision.occlusion import is_occluded
 
 FloatArray = NDArray[np.float64]
 Color = Literal["red", "green"]
+Roi = tuple[slice, slice]  # rows, columns of an image region
 
 MARKERS: dict[str, Color] = {"hand": "green", "target": "red"}
 
@@ -151,25 +151,48 @@ def _coarse_image(rgb: np.ndarray, cfg: VisionConfig) -> np.ndarray:
 
 def _marker_mask(
     rgb: np.ndarray, coarse: np.ndarray, color: Color, cfg: VisionConfig
-) -> np.ndarray:
+) -> tuple[np.ndarray, Roi]:
     """Full-size 0/255 mask equal to :func:`segment` around the largest coarse blob of the
-    colour and 0 elsewhere (so the largest blob is the same, at a fraction of the cost)."""
+    colour and 0 elsewhere (so the largest blob is the same, at a fraction of the cost), and
+    that region."""
     mask = np.zeros(rgb.shape[:2], np.uint8)
     contours, _ = cv2.findContours(
         _threshold(coarse, color, cfg), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE
     )
     if not contours:
-        return mask
+        return mask, (slice(0, 0), slice(0, 0))
     x, y, w, h = cv2.boundingRect(max(contours, key=cv2.contourArea))
-    r0 = max(y * COARSE_STEP - ROI_PAD_PX, 0)
-    r1 = min((y + h) * COARSE_STEP + ROI_PAD_PX, mask.shape[0])
-    c0 = max(x * COARSE_STEP - ROI_PAD_PX, 0)
-    c1 = min((x + w) * COARSE_STEP + ROI_PAD_PX, mask.shape[1])
-    mask[r0:r1, c0:c1] = segment(rgb[r0:r1, c0:c1], color, cfg)
-    return mask
+    rows = slice(
+        max(y * COARSE_STEP - ROI_PAD_PX, 0), min((y + h) * COARSE_STEP + ROI_PAD_PX, mask.shape[0])
+    )
+    cols = slice(
+        max(x * COARSE_STEP - ROI_PAD_PX, 0), min((x + w) * COARSE_STEP + ROI_PAD_PX, mask.shape[1])
+    )
+    mask[rows, cols] = segment(rgb[rows, cols], color, cfg)
+    return mask, (rows, cols)
 
 
 # --- corner ordering ---------------------------------------------------------------------------
+def _canonical_order(pts: list[list[float]], previous: list[list[float]] | None) -> list[int]:
+    """Permutation of 4 points (plain lists) into the canonical order of :func:`order_corners`
+    (4 points: plain Python is faster than numpy here)."""
+    cu, cv = sum(p[0] for p in pts) / 4.0, sum(p[1] for p in pts) / 4.0
+    angles = [math.atan2(v - cv, u - cu) for u, v in pts]
+    clockwise = sorted(range(4), key=angles.__getitem__)
+    if previous is None:
+
+        def cost(s: int) -> float:  # angle of the first corner away from the top-left
+            return abs(math.remainder(angles[clockwise[s]] + 0.75 * math.pi, 2.0 * math.pi))
+
+    else:
+
+        def cost(s: int) -> float:  # squared distances to the previous frame's corners
+            return sum(math.dist(pts[clockwise[(s + i) % 4]], previous[i]) ** 2 for i in range(4))
+
+    start = min(range(4), key=cost)
+    return [clockwise[(start + i) % 4] for i in range(4)]
+
+
 def order_corners(corners_px: np.ndarray, previous_px: np.ndarray | None = None) -> np.ndarray:
     """Reorder 4 corners (4, 2) canonically; returns a new (4, 2) float64 array.
 
@@ -181,28 +204,10 @@ def order_corners(corners_px: np.ndarray, previous_px: np.ndarray | None = None)
     so the labelling follows the physical corners as the square rotates past 45°.
     """
     c = np.asarray(corners_px, dtype=float).reshape(4, 2)
-    pts = c.tolist()  # 4 points: plain Python is faster than numpy here
-    cu, cv = sum(p[0] for p in pts) / 4.0, sum(p[1] for p in pts) / 4.0
-    angles = [math.atan2(v - cv, u - cu) for u, v in pts]
-    clockwise = sorted(range(4), key=angles.__getitem__)
-    if previous_px is None:
-
-        def off_top_left(i: int) -> float:
-            return abs(math.remainder(angles[i] + 0.75 * math.pi, 2.0 * math.pi))
-
-        start = min(range(4), key=lambda s: off_top_left(clockwise[s]))
-    else:
-        prev = np.asarray(previous_px, dtype=float).reshape(4, 2).tolist()
-
-        def cost(s: int) -> float:
-            return sum(
-                (pts[clockwise[(s + i) % 4]][0] - prev[i][0]) ** 2
-                + (pts[clockwise[(s + i) % 4]][1] - prev[i][1]) ** 2
-                for i in range(4)
-            )
-
-        start = min(range(4), key=cost)
-    return c[[clockwise[(start + i) % 4] for i in range(4)]]
+    previous = (
+        None if previous_px is None else np.asarray(previous_px, float).reshape(4, 2).tolist()
+    )
+    return c[_canonical_order(c.tolist(), previous)]
 
 
 # --- quadrilateral checks ----------------------------------------------------------------------
@@ -251,50 +256,61 @@ def _touches_border(contour: np.ndarray, shape: tuple[int, ...]) -> bool:
     return x <= 0 or y <= 0 or x + w >= shape[1] or y + h >= shape[0]
 
 
-def _rough_quad(contour: np.ndarray) -> FloatArray | None:
-    """4 vertices (~1 px) of the blob's convex hull simplified with growing tolerance, or None."""
-    hull = cv2.convexHull(contour)
+def _rough_quad(contour: np.ndarray) -> tuple[FloatArray, list[int]] | None:
+    """4 vertices (~1 px, canonical order) of the blob's convex hull simplified with growing
+    tolerance, and their indices in ``contour`` (N, 2); None if it has no 4-vertex form."""
+    hull_index = cv2.convexHull(contour, returnPoints=False).ravel()
+    hull = contour[hull_index]
     perimeter_px = cv2.arcLength(hull, True)
     for fraction in APPROX_EPSILON_FRACTIONS:
         approx = cv2.approxPolyDP(hull, fraction * perimeter_px, True)
-        if len(approx) == 4:
-            return order_corners(approx.reshape(4, 2).astype(float))
         if len(approx) < 4:
             return None  # a triangle (or a sliver): it will not become a quadrilateral
+        if len(approx) == 4:
+            corners = approx.reshape(4, 2).tolist()
+            order = _canonical_order(corners, None)
+            # approxPolyDP keeps a subset of the hull points, which are contour points
+            index_of = dict(zip(map(tuple, hull.tolist()), hull_index.tolist(), strict=True))
+            return (
+                np.array([corners[i] for i in order], dtype=float),
+                [index_of[tuple(corners[i])] for i in order],
+            )
     return None
 
 
-def _side_runs(contour: np.ndarray, rough_px: FloatArray) -> list[np.ndarray] | None:
+def _side_runs(
+    contour: np.ndarray, rough_px: FloatArray, corner_index: list[int]
+) -> list[np.ndarray] | None:
     """Contour points (int32 (n, 2)) of each side i (rough corner i → i+1), in contour order,
-    without the points near the rough corners (which are only good to ~1 px and rounded by
-    the morphology, more so when acute). None if the corners are not in contour order."""
+    without those near the rough corners (only good to ~1 px and rounded by the morphology,
+    more so when acute). Each step along an 8-connected digital edge advances 1 px along its
+    dominant axis, so dropping ⌈r⌉ points at an end drops every point within r px of it.
+    None if the corners are not in contour order."""
     q = rough_px.tolist()
     shortest_side_px = min(math.dist(q[i], q[(i + 1) % 4]) for i in range(4))
-    exclusion_px = [
-        max(
-            CORNER_EXCLUSION_PX,
-            CORNER_EXCLUSION_FRACTION * shortest_side_px,
-            CORNER_EXCLUSION_ACUTE_PX / math.tan(angle / 2.0),
+    skip = [
+        math.ceil(
+            max(
+                CORNER_EXCLUSION_PX,
+                CORNER_EXCLUSION_FRACTION * shortest_side_px,
+                CORNER_EXCLUSION_ACUTE_PX / math.tan(angle / 2.0),
+            )
         )
         for angle in _interior_angles_rad(rough_px)
     ]
-    d2 = np.sum((contour[:, None, :] - rough_px[None, :, :]) ** 2, axis=2)  # (N, 4)
-    at_corner = np.argmin(d2, axis=0).tolist()  # rough corners are hull points of the contour
-    far = np.all(d2 >= np.square(exclusion_px), axis=1)
     n = len(contour)
 
-    def offsets(corner_index: list[int]) -> list[int]:
-        return [(i - corner_index[0]) % n for i in corner_index]
+    def offsets(index: list[int]) -> list[int]:
+        return [(i - index[0]) % n for i in index]
 
-    if not offsets(at_corner)[1] < offsets(at_corner)[2] < offsets(at_corner)[3]:
-        contour, far = contour[::-1], far[::-1]  # the contour runs anticlockwise: reverse it
-        at_corner = [n - 1 - i for i in at_corner]
-    rel = offsets(at_corner)
-    if not rel[1] < rel[2] < rel[3]:
-        return None
-    twice, far_twice = np.concatenate([contour, contour]), np.concatenate([far, far])  # wrap
-    bounds = [at_corner[0] + r for r in [*rel, n]]
-    return [twice[a:b][far_twice[a:b]] for a, b in itertools.pairwise(bounds)]
+    if not offsets(corner_index)[1] < offsets(corner_index)[2] < offsets(corner_index)[3]:
+        contour = contour[::-1]  # the contour runs the other way round: walk it backwards
+        corner_index = [n - 1 - i for i in corner_index]
+        if not offsets(corner_index)[1] < offsets(corner_index)[2] < offsets(corner_index)[3]:
+            return None
+    twice = np.concatenate([contour, contour])  # so that the last side need not wrap
+    ends = [corner_index[0] + r for r in [*offsets(corner_index), n]]
+    return [twice[ends[i] + skip[i] : ends[i + 1] - skip[(i + 1) % 4] + 1] for i in range(4)]
 
 
 @dataclass(frozen=True)
@@ -456,12 +472,12 @@ def _intersect_lines(n1: FloatArray, c1: float, n2: FloatArray, c2: float) -> Fl
 
 
 def _refine_corners(
-    contour: np.ndarray, rough_px: FloatArray, mask: np.ndarray
+    contour: np.ndarray, rough_px: FloatArray, corner_index: list[int], mask: np.ndarray
 ) -> FloatArray | None:
     """Sub-pixel corners: one edge line per side from its contour points away from the rough
     corners, then adjacent lines intersected: corner i is side (i-1) ∩ side i. None if a
     side is not straight or two lines meet far from the rough corner."""
-    runs = _side_runs(contour, rough_px)
+    runs = _side_runs(contour, rough_px, corner_index)
     lines = None if runs is None else _edge_lines(runs, rough_px.mean(axis=0), mask)
     if lines is None:
         return None
@@ -474,9 +490,13 @@ def _refine_corners(
     return corners
 
 
-def _find_quad(mask: np.ndarray, min_area_px: int) -> _QuadResult:
-    """Largest blob of ``mask`` as a refined quadrilateral, or None with the reason."""
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+def _find_quad(mask: np.ndarray, min_area_px: int, roi: Roi | None = None) -> _QuadResult:
+    """Largest blob of ``mask`` as a refined quadrilateral, or None with the reason. ``roi``:
+    the part of the mask that can be non-zero (searched alone, for speed)."""
+    rows, cols = roi if roi is not None else (slice(0, mask.shape[0]), slice(0, mask.shape[1]))
+    contours, _ = cv2.findContours(
+        mask[rows, cols], cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(cols.start, rows.start)
+    )
     if not contours:
         return _QuadResult(None, "no blob", 0.0)
     contour = max(contours, key=cv2.contourArea)
@@ -485,10 +505,11 @@ def _find_quad(mask: np.ndarray, min_area_px: int) -> _QuadResult:
         return _QuadResult(None, "blob too small", area_px)
     if _touches_border(contour, mask.shape):
         return _QuadResult(None, "touches image border", area_px)
+    contour = contour.reshape(-1, 2)
     rough = _rough_quad(contour)
-    if rough is None or not _is_plausible_quad(rough):
+    if rough is None or not _is_plausible_quad(rough[0]):
         return _QuadResult(None, "not a quadrilateral", area_px)
-    refined = _refine_corners(contour.reshape(-1, 2), rough, mask)
+    refined = _refine_corners(contour, *rough, mask)
     if refined is None or not _is_plausible_quad(refined):
         return _QuadResult(None, "not a quadrilateral", area_px)
     return _QuadResult(order_corners(refined), "", area_px)
@@ -619,12 +640,13 @@ def corner_depths(
 # --- per frame ---------------------------------------------------------------------------------
 def _measure(
     mask: np.ndarray,
+    roi: Roi,
     depth_m: np.ndarray,
     k: CameraIntrinsics,
     cfg: VisionConfig,
     previous_corners_px: np.ndarray | None,
 ) -> MarkerMeasurement:
-    quad = _find_quad(mask, cfg.min_area_px)
+    quad = _find_quad(mask, cfg.min_area_px, roi)
     if quad.corners_px is None:
         return _invisible(quad.reason, quad.area_px)
     corners = order_corners(quad.corners_px, previous_corners_px)
@@ -657,8 +679,8 @@ def measure_marker(
     corner labelling stable (see :func:`order_corners`).
     """
     _check_frame(rgb, depth_m)
-    mask = _marker_mask(rgb, _coarse_image(rgb, cfg), color, cfg)
-    return _measure(mask, depth_m, k, cfg, previous_corners_px)
+    mask, roi = _marker_mask(rgb, _coarse_image(rgb, cfg), color, cfg)
+    return _measure(mask, roi, depth_m, k, cfg, previous_corners_px)
 
 
 def measure_markers(
@@ -674,6 +696,6 @@ def measure_markers(
     previous = previous or {}
     coarse = _coarse_image(rgb, cfg)  # shared: the colour conversion is the costliest step
     return {
-        name: _measure(_marker_mask(rgb, coarse, color, cfg), depth_m, k, cfg, previous.get(name))
+        name: _measure(*_marker_mask(rgb, coarse, color, cfg), depth_m, k, cfg, previous.get(name))
         for name, color in MARKERS.items()
     }

@@ -58,14 +58,7 @@ class VisionService:
         self.process_ms = 1000.0 * (time.perf_counter() - started)
 
     def run(self) -> None:
-        self.node.ready()
-        try:
-            while not self.ctx.stop.is_set():
-                event = self.node.next_event(0.1)
-                if event is not None:
-                    self.on_frame(event[1])
-        finally:
-            self.node.close()
+        self.node.spin(self.ctx.stop, lambda _key, frame: self.on_frame(frame))
 
 
 def main(argv: list[str] | None = None) -> int:
