@@ -147,6 +147,15 @@ class SimTruth(Message):
     joint_position_rad: Joints
 
 
+class TopicStats(Message):
+    """Traffic on one key as seen by one service."""
+
+    count: int = Field(ge=0)
+    rate_hz: float = Field(ge=0.0, description="over the last few seconds")
+    age_s: float | None = Field(None, description="since the last message; None: never")
+    dropped: int = Field(0, ge=0, description="replaced by a newer one before being processed")
+
+
 class ServiceStatus(Message):
     """Answer of ``<prefix>/<service>/status``."""
 
@@ -155,8 +164,11 @@ class ServiceStatus(Message):
     host: str
     uptime_s: float
     state: Literal["starting", "running", "degraded", "stopping"]
-    received: dict[str, int] = {}
-    published: dict[str, int] = {}
+    degraded_reason: str = ""
+    received: dict[str, TopicStats] = {}
+    published: dict[str, TopicStats] = {}
     rejected: int = 0
     last_rejection: str = ""
+    processing_ms_p50: float | None = None
+    processing_ms_p99: float | None = None
     fields: dict[str, Any] = {}

@@ -17,7 +17,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
 import zenoh
@@ -26,6 +26,7 @@ from pydantic import BaseModel
 from common.codec import DEFAULT_MAX_BYTES, MessageError, decode, encode
 from common.keys import Keys
 from common.messages import Header, ServiceStatus
+from common.metrics import DurationMeter, TopicMeter
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -80,11 +81,11 @@ def free_tcp_endpoint() -> str:
 class TypedPublisher(Generic[M]):
     key: str
     publisher: Any
-    count: int = 0
+    meter: TopicMeter = field(default_factory=TopicMeter)
 
     def put(self, message: M) -> None:
         self.publisher.put(encode(message))
-        self.count += 1
+        self.meter.tick()
 
 
 class Node:
@@ -99,12 +100,15 @@ class Node:
         keys: Keys,
         session: zenoh.Session,
         status_fields: Callable[[], dict[str, Any]] = dict,
+        degraded_reason: Callable[[], str] = str,
     ) -> None:
         self.service = service
         self.keys = keys
         self.session = session
         self.state = "starting"
         self._status_fields = status_fields
+        self._degraded_reason = degraded_reason
+        self.processing = DurationMeter()
         self._started = time.monotonic()
         self._seq = 0
         self._cond = threading.Condition()
@@ -112,8 +116,7 @@ class Node:
         self._latest_only: set[str] = set()
         self._publishers: dict[str, TypedPublisher[Any]] = {}
         self._subscribers: list[Any] = []
-        self.received: dict[str, int] = {}
-        self.dropped: dict[str, int] = {}
+        self.received: dict[str, TopicMeter] = {}
         self.rejected = 0
         self.last_rejection = ""
         self._last_reject_log = 0.0
@@ -155,8 +158,7 @@ class Node:
         ``latest_only``: an undelivered older message on the same key is replaced (and counted
         as dropped), so a slow consumer always works on the newest data.
         """
-        self.received[key] = 0
-        self.dropped[key] = 0
+        meter = self.received[key] = TopicMeter()
         if latest_only:
             self._latest_only.add(key)
 
@@ -167,12 +169,12 @@ class Node:
                 self._reject(key, str(exc))
                 return
             with self._cond:
-                self.received[key] += 1
+                meter.tick()
                 if key in self._latest_only:
                     for i, (k, _) in enumerate(self._inbox):
                         if k == key:
                             del self._inbox[i]
-                            self.dropped[key] += 1
+                            meter.dropped += 1
                             break
                 self._inbox.append((key, message))
                 self._cond.notify()
@@ -203,17 +205,23 @@ class Node:
 
     # --- status -----------------------------------------------------------------------
     def status(self) -> ServiceStatus:
+        now = time.monotonic()
+        reason = self._degraded_reason() if self.state == "running" else ""
+        p50, p99 = self.processing.percentiles()
         return ServiceStatus(
             service=self.service,
             pid=os.getpid(),
             host=socket.gethostname(),
-            uptime_s=time.monotonic() - self._started,
-            state=self.state,  # type: ignore[arg-type]
-            received=dict(self.received),
-            published={k: p.count for k, p in self._publishers.items()},
+            uptime_s=now - self._started,
+            state="degraded" if reason else self.state,  # type: ignore[arg-type]
+            degraded_reason=reason,
+            received={k: m.stats(now) for k, m in self.received.items()},
+            published={k: p.meter.stats(now) for k, p in self._publishers.items()},
             rejected=self.rejected,
             last_rejection=self.last_rejection,
-            fields={"dropped": dict(self.dropped), **self._status_fields()},
+            processing_ms_p50=p50,
+            processing_ms_p99=p99,
+            fields=self._status_fields(),
         )
 
     def _answer_status(self, query: zenoh.Query) -> None:
@@ -238,7 +246,9 @@ class Node:
             while not stop.is_set():
                 event = self.next_event(timeout_s)
                 if event is not None:
+                    started = time.perf_counter()
                     on_event(*event)
+                    self.processing.add(1000.0 * (time.perf_counter() - started))
                 if on_idle is not None:
                     on_idle()
         finally:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from common.config import ClockMode, JacobianMode, ScenarioError
 from common.keys import SERVICES, Keys, default_prefix
-from common.transport import alive_services, open_session, query_status, setup_logging
+from common.transport import open_session, setup_logging
 
 EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -48,7 +48,9 @@ def _overrides(args: argparse.Namespace) -> list[str]:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from deploy.run import format_result, prepare, run_once, write_result
+    from rich.console import Console
+
+    from deploy.run import format_result, prepare, result_table, run_once, write_result
 
     try:
         overrides = _overrides(args)
@@ -65,7 +67,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         listen=args.listen,
         quiet=args.quiet,
     )
-    print(format_result(result))
+    if args.quiet:
+        print(format_result(result))
+    else:
+        Console().print(result_table(result))
     if args.result:
         write_result(result, args.result)
     return EXIT_CONVERGED if result.converged else EXIT_NOT_CONVERGED
@@ -112,35 +117,30 @@ def cmd_service(args: argparse.Namespace) -> int:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.live import Live
+
+    from deploy.status import as_json, collect, table
+
     keys = Keys(args.prefix or default_prefix())
     connect = args.connect.split(",") if args.connect else None
     session = open_session(connect=connect)
     try:
         time.sleep(0.3)  # let the session connect and learn the peers
-        statuses = {s.service: s for s in query_status(session, keys, args.timeout)}
-        alive = alive_services(session, keys, args.timeout)
+        if args.json:
+            print(json.dumps(as_json(collect(session, keys, args.timeout)), indent=2))
+        elif args.watch:
+            with Live(table(collect(session, keys, args.timeout), keys), console=Console()) as live:
+                try:
+                    while True:
+                        time.sleep(1.0)
+                        live.update(table(collect(session, keys, args.timeout), keys))
+                except KeyboardInterrupt:
+                    pass
+        else:
+            Console().print(table(collect(session, keys, args.timeout), keys))
     finally:
         session.close()
-    names = sorted(set(SERVICES) | set(statuses) | alive)
-    if args.json:
-        out = {
-            n: {
-                "alive": n in alive,
-                "status": statuses[n].model_dump() if n in statuses else None,
-            }
-            for n in names
-        }
-        print(json.dumps(out, indent=2, default=str))
-        return 0
-    print(f"{'service':<11} {'alive':<6} {'state':<9} {'pid':>7} {'uptime s':>9}  fields")
-    for n in names:
-        s = statuses.get(n)
-        if s is None:
-            print(f"{n:<11} {'yes' if n in alive else 'no':<6} {'no answer':<9}")
-            continue
-        fields = ", ".join(f"{k}={v}" for k, v in s.fields.items() if k != "dropped")
-        live = "yes" if n in alive else "LOST"
-        print(f"{n:<11} {live:<6} {s.state:<9} {s.pid:>7} {s.uptime_s:>9.1f}  {fields}")
     return 0
 
 
@@ -168,7 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--prefix", default=None)
     p.add_argument("--connect", default=None, help="Zenoh endpoint(s) of the running system")
     p.add_argument("--timeout", type=float, default=1.0)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--watch", action="store_true", help="refresh every second until Ctrl-C")
     p.set_defaults(func=cmd_status)
     return parser
 

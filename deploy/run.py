@@ -5,19 +5,25 @@ from __future__ import annotations
 import json
 import logging
 import socket
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from common import kinematics as kin
 from common.codec import DEFAULT_MAX_BYTES, MessageError, decode
 from common.config import Scenario, load_scenario
 from common.keys import Keys
 from common.messages import EndEffectorTwist, SimTruth
 from common.runtime import parse_overrides
 from common.transport import DEFAULT_ENDPOINT, free_tcp_endpoint, open_session
-from deploy.evaluate import RunResult, summarize
+from deploy.evaluate import RunResult, pose, summarize
 from deploy.reachability import check_scenario
 from deploy.supervisor import Supervisor
 
@@ -109,7 +115,10 @@ def run_once(
     wall_limit = wall_timeout_s or max(120.0, 20.0 * scenario.run.timeout_s)
     reason, detail = "error", ""
     last_print = 0.0
+    live = None if quiet else Live(Text("starting the services..."), console=Console(stderr=True))
     try:
+        if live is not None:
+            live.start()
         sup.start()
         while True:
             if monitor.decided.wait(0.2):
@@ -124,23 +133,16 @@ def run_once(
             if elapsed > wall_limit:
                 reason, detail = "timeout", f"wall-clock limit of {wall_limit:.0f} s reached"
                 break
-            tw = monitor.latest()
-            if not quiet and tw is not None and elapsed - last_print > 1.0:
+            if live is not None and elapsed - last_print > 0.5:
                 last_print = elapsed
-                print(
-                    f"\r frame {tw.header.frame_seq:5d}  sim {tw.header.sim_time_s:6.2f} s  "
-                    f"error {tw.error_px_rms:8.3f} px  ({scenario.controller.mode.value})",
-                    end="",
-                    file=sys.stderr,
-                    flush=True,
-                )
+                live.update(progress_line(monitor, scenario, elapsed))
     finally:
         sup.stop()
         for s in subs:
             s.undeclare()
         session.close()
-        if not quiet:
-            print(file=sys.stderr)
+        if live is not None:
+            live.stop()
     wall = time.monotonic() - started
     if reason == "converged":
         last = monitor.converged_frame
@@ -162,6 +164,49 @@ def run_once(
         scenario.target.approach_height_m,
         detail,
     )
+
+
+def progress_line(monitor: RunMonitor, scenario: Scenario, elapsed_s: float) -> Text:
+    """frame, mode, feature error, distance to the goal (from ground truth, for the operator
+    only), and the loop rate."""
+    tw = monitor.latest()
+    if tw is None:
+        return Text(f"waiting for the first frame... {elapsed_s:.0f} s")
+    seq = tw.header.frame_seq
+    truth = monitor.truths.get(seq)
+    distance = "-"
+    if truth is not None:
+        goal = kin.goal_marker_pose(
+            pose(truth.target_marker_pose), scenario.target.approach_height_m
+        )
+        gap = np.linalg.norm(pose(truth.hand_marker_pose)[:3, 3] - goal[:3, 3])
+        distance = f"{1000 * gap:6.1f} mm"
+    state = "converged" if tw.converged else ("holding" if not tw.valid else "servoing")
+    return Text(
+        f"frame {seq:5d}  {tw.mode:8s}  error {tw.error_px_rms:8.3f} px  "
+        f"to goal {distance}  {(seq + 1) / max(elapsed_s, 1e-9):5.1f} frames/s  {state}"
+    )
+
+
+def result_table(result: RunResult) -> Table:
+    def num(v: float | None, fmt: str, scale: float = 1.0) -> str:
+        return "n/a" if v is None else format(v * scale, fmt)
+
+    t = Table(title=f"{result.scenario} · {result.mode} · {result.clock}", show_header=False)
+    t.add_column("what")
+    t.add_column("value", justify="right")
+    colour = "green" if result.converged else "red"
+    t.add_row(
+        "result", f"[{colour}]{result.reason}[/]" + (f" ({result.detail})" if result.detail else "")
+    )
+    t.add_row("frames", str(result.frames))
+    t.add_row("simulated time", f"{result.sim_time_s:.2f} s")
+    t.add_row("wall time", f"{result.wall_time_s:.1f} s")
+    t.add_row("pixel RMS", f"{num(result.final_pixel_rms, '.3f')} px")
+    t.add_row("position error", f"{num(result.final_position_error_m, '.2f', 1000.0)} mm")
+    t.add_row("orientation error", f"{num(result.final_orientation_error_deg, '.2f')} deg")
+    t.add_row("hand path length", f"{num(result.path_length_m, '.3f')} m")
+    return t
 
 
 def format_result(result: RunResult) -> str:

@@ -22,7 +22,7 @@ class ActuationService:
     def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
         self.config = ctx.scenario.actuation
-        self.node = Node("actuation", ctx.keys, ctx.session, self.status_fields)
+        self.node = Node("actuation", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.joint_command)
         self.node.subscribe(ctx.keys.twist, EndEffectorTwist)
         self.node.subscribe(ctx.keys.joint_state, JointState)
@@ -42,6 +42,12 @@ class ActuationService:
             "saturated_joints": self.saturated,
             "manipulability": self.manipulability,
         }
+
+    def degraded(self) -> str:
+        stale = self.last_valid_twist_s is not None and deadman_expired(
+            time.monotonic(), self.last_valid_twist_s, self.config.deadman_timeout_s
+        )
+        return "deadman: no fresh twist, motors commanded to zero" if stale else ""
 
     def publish(self, velocity: np.ndarray, reason: str, sim_time_s: float, frame_seq: int) -> None:
         self.pub.put(

@@ -6,8 +6,6 @@ scenario's camera mount, i.e. the calibration); never the simulator's ground tru
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from common import kinematics as kin
@@ -35,30 +33,35 @@ class ControllerService:
             kin.homogeneous(rot, np.array(cam.position)),
             ctx.scenario.target.approach_height_m,
         )
-        self.node = Node("controller", ctx.keys, ctx.session, self.status_fields)
+        self.node = Node("controller", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.twist)
         self.node.subscribe(ctx.keys.features, Features)
         self.node.subscribe(ctx.keys.joint_state, JointState)
         self.pairer: FramePairer[Features, JointState] = FramePairer()
         self.error_px = float("nan")
         self.converged = False
-        self.process_ms = 0.0
+        self.holding = False
+        self.target_remembered = False
 
     def status_fields(self) -> dict:
         return {
             "mode": self.controller.config.mode.value,
             "error_px_rms": self.error_px,
             "converged": self.converged,
-            "process_ms": round(self.process_ms, 3),
+            "holding": self.holding,
+            "target_remembered": self.target_remembered,
         }
 
+    def degraded(self) -> str:
+        return "holding: a marker is missing" if self.holding else ""
+
     def on_pair(self, features: Features, joints: JointState) -> None:
-        started = time.perf_counter()
         p_ee = kin.forward_kinematics(np.array(joints.position_rad))[:3, 3]
         out = self.controller.step(
             observation(features.hand), observation(features.target), features.intrinsics, p_ee
         )
         self.error_px, self.converged = out.error_px_rms, out.converged
+        self.holding, self.target_remembered = not out.valid, out.target_remembered
         self.pub.put(
             EndEffectorTwist(
                 header=self.node.header(features.header.sim_time_s, features.header.frame_seq),
@@ -70,7 +73,6 @@ class ControllerService:
                 converged=out.converged,
             )
         )
-        self.process_ms = 1000.0 * (time.perf_counter() - started)
 
     def on_event(self, key: str, msg: Features | JointState) -> None:
         pair = self.pairer.add(key == self.ctx.keys.features, msg.header.frame_seq, msg)

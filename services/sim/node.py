@@ -38,6 +38,7 @@ class SimService:
         self.frame_seq = 0
         self.dropped_frames = 0
         self.render_ms = 0.0
+        self.started_s = time.monotonic()
         self.node = Node("sim", ctx.keys, ctx.session, self.status_fields)
         keys = ctx.keys
         self.pub_frame = self.node.publisher(keys.rgbd)
@@ -53,10 +54,14 @@ class SimService:
             "frame_seq": self.frame_seq,
             "render_ms": round(self.render_ms, 2),
             "dropped_frames": self.dropped_frames,
+            "real_time_factor": round(
+                self.world.sim_time_s / max(time.monotonic() - self.started_s, 1e-9), 3
+            ),
         }
 
     # --- publishing one camera frame ----------------------------------------------------
     def publish_frame(self) -> None:
+        started_publish = time.perf_counter()
         seq, t = self.frame_seq, self.world.sim_time_s
         q, qdot = self.world.joint_state()
         started = time.perf_counter()
@@ -87,6 +92,7 @@ class SimService:
                 depth_m=ImageData.from_array(depth_m),
             )
         )
+        self.node.processing.add(1000.0 * (time.perf_counter() - started_publish))
 
     def apply(self, command: JointVelocityCommand) -> None:
         self.last_command = np.array(command.velocity_rad_s)

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
 from common.config import VisionConfig
-from services.vision.occlusion import is_occluded
+from services.vision.occlusion import RING_WIDTH_PX, is_occluded
 
 FloatArray = NDArray[np.float64]
 Color = Literal["red", "green"]
@@ -72,7 +72,7 @@ class MarkerMeasurement:
     corner (m); ``points_m`` (4, 3) corners in the camera optical frame (m); ``area_px`` the
     blob's pixel count (0 when there is no blob). When not visible the arrays are zeros and
     ``reason`` says why ("no blob", "blob too small", "touches image border",
-    "not a quadrilateral", "no valid depth"); otherwise ``reason`` is "".
+    "not a quadrilateral", "no valid depth", "occluded"); otherwise ``reason`` is "".
     """
 
     visible: bool
@@ -283,21 +283,24 @@ def _side_runs(
 ) -> list[np.ndarray] | None:
     """Contour points (int32 (n, 2)) of each side i (rough corner i → i+1), in contour order,
     without those near the rough corners (only good to ~1 px and rounded by the morphology,
-    more so when acute). Each step along an 8-connected digital edge advances 1 px along its
-    dominant axis, so dropping ⌈r⌉ points at an end drops every point within r px of it.
-    None if the corners are not in contour order."""
+    more so when acute). None if the corners are not in contour order.
+
+    An 8-connected digital edge advances one pixel along its dominant axis per point, so the
+    point k steps from a corner lies k/m px away (m: largest component of the side's unit
+    direction) and dropping ⌈r·m⌉ points drops exactly those within r px.
+    """
     q = rough_px.tolist()
-    shortest_side_px = min(math.dist(q[i], q[(i + 1) % 4]) for i in range(4))
-    skip = [
-        math.ceil(
-            max(
-                CORNER_EXCLUSION_PX,
-                CORNER_EXCLUSION_FRACTION * shortest_side_px,
-                CORNER_EXCLUSION_ACUTE_PX / math.tan(angle / 2.0),
-            )
+    sides = [(q[(i + 1) % 4][0] - q[i][0], q[(i + 1) % 4][1] - q[i][1]) for i in range(4)]
+    lengths = [math.hypot(du, dv) for du, dv in sides]
+    radius_px = [
+        max(
+            CORNER_EXCLUSION_PX,
+            CORNER_EXCLUSION_FRACTION * min(lengths),
+            CORNER_EXCLUSION_ACUTE_PX / math.tan(angle / 2.0),
         )
         for angle in _interior_angles_rad(rough_px)
     ]
+    dominant = [max(abs(du), abs(dv)) / n for (du, dv), n in zip(sides, lengths, strict=True)]
     n = len(contour)
 
     def offsets(index: list[int]) -> list[int]:
@@ -310,7 +313,12 @@ def _side_runs(
             return None
     twice = np.concatenate([contour, contour])  # so that the last side need not wrap
     ends = [corner_index[0] + r for r in [*offsets(corner_index), n]]
-    return [twice[ends[i] + skip[i] : ends[i + 1] - skip[(i + 1) % 4] + 1] for i in range(4)]
+    runs = []
+    for i in range(4):
+        first = ends[i] + math.ceil(radius_px[i] * dominant[i])
+        last = ends[i + 1] - math.ceil(radius_px[(i + 1) % 4] * dominant[i])
+        runs.append(twice[first : last + 1])
+    return runs
 
 
 @dataclass(frozen=True)
@@ -320,12 +328,15 @@ class _EdgeFits:
     normals: FloatArray  # (S, 2) unit, pointing out of the blob
     offsets_px: FloatArray  # (S,) already moved out by half a lattice step
     centres_px: FloatArray  # (S, 2) centroid of each side's points
-    max_residual_px: float  # largest distance of a point from its side's line (any side)
+    max_residual_px: FloatArray  # (S,) largest distance of a point from its side's line
 
 
-def _fit_edges_tls(points: np.ndarray, side: np.ndarray, inward_px: FloatArray) -> _EdgeFits:
+def _fit_edges_tls(
+    points: np.ndarray, side: np.ndarray, starts: np.ndarray, inward_px: FloatArray
+) -> _EdgeFits:
     """Lines behind the boundary pixel centres of S sides (``points`` (N, 2), grouped by side,
-    ``side`` (N,) their side index), normals pointing away from ``inward_px``.
+    ``side`` (N,) their side index, ``starts`` (S,) where each side's points begin), normals
+    pointing away from ``inward_px`` (S, 2).
 
     Total least squares gives the line through the pixel centres. The boundary pixels of a
     polygon rasterised by pixel-centre sampling lie between the true edge and one lattice
@@ -346,7 +357,8 @@ def _fit_edges_tls(points: np.ndarray, side: np.ndarray, inward_px: FloatArray) 
     theta = 0.5 * np.arctan2(2.0 * suv, suu - svv)  # direction of largest spread: the edge
     normals = np.column_stack([-np.sin(theta), np.cos(theta)])
     normals *= np.sign(np.sum(normals * (centres - inward_px), axis=1) + 1e-300)[:, None]
-    max_residual_px = float(np.max(np.abs(du * normals[side, 0] + dv * normals[side, 1])))
+    residuals = np.abs(du * normals[side, 0] + dv * normals[side, 1])
+    max_residual_px = np.maximum.reduceat(residuals, starts)
     half_step_px = 0.5 * np.max(np.abs(normals), axis=1)
     offsets = np.sum(normals * centres, axis=1) + half_step_px
     return _EdgeFits(normals, offsets, centres, max_residual_px)
@@ -431,24 +443,38 @@ def _preimage_centroids(inside: np.ndarray, outside: np.ndarray) -> tuple[FloatA
     return moments[1] / area, moments[2] / area, ok
 
 
-def _edge_lines(
-    runs: list[np.ndarray], inward_px: FloatArray, mask: np.ndarray
-) -> list[tuple[FloatArray, float]] | None:
-    """Edge line ``n·p = c`` (n outward unit normal, px) of each side from its boundary pixel
-    centres: the preimage centroid, expressed in the frame of the side's total-least-squares
-    line, or that line moved out by half a lattice step where the preimage is empty. None if
-    a side has too few points or is not straight."""
+@dataclass(frozen=True)
+class _Blob:
+    """A blob that passed the cheap checks, its sides ready for sub-pixel refinement."""
+
+    rough_px: FloatArray  # (4, 2) canonical order
+    runs: list[np.ndarray]  # per side, its boundary pixels away from the corners, int32 (n, 2)
+    mask: np.ndarray
+    area_px: float
+
+
+def _edge_lines(blobs: list[_Blob]) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Edge lines ``normals[s]·p = offsets[s]`` (outward unit normals, px) of the 4 sides of
+    every blob, batched (numpy's per-call overhead dominates on these small arrays), and
+    each side's largest TLS residual (px, to reject sides that are not straight).
+
+    Each line is the preimage centroid expressed in the frame of the side's total-least-
+    squares line, or that line moved out by half a lattice step where the preimage is empty.
+    """
+    runs = [run for blob in blobs for run in blob.runs]
     counts = [len(run) for run in runs]
-    if min(counts) < MIN_POINTS_PER_SIDE:
-        return None
     points = np.concatenate(runs)
     side = np.repeat(np.arange(len(runs)), counts)
-    fits = _fit_edges_tls(points, side, inward_px)
-    if fits.max_residual_px > MAX_SIDE_RESIDUAL_PX:
-        return None
-    outside_runs = _outside_neighbours(points, side, fits.normals, mask)
-    if min(len(o) for o in outside_runs) < 2:  # too little to bound the edge: keep the TLS
-        return list(zip(fits.normals, fits.offsets_px.tolist(), strict=True))
+    starts = np.cumsum([0, *counts[:-1]])
+    inward = np.repeat([blob.rough_px.mean(axis=0) for blob in blobs], 4, axis=0)
+    fits = _fit_edges_tls(points, side, starts, inward)
+    outside_runs = []
+    for b, blob in enumerate(blobs):  # each blob has its own mask
+        mine = slice(starts[4 * b], starts[4 * b] + sum(counts[4 * b : 4 * b + 4]))
+        normals = fits.normals[4 * b : 4 * b + 4]
+        outside_runs += _outside_neighbours(points[mine], side[mine] - 4 * b, normals, blob.mask)
+    if min(len(o) for o in outside_runs) < 2:  # too little to bound an edge: keep the TLS
+        return fits.normals, fits.offsets_px, fits.max_residual_px
     origins = fits.centres_px[:, None, :]
     alongs = np.column_stack([-fits.normals[:, 1], fits.normals[:, 0]])
     frames = np.stack([alongs, fits.normals], axis=2)  # (p - origin) @ frame = (s along, t out)
@@ -461,7 +487,7 @@ def _edge_lines(
     refined_offsets = betas / norms + np.sum(refined * fits.centres_px, axis=1)
     normals = np.where(oks[:, None], refined, fits.normals)
     offsets = np.where(oks, refined_offsets, fits.offsets_px)
-    return list(zip(normals, offsets.tolist(), strict=True))
+    return normals, offsets, fits.max_residual_px
 
 
 def _intersect_lines(n1: FloatArray, c1: float, n2: FloatArray, c2: float) -> FloatArray | None:
@@ -471,28 +497,23 @@ def _intersect_lines(n1: FloatArray, c1: float, n2: FloatArray, c2: float) -> Fl
     return np.array([(c1 * n2[1] - c2 * n1[1]) / det, (n1[0] * c2 - n2[0] * c1) / det])
 
 
-def _refine_corners(
-    contour: np.ndarray, rough_px: FloatArray, corner_index: list[int], mask: np.ndarray
+def _corners_from_lines(
+    normals: FloatArray, offsets: list[float], rough_px: FloatArray
 ) -> FloatArray | None:
-    """Sub-pixel corners: one edge line per side from its contour points away from the rough
-    corners, then adjacent lines intersected: corner i is side (i-1) ∩ side i. None if a
-    side is not straight or two lines meet far from the rough corner."""
-    runs = _side_runs(contour, rough_px, corner_index)
-    lines = None if runs is None else _edge_lines(runs, rough_px.mean(axis=0), mask)
-    if lines is None:
-        return None
+    """Corner i = side (i-1) ∩ side i; None if two sides are nearly parallel or meet far from
+    the rough corner (the fit went wrong)."""
     corners = np.empty((4, 2))
     for i in range(4):
-        p = _intersect_lines(*lines[i - 1], *lines[i])
+        p = _intersect_lines(normals[i - 1], offsets[i - 1], normals[i], offsets[i])
         if p is None or math.dist(p, rough_px[i]) > MAX_CORNER_SHIFT_PX:
             return None
         corners[i] = p
     return corners
 
 
-def _find_quad(mask: np.ndarray, min_area_px: int, roi: Roi | None = None) -> _QuadResult:
-    """Largest blob of ``mask`` as a refined quadrilateral, or None with the reason. ``roi``:
-    the part of the mask that can be non-zero (searched alone, for speed)."""
+def _blob_candidate(mask: np.ndarray, min_area_px: int, roi: Roi | None) -> _Blob | _QuadResult:
+    """The largest blob of ``mask`` if it passes the cheap checks, else the failed result.
+    ``roi``: the part of the mask that can be non-zero (searched alone, for speed)."""
     rows, cols = roi if roi is not None else (slice(0, mask.shape[0]), slice(0, mask.shape[1]))
     contours, _ = cv2.findContours(
         mask[rows, cols], cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(cols.start, rows.start)
@@ -507,12 +528,42 @@ def _find_quad(mask: np.ndarray, min_area_px: int, roi: Roi | None = None) -> _Q
         return _QuadResult(None, "touches image border", area_px)
     contour = contour.reshape(-1, 2)
     rough = _rough_quad(contour)
-    if rough is None or not _is_plausible_quad(rough[0]):
+    runs = None
+    if rough is not None and _is_plausible_quad(rough[0]):
+        runs = _side_runs(contour, *rough)
+    if runs is None or min(len(run) for run in runs) < MIN_POINTS_PER_SIDE:
         return _QuadResult(None, "not a quadrilateral", area_px)
-    refined = _refine_corners(contour, *rough, mask)
-    if refined is None or not _is_plausible_quad(refined):
-        return _QuadResult(None, "not a quadrilateral", area_px)
-    return _QuadResult(order_corners(refined), "", area_px)
+    return _Blob(rough[0], runs, mask, area_px)
+
+
+def _find_quads(masks: list[tuple[np.ndarray, Roi | None]], min_area_px: int) -> list[_QuadResult]:
+    """The largest blob of each mask as a sub-pixel quadrilateral, or None with the reason.
+
+    Corners: one edge line per side from its boundary pixels away from the rough corners,
+    adjacent lines intersected. Rejected if a side is not straight or the refined corners do
+    not form a plausible quadrilateral. All blobs' sides are refined in one batch.
+    """
+    candidates = [_blob_candidate(mask, min_area_px, roi) for mask, roi in masks]
+    blobs = [c for c in candidates if isinstance(c, _Blob)]
+    if not blobs:
+        return [c for c in candidates if isinstance(c, _QuadResult)]
+    normals, offsets, residuals = _edge_lines(blobs)
+    offsets, residuals = offsets.tolist(), residuals.tolist()
+    results, b = [], 0
+    for candidate in candidates:
+        if isinstance(candidate, _QuadResult):
+            results.append(candidate)
+            continue
+        sides = slice(4 * b, 4 * b + 4)
+        b += 1
+        corners = None
+        if max(residuals[sides]) <= MAX_SIDE_RESIDUAL_PX:
+            corners = _corners_from_lines(normals[sides], offsets[sides], candidate.rough_px)
+        if corners is None or not _is_plausible_quad(corners):
+            results.append(_QuadResult(None, "not a quadrilateral", candidate.area_px))
+        else:
+            results.append(_QuadResult(order_corners(corners), "", candidate.area_px))
+    return results
 
 
 def square_corners(mask: np.ndarray, min_area_px: int) -> np.ndarray | None:
@@ -523,10 +574,29 @@ def square_corners(mask: np.ndarray, min_area_px: int) -> np.ndarray | None:
     blob, it has fewer than ``min_area_px`` pixels, touches the image border, or is not a
     convex quadrilateral with straight sides.
     """
-    return _find_quad(mask, min_area_px).corners_px
+    return _find_quads([(mask, None)], min_area_px)[0].corners_px
 
 
 # --- depth -------------------------------------------------------------------------------------
+def _bounding_box(
+    corners_px: FloatArray, margin_px: int, shape: tuple[int, ...]
+) -> tuple[int, int, int, int]:
+    """(row0, row1, col0, col1) slice bounds of the pixels within ``margin_px`` of the
+    corners' bounding box, clipped to an image of ``shape``."""
+    us, vs = zip(*corners_px.tolist(), strict=True)
+    return (
+        max(math.floor(min(vs)) - margin_px, 0),
+        min(math.ceil(max(vs)) + margin_px + 1, shape[0]),
+        max(math.floor(min(us)) - margin_px, 0),
+        min(math.ceil(max(us)) + margin_px + 1, shape[1]),
+    )
+
+
+def _quad_area_px2(corners_px: FloatArray) -> float:
+    q = corners_px.tolist()
+    return 0.5 * abs(sum(q[i - 1][0] * q[i][1] - q[i][0] * q[i - 1][1] for i in range(4)))
+
+
 def _marker_depth_pixels(
     depth_m: np.ndarray, mask: np.ndarray, corners_px: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -536,13 +606,9 @@ def _marker_depth_pixels(
     (radius 10 % of the side, at least 2 px) so that the outline and the pixels next to
     occluders, where depth jumps to what lies behind or in front, are dropped.
     """
-    side_px = math.sqrt(max(abs(float(cv2.contourArea(corners_px.astype(np.float32)))), 1.0))
+    side_px = math.sqrt(max(_quad_area_px2(corners_px), 1.0))
     radius_px = max(DEPTH_ERODE_MIN_PX, round(DEPTH_ERODE_FRACTION * side_px))
-    h, w = mask.shape
-    c0, r0 = (max(int(x), 0) for x in np.floor(corners_px.min(axis=0)))
-    c1, r1 = (
-        min(int(x) + 2, n) for x, n in zip(np.ceil(corners_px.max(axis=0)), (w, h), strict=True)
-    )
+    r0, r1, c0, c1 = _bounding_box(corners_px, 1, mask.shape)
     if r1 <= r0 or c1 <= c0:
         return np.zeros((0, 2)), np.zeros(0)
     quad = np.zeros((r1 - r0, c1 - c0), np.uint8)
@@ -627,8 +693,8 @@ def corner_depths(
         depths = np.full(4, _median(z))
     else:
         normal, offset = _robust_plane(back_project(uv, z, k))
-        rays = np.column_stack([pixel_to_normalized(corners, k), np.ones(4)])
-        denom = rays @ normal
+        xy = pixel_to_normalized(corners, k)
+        denom = xy @ normal[:2] + normal[2]  # n · (x, y, 1) of each corner's ray
         if np.any(np.abs(denom) < 1e-6):
             return None
         depths = offset / denom
@@ -639,14 +705,12 @@ def corner_depths(
 
 # --- per frame ---------------------------------------------------------------------------------
 def _measure(
+    quad: _QuadResult,
     mask: np.ndarray,
-    roi: Roi,
     depth_m: np.ndarray,
     k: CameraIntrinsics,
-    cfg: VisionConfig,
     previous_corners_px: np.ndarray | None,
 ) -> MarkerMeasurement:
-    quad = _find_quad(mask, cfg.min_area_px, roi)
     if quad.corners_px is None:
         return _invisible(quad.reason, quad.area_px)
     corners = order_corners(quad.corners_px, previous_corners_px)
@@ -654,9 +718,16 @@ def _measure(
     if depth is None:
         return _invisible("no valid depth", quad.area_px)
     depths, points = depth
-    if is_occluded(depth_m, mask, depths):
+    if is_occluded(*_around(corners, RING_WIDTH_PX + 3, depth_m, mask), depths):
         return _invisible("occluded", quad.area_px)
     return MarkerMeasurement(True, corners, depths, points, quad.area_px, "")
+
+
+def _around(corners_px: FloatArray, margin_px: int, *images: np.ndarray) -> list[np.ndarray]:
+    """Crops of the images to the corners' bounding box grown by ``margin_px`` (so a check
+    on a marker's surroundings need not scan the whole frame)."""
+    r0, r1, c0, c1 = _bounding_box(corners_px, margin_px, images[0].shape)
+    return [image[r0:r1, c0:c1] for image in images]
 
 
 def _check_frame(rgb: np.ndarray, depth_m: np.ndarray) -> None:
@@ -680,7 +751,8 @@ def measure_marker(
     """
     _check_frame(rgb, depth_m)
     mask, roi = _marker_mask(rgb, _coarse_image(rgb, cfg), color, cfg)
-    return _measure(mask, roi, depth_m, k, cfg, previous_corners_px)
+    (quad,) = _find_quads([(mask, roi)], cfg.min_area_px)
+    return _measure(quad, mask, depth_m, k, previous_corners_px)
 
 
 def measure_markers(
@@ -694,8 +766,10 @@ def measure_markers(
     same keys to last frame's corners (missing keys: no previous)."""
     _check_frame(rgb, depth_m)
     previous = previous or {}
-    coarse = _coarse_image(rgb, cfg)  # shared: the colour conversion is the costliest step
+    coarse = _coarse_image(rgb, cfg)  # shared: the colour conversion is a costly step
+    masks = [_marker_mask(rgb, coarse, color, cfg) for color in MARKERS.values()]
+    quads = _find_quads(masks, cfg.min_area_px)  # both markers' sides refined in one batch
     return {
-        name: _measure(*_marker_mask(rgb, coarse, color, cfg), depth_m, k, cfg, previous.get(name))
-        for name, color in MARKERS.items()
+        name: _measure(quad, mask, depth_m, k, previous.get(name))
+        for name, quad, (mask, _) in zip(MARKERS, quads, masks, strict=True)
     }

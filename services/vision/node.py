@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from common.codec import FRAME_MAX_BYTES
@@ -27,23 +25,32 @@ class VisionService:
     def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
         self.config = ctx.scenario.vision
-        self.node = Node("vision", ctx.keys, ctx.session, self.status_fields)
+        self.node = Node("vision", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.features)
         self.node.subscribe(ctx.keys.rgbd, RgbdFrame, FRAME_MAX_BYTES, latest_only=True)
         # Last visible corners per marker: keeps the corner order from flipping as a square turns.
         self.previous: dict[str, np.ndarray] = {}
         self.visible: dict[str, bool] = {"hand": False, "target": False}
-        self.process_ms = 0.0
+        self.reasons: dict[str, str] = {"hand": "", "target": ""}
 
     def status_fields(self) -> dict:
-        return {"markers_visible": dict(self.visible), "process_ms": round(self.process_ms, 3)}
+        # RGB and depth come registered in one frame, so the depth is as old as the image.
+        return {
+            "markers_visible": dict(self.visible),
+            "lost_reasons": dict(self.reasons),
+            "depth_age_s": 0.0,
+        }
+
+    def degraded(self) -> str:
+        lost = [f"{n}: {r}" for n, r in self.reasons.items() if r]
+        return "marker not visible (" + "; ".join(lost) + ")" if lost else ""
 
     def on_frame(self, frame: RgbdFrame) -> None:
-        started = time.perf_counter()
         rgb, depth = frame.rgb.to_array(), frame.depth_m.to_array()
         measured = measure_markers(rgb, depth, frame.intrinsics, self.config, self.previous)
         for name, m in measured.items():
             self.visible[name] = m.visible
+            self.reasons[name] = m.reason
             if m.visible:
                 self.previous[name] = m.corners_px
         header = self.node.header(frame.header.sim_time_s, frame.header.frame_seq)
@@ -55,7 +62,6 @@ class VisionService:
                 target=to_message(measured["target"]),
             )
         )
-        self.process_ms = 1000.0 * (time.perf_counter() - started)
 
     def run(self) -> None:
         self.node.spin(self.ctx.stop, lambda _key, frame: self.on_frame(frame))

@@ -1,0 +1,98 @@
+"""``umay status``: what every service says about itself, and whether it is still alive."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import zenoh
+from rich.table import Table
+
+from common.keys import SERVICES, Keys
+from common.messages import ServiceStatus
+from common.transport import alive_services, query_status
+
+
+@dataclass(frozen=True)
+class ServiceView:
+    name: str
+    alive: bool  # liveliness token present
+    status: ServiceStatus | None  # None: did not answer
+
+    @property
+    def condition(self) -> str:
+        if self.status is None:
+            return "alive, not answering" if self.alive else "gone"
+        if not self.alive:
+            return "answers, token lost"
+        return self.status.state
+
+
+def collect(session: zenoh.Session, keys: Keys, timeout_s: float) -> list[ServiceView]:
+    statuses = {s.service: s for s in query_status(session, keys, timeout_s)}
+    alive = alive_services(session, keys, timeout_s)
+    names = sorted(set(SERVICES) | set(statuses) | alive)
+    return [ServiceView(n, n in alive, statuses.get(n)) for n in names]
+
+
+def as_json(views: list[ServiceView]) -> dict:
+    return {
+        v.name: {
+            "alive": v.alive,
+            "condition": v.condition,
+            "status": v.status.model_dump() if v.status else None,
+        }
+        for v in views
+    }
+
+
+def _short_key(key: str, prefix: str) -> str:
+    return key.removeprefix(prefix + "/")
+
+
+def _fmt(value: float | None, fmt: str) -> str:
+    return "-" if value is None else format(value, fmt)
+
+
+def table(views: list[ServiceView], keys: Keys) -> Table:
+    t = Table(title=f"umay status  {keys.prefix}  {time.strftime('%H:%M:%S')}")
+    for col in (
+        "service",
+        "condition",
+        "pid",
+        "up s",
+        "in (Hz, age s)",
+        "out (Hz)",
+        "rej",
+        "p50/p99 ms",
+        "fields",
+    ):
+        t.add_column(col, overflow="fold")
+    for v in views:
+        s = v.status
+        if s is None:
+            t.add_row(v.name, v.condition, *["-"] * 7)
+            continue
+        received = "\n".join(
+            f"{_short_key(k, keys.prefix)} {st.rate_hz:.1f} ({_fmt(st.age_s, '.2f')})"
+            for k, st in s.received.items()
+        )
+        published = "\n".join(
+            f"{_short_key(k, keys.prefix)} {st.rate_hz:.1f}" for k, st in s.published.items()
+        )
+        fields = "\n".join(f"{k}={v}" for k, v in s.fields.items())
+        if s.degraded_reason:
+            fields = f"[yellow]{s.degraded_reason}[/]\n" + fields
+        rejected = str(s.rejected) + (f"\n{s.last_rejection[:60]}" if s.rejected else "")
+        t.add_row(
+            v.name,
+            v.condition,
+            str(s.pid),
+            f"{s.uptime_s:.1f}",
+            received,
+            published,
+            rejected,
+            f"{_fmt(s.processing_ms_p50, '.2f')}/{_fmt(s.processing_ms_p99, '.2f')}",
+            fields,
+        )
+    return t

@@ -1,0 +1,83 @@
+"""``umay status`` against running services: every field is there, a killed service shows."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+from common.keys import SERVICES, Keys
+from common.transport import free_tcp_endpoint, open_session
+from deploy.status import collect
+from deploy.supervisor import Supervisor
+
+
+def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> None:
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    session = open_session(connect=[], listen=[endpoint])
+    sup = Supervisor(None, keys.prefix, endpoint, tmp_path / "logs")
+    sup.start()
+    try:
+        deadline = time.monotonic() + 60
+        views = []
+        while time.monotonic() < deadline:
+            views = collect(session, keys, 0.5)
+            running = [v for v in views if v.status and v.alive and v.status.received]
+            traffic = all(st.count > 0 for v in running for st in v.status.received.values())
+            if len(running) == 4 and traffic:
+                break
+            time.sleep(0.3)
+        proc = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "deploy",
+                "status",
+                "--json",
+                "--prefix",
+                keys.prefix,
+                "--connect",
+                endpoint,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+        assert proc.returncode == 0, proc.stderr
+        out = json.loads(proc.stdout)
+        assert set(out) == set(SERVICES)
+        for name, entry in out.items():
+            assert entry["alive"], name
+            st = entry["status"]
+            assert st["pid"] > 0 and st["host"] and st["uptime_s"] > 0
+            assert st["state"] in {"running", "degraded"}
+            for key_stats in list(st["received"].values()) + list(st["published"].values()):
+                assert {"count", "rate_hz", "age_s", "dropped"} <= set(key_stats)
+            assert st["processing_ms_p50"] is not None and st["processing_ms_p99"] is not None
+        assert {"sim_time_s", "real_time_factor", "render_ms", "dropped_frames"} <= set(
+            out["sim"]["status"]["fields"]
+        )
+        assert {"markers_visible", "depth_age_s"} <= set(out["vision"]["status"]["fields"])
+        assert {"mode", "error_px_rms", "converged"} <= set(out["controller"]["status"]["fields"])
+        assert {"deadman", "saturated_joints"} <= set(out["actuation"]["status"]["fields"])
+
+        pid = sup.children["vision"].process.pid
+        os.kill(pid, signal.SIGKILL)
+        killed = time.monotonic()
+        gone_after = None
+        while time.monotonic() - killed < 10:
+            vision = next(v for v in collect(session, keys, 0.3) if v.name == "vision")
+            if vision.condition == "gone":
+                gone_after = time.monotonic() - killed
+                break
+        print(f"vision shown as gone {gone_after} s after kill -9")
+        assert gone_after is not None and gone_after < 2.0
+    finally:
+        sup.stop()
+        session.close()
