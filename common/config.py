@@ -127,9 +127,35 @@ class ActuationConfig(_Strict):
 
 class SimConfig(_Strict):
     physics_hz: float = Field(240.0, ge=30.0, le=2000.0)
+    command_watchdog_s: float = Field(
+        0.3, gt=0.0, le=5.0, description="realtime: motors stop when commands stop this long"
+    )
     lockstep_resend_s: float = Field(
         1.0, gt=0.0, description="re-publish a frame whose command has not come back (wall s)"
     )
+
+
+class RestartPolicy(StrEnum):
+    ALWAYS = "always"
+    ON_FAILURE = "on-failure"  # restart after a non-zero exit or a signal only
+    NEVER = "never"
+
+
+class SupervisorConfig(_Strict):
+    """How ``umay up`` keeps the services alive (as systemd/supervisord would)."""
+
+    restart: dict[Literal["sim", "vision", "controller", "actuation"], RestartPolicy] = Field(
+        default_factory=dict, description="per service; unnamed services use default_restart"
+    )
+    default_restart: RestartPolicy = RestartPolicy.ALWAYS
+    backoff_initial_s: float = Field(0.1, ge=0.0, le=10.0)
+    backoff_max_s: float = Field(5.0, ge=0.0, le=300.0)
+    max_restarts: int = Field(5, ge=0, description="in restart_window_s; then give up")
+    restart_window_s: float = Field(60.0, gt=0.0)
+    stop_grace_s: float = Field(2.0, gt=0.0, le=30.0, description="SIGTERM → SIGKILL")
+
+    def policy(self, service: str) -> RestartPolicy:
+        return self.restart.get(service, self.default_restart)  # type: ignore[call-overload]
 
 
 class RunConfig(_Strict):
@@ -148,6 +174,7 @@ class Scenario(_Strict):
     actuation: ActuationConfig = ActuationConfig()
     sim: SimConfig = SimConfig()
     run: RunConfig = RunConfig()
+    supervisor: SupervisorConfig = SupervisorConfig()
 
 
 class ScenarioError(ValueError):

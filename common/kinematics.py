@@ -196,7 +196,7 @@ HAND_THICKNESS_M = 0.025
 HAND_LENGTH_M = 0.09
 HAND_WIDTH_M = 0.08
 HAND_OFFSET_M = 0.01  # gap between the wrist centre and the hand box along +y6
-MARKER_THICKNESS_M = 0.001
+MARKER_THICKNESS_M = 0.0001  # thin: its side faces would widen the square by ~1 px
 
 
 def hand_marker_in_ee() -> FloatArray:

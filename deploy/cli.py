@@ -7,15 +7,13 @@ import importlib
 import json
 import logging
 import os
-import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
 from common.config import ClockMode, JacobianMode, ScenarioError
 from common.keys import SERVICES, Keys, default_prefix
-from common.transport import open_session, setup_logging
+from common.transport import DEFAULT_ENDPOINT, open_session, setup_logging
 
 EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -78,36 +76,42 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_up(args: argparse.Namespace) -> int:
     from deploy.run import default_listen_endpoint, prepare
-    from deploy.supervisor import Supervisor
+    from deploy.up import run_up
 
     try:
         overrides = _overrides(args)
-        prepare(args.scenario, overrides)
+        scenario = prepare(args.scenario, overrides)
     except ScenarioError as exc:
         print(f"umay up: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    endpoint = args.listen or default_listen_endpoint()
-    session = open_session(connect=[], listen=[endpoint])
+    listen = args.listen or default_listen_endpoint()
+    # Also join the well-known endpoint (or --connect), so a supervisor already running on
+    # this prefix is seen even when this one had to listen elsewhere.
+    connect = args.connect.split(",") if args.connect else [DEFAULT_ENDPOINT]
+    connect = [e for e in connect if e != listen]
     prefix = args.prefix or default_prefix()
-    sup = Supervisor(args.scenario, prefix, endpoint, Path(args.log_dir), overrides)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    sup.start()
-    print(f"umay up: services running under {prefix}, Zenoh at {endpoint}; Ctrl-C stops them")
-    backoff_s = 1.0
-    try:
-        while not stop.wait(0.2):
-            for child in sup.exited():
-                print(
-                    f"umay up: {child.name} exited ({child.exit_codes[-1]}); restarting",
-                    file=sys.stderr,
-                )
-                time.sleep(min(backoff_s * child.restarts, 5.0))
-                sup.restart(child)
-    finally:
-        sup.stop()
-        session.close()
+    return run_up(args.scenario, scenario, overrides, prefix, listen, connect, Path(args.log_dir))
+
+
+def cmd_logs(args: argparse.Namespace) -> int:
+    path = Path(args.log_dir) / f"{args.name}.log"
+    if not path.exists():
+        print(f"umay logs: no log for {args.name} in {args.log_dir}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    lines = path.read_text(errors="replace").splitlines()
+    print("\n".join(lines[-args.lines :]))
+    if args.follow:
+        with path.open(errors="replace") as f:
+            f.seek(0, 2)
+            try:
+                while True:
+                    line = f.readline()
+                    if line:
+                        print(line, end="", flush=True)
+                    else:
+                        time.sleep(0.2)
+            except KeyboardInterrupt:
+                pass
     return 0
 
 
@@ -157,7 +161,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("up", help="launch the four services and keep them running")
     _scenario_options(p, clock_default="realtime")
+    p.add_argument("--connect", default=None, help="Zenoh endpoint(s) to join as well")
     p.set_defaults(func=cmd_up)
+
+    p = sub.add_parser("logs", help="show a service's log file")
+    p.add_argument("name", choices=(*SERVICES,))
+    p.add_argument("--log-dir", default="out/logs")
+    p.add_argument("-n", "--lines", type=int, default=40)
+    p.add_argument("-f", "--follow", action="store_true")
+    p.set_defaults(func=cmd_logs)
 
     p = sub.add_parser("service", help="run one service alone")
     p.add_argument("name", choices=SERVICES)

@@ -1,8 +1,11 @@
-"""Launch the four services as separate OS processes, watch them, stop them cleanly.
+"""Launch the four services as separate OS processes, watch them, restart them, stop them.
 
 The supervisor holds the Zenoh session the services connect to (its listening endpoint is
 passed to them in ``UMAY_ZENOH_CONNECT``); the services then find each other through gossip and
-talk directly. Each child writes its log to ``<log_dir>/<service>.log``.
+talk directly. Each child appends its output to ``<log_dir>/<service>.log``.
+
+Restart policy per service (``always`` / ``on-failure`` / ``never``) with exponential backoff
+and at most ``max_restarts`` restarts in ``restart_window_s``, as in systemd or supervisord.
 """
 
 from __future__ import annotations
@@ -16,12 +19,23 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from common.config import RestartPolicy, SupervisorConfig
 from common.keys import SERVICES
 from common.transport import ENV_CONFIG, ENV_CONNECT
 
 log = logging.getLogger("umay.supervisor")
 
-STOP_GRACE_S = 2.0
+
+def wants_restart(policy: RestartPolicy, exit_code: int) -> bool:
+    """``on-failure``: a non-zero exit code or death by a signal (negative code)."""
+    if policy is RestartPolicy.ALWAYS:
+        return True
+    return policy is RestartPolicy.ON_FAILURE and exit_code != 0
+
+
+def backoff_s(recent_restarts: int, config: SupervisorConfig) -> float:
+    """Exponential: initial, 2·initial, 4·initial, ... capped at backoff_max_s."""
+    return min(config.backoff_initial_s * 2.0**recent_restarts, config.backoff_max_s)
 
 
 @dataclass
@@ -32,6 +46,10 @@ class Child:
     process: subprocess.Popen | None = None
     restarts: int = 0
     exit_codes: list[int] = field(default_factory=list)
+    restart_times: list[float] = field(default_factory=list)
+    restart_due_s: float | None = None  # monotonic time of a scheduled restart
+    given_up: bool = False
+    started_s: float = 0.0
 
 
 class Supervisor:
@@ -44,9 +62,12 @@ class Supervisor:
         overrides: list[str] | None = None,
         services: tuple[str, ...] = SERVICES,
         zenoh_config: str | None = None,
+        config: SupervisorConfig | None = None,
     ) -> None:
         self.endpoint = endpoint
         self.zenoh_config = zenoh_config
+        self.config = config or SupervisorConfig()
+        self.log_dir = log_dir
         log_dir.mkdir(parents=True, exist_ok=True)
         common_args = ["--prefix", prefix]
         if scenario_path:
@@ -75,6 +96,8 @@ class Supervisor:
             child.process = subprocess.Popen(
                 child.argv, stdout=out, stderr=subprocess.STDOUT, env=self._env()
             )
+        child.started_s = time.monotonic()
+        child.restart_due_s = None
         log.info("started %s (pid %d)", child.name, child.process.pid)
 
     def start(self) -> None:
@@ -91,27 +114,69 @@ class Supervisor:
                 out.append(child)
         return out
 
-    def restart(self, child: Child) -> None:
-        child.restarts += 1
-        self.start_child(child)
+    def tick(self, now_s: float | None = None) -> list[str]:
+        """Apply the restart policy once; returns what happened, for the log."""
+        now = time.monotonic() if now_s is None else now_s
+        events = []
+        for child in self.exited():
+            code = child.exit_codes[-1]
+            window = self.config.restart_window_s
+            child.restart_times = [t for t in child.restart_times if now - t <= window]
+            if not wants_restart(self.config.policy(child.name), code):
+                events.append(f"{child.name} exited ({code}); policy says no restart")
+            elif len(child.restart_times) >= self.config.max_restarts:
+                child.given_up = True
+                events.append(
+                    f"{child.name} exited ({code}); {len(child.restart_times)} restarts in "
+                    f"{window:.0f} s, giving up"
+                )
+            else:
+                delay = backoff_s(len(child.restart_times), self.config)
+                child.restart_due_s = now + delay
+                events.append(f"{child.name} exited ({code}); restarting in {delay:.2f} s")
+        for child in self.children.values():
+            if child.restart_due_s is not None and now >= child.restart_due_s:
+                child.restarts += 1
+                child.restart_times.append(now)
+                self.start_child(child)
+                events.append(f"{child.name} restarted (pid {child.process.pid})")
+        return events
 
-    def stop(self, grace_s: float = STOP_GRACE_S) -> None:
+    def stop(self, grace_s: float | None = None) -> None:
         """SIGTERM every child, SIGKILL what is still alive after ``grace_s``."""
+        grace = self.config.stop_grace_s if grace_s is None else grace_s
         running = [c for c in self.children.values() if c.process is not None]
+        for child in self.children.values():
+            child.restart_due_s = None
         for child in running:
             if child.process.poll() is None:
                 child.process.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + grace_s
+        deadline = time.monotonic() + grace
         for child in running:
             remaining = max(0.0, deadline - time.monotonic())
             try:
                 child.process.wait(remaining)
             except subprocess.TimeoutExpired:
-                log.warning("%s did not stop within %.1f s; killing it", child.name, grace_s)
+                log.warning("%s did not stop within %.1f s; killing it", child.name, grace)
                 child.process.kill()
                 child.process.wait()
             child.exit_codes.append(child.process.returncode)
             child.process = None
+
+    def summary(self) -> dict[str, dict]:
+        """For the supervisor's status answer."""
+        return {
+            name: {
+                "pid": c.process.pid if c.process else None,
+                "running": c.process is not None,
+                "restarts": c.restarts,
+                "last_exit_codes": c.exit_codes[-5:],
+                "policy": self.config.policy(name).value,
+                "given_up": c.given_up,
+                "log": str(c.log_path),
+            }
+            for name, c in self.children.items()
+        }
 
     def pids(self) -> dict[str, int | None]:
         return {n: (c.process.pid if c.process else None) for n, c in self.children.items()}

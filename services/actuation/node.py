@@ -32,6 +32,7 @@ class ActuationService:
         self.deadman_stops = 0
         self.saturated: list[int] = []
         self.manipulability = float("nan")
+        self.last_output: JointVelocityCommand | None = None
 
     def status_fields(self) -> dict:
         return {
@@ -50,13 +51,14 @@ class ActuationService:
         return "deadman: no fresh twist, motors commanded to zero" if stale else ""
 
     def publish(self, velocity: np.ndarray, reason: str, sim_time_s: float, frame_seq: int) -> None:
-        self.pub.put(
-            JointVelocityCommand(
-                header=self.node.header(sim_time_s, frame_seq),
-                velocity_rad_s=velocity.tolist(),
-                reason=reason,  # type: ignore[arg-type]
-            )
+        command = JointVelocityCommand(
+            header=self.node.header(sim_time_s, frame_seq),
+            velocity_rad_s=velocity.tolist(),
+            reason=reason,  # type: ignore[arg-type]
         )
+        if frame_seq >= 0:
+            self.last_output = command
+        self.pub.put(command)
 
     def on_pair(self, twist: EndEffectorTwist, joints: JointState) -> None:
         t, seq = twist.header.sim_time_s, twist.header.frame_seq
@@ -86,6 +88,9 @@ class ActuationService:
             self.publish(np.zeros(kin.N_JOINTS), "deadman", 0.0, -1)
 
     def on_event(self, key: str, msg: EndEffectorTwist | JointState) -> None:
+        if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:
+            self.pub.put(self.last_output)  # a re-published frame: same answer again
+            return
         pair = self.pairer.add(key == self.ctx.keys.twist, msg.header.frame_seq, msg)
         if pair is not None:
             self.on_pair(*pair)

@@ -41,6 +41,7 @@ class ControllerService:
         self.error_px = float("nan")
         self.converged = False
         self.holding = False
+        self.last_output: EndEffectorTwist | None = None
         self.target_remembered = False
 
     def status_fields(self) -> dict:
@@ -62,19 +63,23 @@ class ControllerService:
         )
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
-        self.pub.put(
-            EndEffectorTwist(
-                header=self.node.header(features.header.sim_time_s, features.header.frame_seq),
-                linear_m_s=out.twist_base_ee[:3].tolist(),
-                angular_rad_s=out.twist_base_ee[3:].tolist(),
-                valid=out.valid,
-                mode=self.controller.config.mode.value,
-                error_px_rms=out.error_px_rms,
-                converged=out.converged,
-            )
+        self.last_output = EndEffectorTwist(
+            header=self.node.header(features.header.sim_time_s, features.header.frame_seq),
+            linear_m_s=out.twist_base_ee[:3].tolist(),
+            angular_rad_s=out.twist_base_ee[3:].tolist(),
+            valid=out.valid,
+            mode=self.controller.config.mode.value,
+            error_px_rms=out.error_px_rms,
+            converged=out.converged,
         )
+        self.pub.put(self.last_output)
 
     def on_event(self, key: str, msg: Features | JointState) -> None:
+        if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:
+            # A re-published frame (lockstep resend after a restart downstream): answer it
+            # again with the same twist instead of stepping the controller twice.
+            self.pub.put(self.last_output)
+            return
         pair = self.pairer.add(key == self.ctx.keys.features, msg.header.frame_seq, msg)
         if pair is not None:
             self.on_pair(*pair)

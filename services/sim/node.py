@@ -46,6 +46,8 @@ class SimService:
         self.pub_truth = self.node.publisher(keys.truth)
         self.node.subscribe(keys.joint_command, JointVelocityCommand)
         self.last_command = np.zeros(kin.N_JOINTS)
+        self.last_command_s: float | None = None  # wall clock (monotonic)
+        self.watchdog_stops = 0
 
     def status_fields(self) -> dict:
         return {
@@ -54,6 +56,7 @@ class SimService:
             "frame_seq": self.frame_seq,
             "render_ms": round(self.render_ms, 2),
             "dropped_frames": self.dropped_frames,
+            "watchdog_stops": self.watchdog_stops,
             "real_time_factor": round(
                 self.world.sim_time_s / max(time.monotonic() - self.started_s, 1e-9), 3
             ),
@@ -96,7 +99,20 @@ class SimService:
 
     def apply(self, command: JointVelocityCommand) -> None:
         self.last_command = np.array(command.velocity_rad_s)
+        self.last_command_s = time.monotonic()
         self.world.set_joint_velocities(self.last_command)
+
+    def check_watchdog(self) -> None:
+        """Second line of defence behind the actuation deadman: no command, no motion."""
+        if self.last_command_s is None or not np.any(self.last_command):
+            return
+        if time.monotonic() - self.last_command_s > self.scenario.sim.command_watchdog_s:
+            self.last_command = np.zeros(kin.N_JOINTS)
+            self.world.set_joint_velocities(self.last_command)
+            self.watchdog_stops += 1
+            log.warning(
+                "no joint command for %.2f s: motors stopped", self.scenario.sim.command_watchdog_s
+            )
 
     # --- clock modes --------------------------------------------------------------------
     def wait_for_peers(self, timeout_s: float = 20.0) -> None:
@@ -138,6 +154,7 @@ class SimService:
             while event is not None:  # apply the newest command
                 self.apply(event[1])
                 event = self.node.next_event(0.0)
+            self.check_watchdog()
             wall_s = time.monotonic() - started
             behind = int((wall_s - self.world.sim_time_s) / self.world.physics_dt_s)
             if behind > 0:

@@ -48,16 +48,17 @@ def opengl_view_matrix(t_base_cam: FloatArray) -> list[float]:
 def opengl_projection_matrix(k: CameraIntrinsics, near_m: float, far_m: float) -> list[float]:
     """Column-major OpenGL projection whose pixel centres match ``u = fx·x + cx`` exactly.
 
-    With pixel centres at integer coordinates, pixel u's centre sits at NDC
-    ``-1 + (2u + 1)/W``; solving for the frustum gives the off-centre terms below (zero when
-    ``cx = (W-1)/2``).
+    The off-centre terms place the principal point so that rendered pixels line up with the
+    pinhole model of :mod:`common.camera` (pixel centres at integer coordinates).
     """
     w, h = k.width_px, k.height_px
     p = np.zeros((4, 4))
     p[0, 0] = 2.0 * k.fx_px / w
     p[1, 1] = 2.0 * k.fy_px / h
-    p[0, 2] = -(2.0 * (k.cx_px + 0.5) / w - 1.0)  # image x right; OpenGL looks down -z
-    p[1, 2] = 2.0 * (k.cy_px + 0.5) / h - 1.0  # image y down vs OpenGL y up
+    # TinyRenderer samples pixel (row i, column j) at (u, v) = (j - 0.5, i + 0.5) of the
+    # frustum it is given (measured against projected truth), hence the half-pixel terms.
+    p[0, 2] = -(2.0 * k.cx_px / w - 1.0)  # image x right; OpenGL looks down -z
+    p[1, 2] = 2.0 * (k.cy_px + 1.0) / h - 1.0  # image y down vs OpenGL y up
     p[2, 2] = -(far_m + near_m) / (far_m - near_m)
     p[2, 3] = -2.0 * far_m * near_m / (far_m - near_m)
     p[3, 2] = -1.0

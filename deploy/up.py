@@ -1,0 +1,56 @@
+"""``umay up``: keep the four services running until Ctrl-C / SIGTERM.
+
+The supervisor is itself a Zenoh node: it answers ``<prefix>/supervisor/status`` (children,
+pids, restarts, last exit codes) and holds ``<prefix>/alive/supervisor``, which is also how a
+second ``umay up`` on the same prefix sees that it must not start.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from common.config import Scenario
+from common.keys import Keys
+from common.transport import Node, alive_services, open_session
+from deploy.supervisor import Supervisor
+
+EXIT_ALREADY_RUNNING = 3
+
+
+def run_up(
+    scenario_path: str | None,
+    scenario: Scenario,
+    overrides: list[str],
+    prefix: str,
+    listen: str,
+    connect: list[str],
+    log_dir: Path,
+    stop: threading.Event | None = None,
+) -> int:
+    keys = Keys(prefix)
+    session = open_session(connect=connect, listen=[listen])
+    if "supervisor" in alive_services(session, keys, 1.0):
+        session.close()
+        print(f"umay up: a supervisor is already running under {prefix}", file=sys.stderr)
+        return EXIT_ALREADY_RUNNING
+    sup = Supervisor(scenario_path, prefix, listen, log_dir, overrides, config=scenario.supervisor)
+    node = Node("supervisor", keys, session, lambda: {"children": sup.summary()})
+    stop = stop or threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+    sup.start()
+    node.ready()
+    print(f"umay up: services running under {prefix}, Zenoh at {listen}; Ctrl-C stops them")
+    try:
+        while not stop.wait(0.05):
+            for event in sup.tick():
+                print(f"umay up: {event}", file=sys.stderr, flush=True)
+    finally:
+        node.state = "stopping"
+        sup.stop()
+        node.close()  # also closes the session
+    return 0

@@ -1,0 +1,170 @@
+"""Supervisor: restart policy, restarts after kill -9, clean shutdown, one per prefix."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from common.config import RestartPolicy, SupervisorConfig
+from common.keys import SERVICES, Keys
+from common.transport import free_tcp_endpoint, open_session
+from deploy.status import collect
+from deploy.supervisor import Supervisor, backoff_s, wants_restart
+
+
+def test_restart_policy_and_backoff() -> None:
+    assert wants_restart(RestartPolicy.ALWAYS, 0)
+    assert wants_restart(RestartPolicy.ON_FAILURE, 1) and wants_restart(
+        RestartPolicy.ON_FAILURE, -9
+    )
+    assert not wants_restart(RestartPolicy.ON_FAILURE, 0)
+    assert not wants_restart(RestartPolicy.NEVER, -9)
+    cfg = SupervisorConfig(backoff_initial_s=0.1, backoff_max_s=1.0)
+    assert [backoff_s(n, cfg) for n in range(6)] == [0.1, 0.2, 0.4, 0.8, 1.0, 1.0]
+
+
+def test_tick_restarts_with_a_cap(tmp_path: Path) -> None:
+    cfg = SupervisorConfig(backoff_initial_s=0.0, max_restarts=2, restart_window_s=60.0)
+    sup = Supervisor(None, "test/x", "tcp/127.0.0.1:1", tmp_path, services=("sim",), config=cfg)
+    child = sup.children["sim"]
+    child.argv = [sys.executable, "-c", "import sys; sys.exit(3)"]
+    sup.start()
+    events: list[str] = []
+    deadline = time.monotonic() + 20
+    while not child.given_up and time.monotonic() < deadline:
+        events += sup.tick()
+        time.sleep(0.05)
+    assert child.given_up and child.restarts == 2, events
+    assert child.exit_codes == [3, 3, 3]
+    assert any("giving up" in e for e in events)
+
+
+def wait_for(predicate, timeout_s: float, step_s: float = 0.05):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(step_s)
+    return None
+
+
+@pytest.fixture()
+def umay_up(tmp_path: Path):
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "deploy",
+            "up",
+            "--clock",
+            "lockstep",
+            "--prefix",
+            keys.prefix,
+            "--listen",
+            endpoint,
+            "--connect",
+            endpoint,
+            "--log-dir",
+            str(tmp_path / "logs"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    session = open_session(connect=[endpoint])
+    yield proc, keys, session, endpoint
+    if proc.poll() is None:
+        proc.kill()
+    session.close()
+
+
+def test_kill_each_service_it_comes_back_and_the_hand_still_converges(umay_up) -> None:
+    proc, keys, session, _ = umay_up
+
+    def views():
+        return {v.name: v for v in collect(session, keys, 0.3)}
+
+    def all_running():
+        v = views()
+        ok = all(n in v and v[n].alive and v[n].status for n in (*SERVICES, "supervisor"))
+        return v if ok else None
+
+    v = wait_for(all_running, 60)
+    assert v, f"services did not come up: {views()}"
+    latencies = {}
+    for name in SERVICES:
+        old_pid = views()[name].status.pid
+        os.kill(old_pid, signal.SIGKILL)
+        killed = time.monotonic()
+
+        def back(name=name, old_pid=old_pid):
+            s = views().get(name)
+            return s is not None and s.alive and s.status and s.status.pid != old_pid
+
+        assert wait_for(back, 20, 0.02), f"{name} did not come back"
+        latencies[name] = time.monotonic() - killed
+    print(
+        "restart latency (kill -9 → answering again), s:",
+        {k: round(t, 2) for k, t in latencies.items()},
+    )
+    sup_status = views()["supervisor"].status
+    children = sup_status.fields["children"]
+    assert all(children[n]["restarts"] == 1 for n in SERVICES), children
+
+    def converged():
+        c = views().get("controller")
+        return c is not None and c.status and c.status.fields.get("converged")
+
+    assert wait_for(converged, 240, 0.5), "the hand did not reach the target after the restarts"
+
+    # A second supervisor on the same prefix refuses to start.
+    second = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "deploy",
+            "up",
+            "--prefix",
+            keys.prefix,
+            "--listen",
+            free_tcp_endpoint(),
+            "--connect",
+            umay_up[3],
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert second.returncode == 3 and "already running" in second.stderr
+
+    pids = [views()[n].status.pid for n in SERVICES]
+    proc.send_signal(signal.SIGINT)
+    stopped = time.monotonic()
+    proc.wait(10)
+    gone = wait_for(lambda: not any(_alive(p) for p in pids), 5)
+    elapsed = time.monotonic() - stopped
+    print(f"all services gone {elapsed:.2f} s after SIGINT")
+    assert gone and elapsed < 3.0
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # A zombie is gone for our purpose (its parent has not reaped it yet).
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
