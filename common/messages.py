@@ -16,12 +16,22 @@ from common.camera import CameraIntrinsics
 
 N_JOINTS = 6
 
-Vec2 = Annotated[list[float], Field(min_length=2, max_length=2)]
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-Joints = Annotated[list[float], Field(min_length=N_JOINTS, max_length=N_JOINTS)]
+# Sane ranges: a value outside them is a fault, not a command to follow.
+Pixel = Annotated[float, Field(ge=-1e4, le=1e4)]
+Metres = Annotated[float, Field(ge=-50.0, le=50.0)]
+Depth = Annotated[float, Field(ge=0.0, le=50.0)]
+Angle = Annotated[float, Field(ge=-7.0, le=7.0)]  # rad, a little over ±2π
+JointRate = Annotated[float, Field(ge=-20.0, le=20.0)]  # rad/s
+LinearRate = Annotated[float, Field(ge=-5.0, le=5.0)]  # m/s
+AngularRate = Annotated[float, Field(ge=-20.0, le=20.0)]  # rad/s
+
+Vec2 = Annotated[list[Pixel], Field(min_length=2, max_length=2)]
+Vec3 = Annotated[list[Metres], Field(min_length=3, max_length=3)]
+Joints = Annotated[list[Angle], Field(min_length=N_JOINTS, max_length=N_JOINTS)]
+JointRates = Annotated[list[JointRate], Field(min_length=N_JOINTS, max_length=N_JOINTS)]
 Corners2 = Annotated[list[Vec2], Field(min_length=4, max_length=4)]
 Corners3 = Annotated[list[Vec3], Field(min_length=4, max_length=4)]
-Depths4 = Annotated[list[float], Field(min_length=4, max_length=4)]
+Depths4 = Annotated[list[Depth], Field(min_length=4, max_length=4)]
 Pose16 = Annotated[list[float], Field(min_length=16, max_length=16)]
 
 
@@ -92,7 +102,7 @@ class JointState(Message):
 
     header: Header
     position_rad: Joints
-    velocity_rad_s: Joints
+    velocity_rad_s: JointRates
 
 
 class MarkerFeatures(Message):
@@ -119,8 +129,8 @@ class EndEffectorTwist(Message):
     the DH-frame-6 origin, ``angular_rad_s`` the angular velocity."""
 
     header: Header
-    linear_m_s: Vec3
-    angular_rad_s: Vec3
+    linear_m_s: Annotated[list[LinearRate], Field(min_length=3, max_length=3)]
+    angular_rad_s: Annotated[list[AngularRate], Field(min_length=3, max_length=3)]
     valid: bool = Field(description="False: hold (features missing); the twist is zero")
     mode: str = Field(max_length=32)
     error_px_rms: float = Field(ge=0.0, description="RMS of e = s - s* over the 8 coordinates")
@@ -131,7 +141,7 @@ class JointVelocityCommand(Message):
     """Joint velocity set-points for joint_1..joint_6 (rad/s)."""
 
     header: Header
-    velocity_rad_s: Joints
+    velocity_rad_s: JointRates
     reason: Literal["track", "hold", "deadman"] = "track"
 
 

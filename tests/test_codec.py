@@ -53,6 +53,7 @@ def test_frame_round_trip_keeps_images_as_bytes() -> None:
         (msgpack.packb(command(velocity_rad_s=[math.nan] * 6)), "velocity_rad_s"),
         (msgpack.packb(command(velocity_rad_s=["a"] * 6)), "velocity_rad_s"),
         (msgpack.packb(command(extra=1)), "extra"),
+        (msgpack.packb(command(velocity_rad_s=[1e6] * 6)), "less than or equal"),
         (msgpack.packb(command()) + b"\x00" * DEFAULT_MAX_BYTES, "exceeds"),
     ],
 )

@@ -98,7 +98,9 @@ class SimService:
         self.node.processing.add(1000.0 * (time.perf_counter() - started_publish))
 
     def apply(self, command: JointVelocityCommand) -> None:
-        self.last_command = np.array(command.velocity_rad_s)
+        # The motors' own limit, whatever the command says.
+        limit = kin.JOINT_VELOCITY_LIMIT_RAD_S
+        self.last_command = np.clip(np.array(command.velocity_rad_s), -limit, limit)
         self.last_command_s = time.monotonic()
         self.world.set_joint_velocities(self.last_command)
 
