@@ -27,10 +27,10 @@ class CameraIntrinsics(BaseModel):
 
     width_px: int = Field(gt=0, le=4096)
     height_px: int = Field(gt=0, le=4096)
-    fx_px: float = Field(gt=0)
-    fy_px: float = Field(gt=0)
-    cx_px: float
-    cy_px: float
+    fx_px: float = Field(gt=0, le=1e5)
+    fy_px: float = Field(gt=0, le=1e5)
+    cx_px: float = Field(ge=-1e5, le=1e5)
+    cy_px: float = Field(ge=-1e5, le=1e5)
 
     @classmethod
     def from_fov(cls, width_px: int, height_px: int, hfov_deg: float) -> CameraIntrinsics:

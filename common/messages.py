@@ -32,7 +32,7 @@ JointRates = Annotated[list[JointRate], Field(min_length=N_JOINTS, max_length=N_
 Corners2 = Annotated[list[Vec2], Field(min_length=4, max_length=4)]
 Corners3 = Annotated[list[Vec3], Field(min_length=4, max_length=4)]
 Depths4 = Annotated[list[Depth], Field(min_length=4, max_length=4)]
-Pose16 = Annotated[list[float], Field(min_length=16, max_length=16)]
+Pose16 = Annotated[list[Metres], Field(min_length=16, max_length=16)]
 
 
 class Message(BaseModel):
@@ -43,8 +43,10 @@ class Header(Message):
     """Traceability: ``frame_seq`` is the camera frame a message derives from (-1: none)."""
 
     seq: int = Field(ge=0, description="per-publisher sequence number")
-    sim_time_s: float = Field(ge=0.0, description="simulation time of the source data")
-    send_time_s: float = Field(ge=0.0, description="wall-clock time at publication (Unix s)")
+    sim_time_s: float = Field(ge=0.0, le=1e7, description="simulation time of the source data")
+    send_time_s: float = Field(
+        ge=0.0, le=1e11, description="wall-clock time at publication (Unix s)"
+    )
     frame_seq: int = Field(-1, ge=-1, description="camera frame this message derives from")
 
 
@@ -133,7 +135,9 @@ class EndEffectorTwist(Message):
     angular_rad_s: Annotated[list[AngularRate], Field(min_length=3, max_length=3)]
     valid: bool = Field(description="False: hold (features missing); the twist is zero")
     mode: str = Field(max_length=32)
-    error_px_rms: float = Field(ge=0.0, description="RMS of e = s - s* over the 8 coordinates")
+    error_px_rms: float = Field(
+        ge=0.0, le=1e5, description="RMS of e = s - s* over the 8 coordinates"
+    )
     converged: bool
 
 

@@ -255,7 +255,7 @@ def _new_figure(width_in: float, height_in: float, nrows: int = 1) -> tuple[Figu
 
 
 def _title(base: str, series: RunSeries) -> str:
-    return f"{base} — {series.mode_label} Jacobian" if series.mode_label else base
+    return f"{base} — mode: {series.mode_label}" if series.mode_label else base
 
 
 def _style_axes(ax: Axes) -> None:
@@ -297,7 +297,13 @@ def image_trajectory_figure(series: RunSeries) -> Figure | None:
         label="hand marker, start",
     )
     _draw_square(
-        ax, hand[-1], color=HAND_GREEN, linewidth=1.4, linestyle="--", label="hand marker, final"
+        ax,
+        hand[-1],
+        color=HAND_GREEN,
+        linewidth=1.6,
+        linestyle="--",
+        zorder=4,  # above the target square it ends on
+        label="hand marker, final",
     )
     for i, (u, v) in enumerate(hand[0]):
         ax.annotate(
@@ -315,9 +321,11 @@ def image_trajectory_figure(series: RunSeries) -> Figure | None:
             ax,
             target,
             color=TARGET_RED,
-            linewidth=2.0,
+            linewidth=3.0,
+            alpha=0.8,
             marker="s",
-            markersize=5,
+            markersize=6,
+            zorder=1.5,
             label="target marker (desired)",
         )
     ax.set_xlim(0, width)
@@ -372,10 +380,11 @@ def feature_error_figure(
     valid = series.twist_valid & (series.error_px_rms > 0.0)  # log axis: zero not drawable
     if not valid.any():
         return None
+    error = np.where(valid, series.error_px_rms, np.nan)  # NaN: a gap while holding
     fig, (ax,) = _new_figure(7.2, 4.2)
     ax.semilogy(
-        series.twist_t_s[valid],
-        series.error_px_rms[valid],
+        series.twist_t_s,
+        error,
         color="#1f77b4",
         linewidth=1.5,
         marker="o",

@@ -99,12 +99,22 @@ def run_once(
     listen: str | None = None,
     wall_timeout_s: float | None = None,
     quiet: bool = False,
+    record: Path | None = None,
 ) -> RunResult:
-    """Launch the four services, servo until converged or timeout, stop them, judge the run."""
+    """Launch the four services, servo until converged or timeout, stop them, judge the run.
+
+    ``record``: write every data message of the run to this MCAP file (see deploy.recording).
+    """
     endpoint = listen or default_listen_endpoint()
     keys = Keys(prefix)
     monitor = RunMonitor(timeout_s=scenario.run.timeout_s)
     session = open_session(connect=[], listen=[endpoint])
+    recorder = None
+    if record is not None:
+        from deploy.recording import Recorder, run_metadata
+
+        metadata = run_metadata(scenario_path, overrides, prefix)
+        recorder = Recorder(record, session, keys, metadata=metadata)
     subs = [
         session.declare_subscriber(keys.truth, monitor.on_truth),
         session.declare_subscriber(keys.twist, monitor.on_twist),
@@ -138,6 +148,8 @@ def run_once(
                 live.update(progress_line(monitor, scenario, elapsed))
     finally:
         sup.stop()
+        if recorder is not None:
+            recorder.close()
         for s in subs:
             s.undeclare()
         session.close()

@@ -1,0 +1,340 @@
+"""Record the system's traffic to MCAP and read it back.
+
+One MCAP channel per key (topic = the Zenoh key), message encoding ``msgpack`` (the payload
+bytes exactly as they travelled), the pydantic JSON schema of the key's model as the channel
+schema (encoding ``jsonschema``), receive time as ``log_time`` and the header's
+``send_time_s`` as ``publish_time``; zstd-compressed chunks with a summary and indexes, so
+Foxglove Studio, the ``mcap`` CLI and :mod:`deploy.replay` can all read it.
+
+Metadata record ``umay`` holds what a replay needs: the scenario TOML text
+(``scenario_toml``), the ``--set`` overrides as a JSON list (``overrides_json``) and the key
+prefix (``prefix``).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+import msgpack
+import zenoh
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+from pydantic import BaseModel
+
+from common.config import DEFAULT_SCENARIO
+from common.keys import Keys
+from common.messages import (
+    EndEffectorTwist,
+    Features,
+    JointState,
+    JointVelocityCommand,
+    RgbdFrame,
+    SimTruth,
+)
+
+METADATA_NAME = "umay"
+MESSAGE_ENCODING = "msgpack"
+SCHEMA_ENCODING = "jsonschema"
+PROFILE = "umay"
+
+# Key suffix (after the prefix) → model: the data keys, the only ones recorded.
+DATA_SUFFIXES: dict[str, type[BaseModel]] = {
+    "sim/rgbd": RgbdFrame,
+    "sim/joint_state": JointState,
+    "sim/truth": SimTruth,
+    "vision/features": Features,
+    "controller/twist": EndEffectorTwist,
+    "actuation/joint_command": JointVelocityCommand,
+}
+
+
+def model_for_key(keys: Keys, key: str) -> type[BaseModel] | None:
+    """The message model of a data key under ``keys.prefix``; None for anything else (status
+    queries, liveliness, keys under another prefix)."""
+    prefix = keys.prefix + "/"
+    if not key.startswith(prefix):
+        return None
+    return DATA_SUFFIXES.get(key[len(prefix) :])
+
+
+def split_data_key(key: str) -> tuple[str, str, type[BaseModel]] | None:
+    """``"<prefix>/sim/rgbd"`` → ``("<prefix>", "sim/rgbd", RgbdFrame)``, whatever the prefix;
+    None when the key is not a data key."""
+    parts = key.split("/")
+    if len(parts) < 3:
+        return None
+    suffix = "/".join(parts[-2:])
+    model = DATA_SUFFIXES.get(suffix)
+    return None if model is None else ("/".join(parts[:-2]), suffix, model)
+
+
+def run_metadata(
+    scenario_path: str | Path | None, overrides: list[str], prefix: str
+) -> dict[str, str]:
+    """What a replay needs to start a service as it ran: the scenario file's text (the default
+    scenario when None), the ``--set`` overrides and the prefix."""
+    path = Path(scenario_path) if scenario_path else DEFAULT_SCENARIO
+    return {
+        "scenario_toml": path.read_text(),
+        "scenario_path": str(path),
+        "overrides_json": json.dumps(list(overrides)),
+        "prefix": prefix,
+    }
+
+
+def _send_time_ns(payload: bytes) -> int | None:
+    """The header's ``send_time_s`` in ns, or None if the payload has no readable header."""
+    try:
+        data = msgpack.unpackb(payload, raw=False)
+        return int(round(float(data["header"]["send_time_s"]) * 1e9))
+    except Exception:  # not msgpack, no header: recorded anyway, the wire is what it is
+        return None
+
+
+class Recorder:
+    """Subscribe to ``key_expr`` (default: everything under the prefix) and write every data
+    message to an MCAP file. Thread-safe: Zenoh calls back from several threads.
+
+    Use as a context manager, or call :meth:`close` to finish the file (summary, indexes).
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        session: zenoh.Session,
+        keys: Keys,
+        key_expr: str | None = None,
+        metadata: dict[str, str] | None = None,
+        chunk_size: int = 1 << 20,
+    ) -> None:
+        self.path = Path(path)
+        self.keys = keys
+        self.key_expr = key_expr or f"{keys.prefix}/**"
+        self.counts: dict[str, int] = {}
+        self.skipped = 0  # samples on keys without a model
+        self._lock = threading.Lock()
+        self._closed = False
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[type[BaseModel], int] = {}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._stream: IO[bytes] = self.path.open("wb")
+        self._writer = Writer(self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._writer.start(profile=PROFILE, library="umay deploy.recording")
+        if metadata:
+            self._writer.add_metadata(METADATA_NAME, {k: str(v) for k, v in metadata.items()})
+        self._subscriber = session.declare_subscriber(self.key_expr, self._on_sample)
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def _model(self, key: str) -> type[BaseModel] | None:
+        model = model_for_key(self.keys, key)
+        if model is None:  # a wider key expression: another prefix
+            split = split_data_key(key)
+            model = split[2] if split else None
+        return model
+
+    def _channel(self, key: str, model: type[BaseModel]) -> int:
+        """Called with the lock held."""
+        channel = self._channels.get(key)
+        if channel is None:
+            schema = self._schemas.get(model)
+            if schema is None:
+                schema = self._writer.register_schema(
+                    name=model.__name__,
+                    encoding=SCHEMA_ENCODING,
+                    data=json.dumps(model.model_json_schema()).encode(),
+                )
+                self._schemas[model] = schema
+            channel = self._writer.register_channel(
+                topic=key, message_encoding=MESSAGE_ENCODING, schema_id=schema
+            )
+            self._channels[key] = channel
+            self.counts[key] = 0
+        return channel
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        model = self._model(key)
+        if model is None:
+            with self._lock:
+                self.skipped += 1
+            return
+        payload = sample.payload.to_bytes()
+        sent_ns = _send_time_ns(payload)
+        with self._lock:
+            if self._closed:
+                return
+            now_ns = time.time_ns()  # taken under the lock: log times follow the file order
+            channel = self._channel(key, model)
+            self._writer.add_message(
+                channel_id=channel,
+                log_time=now_ns,
+                data=payload,
+                publish_time=now_ns if sent_ns is None else sent_ns,
+                sequence=self.counts[key],
+            )
+            self.counts[key] += 1
+
+    def message_counts(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self.counts)
+
+    def close(self) -> None:
+        """Stop listening and finish the file (summary and indexes); idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        try:
+            self._subscriber.undeclare()
+        except Exception:  # the session may already be closed
+            pass
+        with self._lock:
+            self._writer.finish()
+            self._stream.close()
+
+
+# --- reading ---------------------------------------------------------------------------
+class ChannelInfo(BaseModel):
+    topic: str
+    schema_name: str
+    message_encoding: str
+    count: int
+    rate_hz: float | None  # None with fewer than two messages
+    first_time_s: float | None  # log time, Unix s
+    last_time_s: float | None
+
+
+class RecordingInfo(BaseModel):
+    path: str
+    size_bytes: int
+    profile: str
+    channels: list[ChannelInfo]
+    message_count: int
+    start_time_s: float | None
+    end_time_s: float | None
+    duration_s: float
+    compression: list[str]
+    chunk_count: int
+    metadata: dict[str, dict[str, str]]
+
+
+def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    with Path(path).open("rb") as f:
+        return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+
+
+def read_info(path: str | Path) -> RecordingInfo:
+    """Channels with counts, rates and time spans, the duration and the metadata."""
+    p = Path(path)
+    with p.open("rb") as f:
+        reader = make_reader(f)
+        header = reader.get_header()
+        summary = reader.get_summary()
+        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        first: dict[int, int] = {}
+        last: dict[int, int] = {}
+        counts: dict[int, int] = {}
+        for _schema, channel, message in reader.iter_messages(log_time_order=False):
+            cid = channel.id
+            t = message.log_time
+            first[cid] = min(first.get(cid, t), t)
+            last[cid] = max(last.get(cid, t), t)
+            counts[cid] = counts.get(cid, 0) + 1
+    channels = []
+    schemas = summary.schemas if summary else {}
+    for cid, ch in sorted((summary.channels if summary else {}).items(), key=lambda c: c[1].topic):
+        n = counts.get(cid, 0)
+        t0, t1 = first.get(cid), last.get(cid)
+        span = (t1 - t0) / 1e9 if t0 is not None and t1 is not None else 0.0
+        schema = schemas.get(ch.schema_id)
+        channels.append(
+            ChannelInfo(
+                topic=ch.topic,
+                schema_name=schema.name if schema else "",
+                message_encoding=ch.message_encoding,
+                count=n,
+                rate_hz=(n - 1) / span if n > 1 and span > 0 else None,
+                first_time_s=None if t0 is None else t0 / 1e9,
+                last_time_s=None if t1 is None else t1 / 1e9,
+            )
+        )
+    starts = [c.first_time_s for c in channels if c.first_time_s is not None]
+    ends = [c.last_time_s for c in channels if c.last_time_s is not None]
+    chunks = summary.chunk_indexes if summary else []
+    return RecordingInfo(
+        path=str(p),
+        size_bytes=p.stat().st_size,
+        profile=header.profile,
+        channels=channels,
+        message_count=sum(c.count for c in channels),
+        start_time_s=min(starts) if starts else None,
+        end_time_s=max(ends) if ends else None,
+        duration_s=(max(ends) - min(starts)) if starts else 0.0,
+        compression=sorted({c.compression or "none" for c in chunks}),
+        chunk_count=len(chunks),
+        metadata=metadata,
+    )
+
+
+def format_info(info: RecordingInfo) -> str:
+    """A readable summary: file, duration, one line per channel, the metadata."""
+
+    def when(t: float | None) -> str:
+        if t is None:
+            return "-"
+        return time.strftime("%H:%M:%S", time.localtime(t)) + f".{int(t % 1 * 1000):03d}"
+
+    lines = [
+        f"file         {info.path} ({info.size_bytes / 1e6:.2f} MB)",
+        f"duration     {info.duration_s:.3f} s  ({when(info.start_time_s)} → "
+        f"{when(info.end_time_s)})",
+        f"messages     {info.message_count} in {len(info.channels)} channels, "
+        f"{info.chunk_count} chunks ({', '.join(info.compression) or 'none'})",
+        "",
+    ]
+    width = max([len(c.topic) for c in info.channels] + [5])
+    lines.append(f"{'topic':<{width}}  {'schema':<20} {'count':>7} {'rate Hz':>8}  first → last")
+    for c in info.channels:
+        rate = "-" if c.rate_hz is None else f"{c.rate_hz:.2f}"
+        lines.append(
+            f"{c.topic:<{width}}  {c.schema_name:<20} {c.count:>7} {rate:>8}  "
+            f"{when(c.first_time_s)} → {when(c.last_time_s)}"
+        )
+    for name, meta in info.metadata.items():
+        lines.append("")
+        lines.append(f"metadata {name}:")
+        for k, v in meta.items():
+            text = v if "\n" not in v else f"({len(v.splitlines())} lines)"
+            lines.append(f"  {k}: {text}")
+    return "\n".join(lines)
+
+
+def iter_messages(
+    path: str | Path, topics: list[str] | None = None
+) -> Iterator[tuple[str, int, int, bytes]]:
+    """``(topic, log_time_ns, publish_time_ns, payload)`` in log-time order."""
+    with Path(path).open("rb") as f:
+        reader = make_reader(f)
+        for _schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
+            yield channel.topic, message.log_time, message.publish_time, message.data
+
+
+def topics(path: str | Path) -> list[str]:
+    with Path(path).open("rb") as f:
+        summary = make_reader(f).get_summary()
+    return sorted(c.topic for c in summary.channels.values()) if summary else []
+
+
+def unpack(payload: bytes) -> dict[str, Any]:
+    """A recorded payload as plain data (no validation)."""
+    return msgpack.unpackb(payload, raw=False)
