@@ -93,6 +93,22 @@ def cmd_up(args: argparse.Namespace) -> int:
     return run_up(args.scenario, scenario, overrides, prefix, listen, connect, Path(args.log_dir))
 
 
+def cmd_plot(args: argparse.Namespace) -> int:
+    from deploy.plots import plot_recording
+
+    path = Path(args.file)
+    if not path.is_file():
+        print(f"umay plot: {path}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    written = plot_recording(path, Path(args.out))
+    for p in written:
+        print(p)
+    if not written:
+        print(f"umay plot: {path} holds nothing to plot", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return 0
+
+
 def cmd_logs(args: argparse.Namespace) -> int:
     path = Path(args.log_dir) / f"{args.name}.log"
     if not path.exists():
@@ -163,6 +179,11 @@ def build_parser() -> argparse.ArgumentParser:
     _scenario_options(p, clock_default="realtime")
     p.add_argument("--connect", default=None, help="Zenoh endpoint(s) to join as well")
     p.set_defaults(func=cmd_up)
+
+    p = sub.add_parser("plot", help="figures of a recorded run (PNG)")
+    p.add_argument("file", help="an MCAP recording (umay run --record / umay record)")
+    p.add_argument("--out", default="out/plots", help="output folder")
+    p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("logs", help="show a service's log file")
     p.add_argument("name", choices=(*SERVICES,))
