@@ -1,0 +1,107 @@
+"""Safety chain end to end: the controller dies mid-motion and is not restarted; the commanded
+joint speeds must reach zero within 300 ms (actuation deadman, 250 ms), in wall and sim time."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+from common.codec import DEFAULT_MAX_BYTES, decode
+from common.keys import SERVICES, Keys
+from common.messages import JointState, JointVelocityCommand
+from common.transport import free_tcp_endpoint, open_session
+from deploy.status import collect
+
+
+def test_controller_killed_and_not_restarted_motors_stop_within_300_ms(tmp_path: Path) -> None:
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "deploy",
+            "up",
+            "--clock",
+            "realtime",
+            "--prefix",
+            keys.prefix,
+            "--listen",
+            endpoint,
+            "--connect",
+            endpoint,
+            "--log-dir",
+            str(tmp_path / "logs"),
+            "--set",
+            'supervisor.restart={controller="never"}',
+            # Slow servoing, so the arm is still moving when the controller dies.
+            "--set",
+            "controller.gain=0.3",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    session = open_session(connect=[endpoint])
+    commands: list[tuple[float, JointVelocityCommand]] = []
+    states: list[tuple[float, JointState]] = []
+    lock = threading.Lock()
+
+    def on_command(sample) -> None:
+        msg = decode(sample.payload.to_bytes(), JointVelocityCommand, DEFAULT_MAX_BYTES)
+        with lock:
+            commands.append((time.monotonic(), msg))
+
+    def on_state(sample) -> None:
+        msg = decode(sample.payload.to_bytes(), JointState, DEFAULT_MAX_BYTES)
+        with lock:
+            states.append((time.monotonic(), msg))
+
+    subs = [
+        session.declare_subscriber(keys.joint_command, on_command),
+        session.declare_subscriber(keys.joint_state, on_state),
+    ]
+    try:
+        deadline = time.monotonic() + 60
+        controller_pid = None
+        while time.monotonic() < deadline:
+            views = {v.name: v for v in collect(session, keys, 0.3)}
+            moving = any(np.any(np.abs(c.velocity_rad_s) > 1e-3) for _, c in commands[-3:])
+            if all(views.get(n) and views[n].status for n in SERVICES) and moving:
+                controller_pid = views["controller"].status.pid
+                break
+            time.sleep(0.1)
+        assert controller_pid, "the arm never started moving"
+        os.kill(controller_pid, signal.SIGKILL)
+        killed = time.monotonic()
+        time.sleep(1.5)
+        with lock:
+            after = [(t, c) for t, c in commands if t > killed]
+            sim_at_kill = [s.header.sim_time_s for t, s in states if t <= killed][-1]
+            later_states = [(t, s) for t, s in states if t > killed]
+        stop = next((t, c) for t, c in after if not np.any(c.velocity_rad_s))
+        wall_ms = 1000 * (stop[0] - killed)
+        # Sim time at which the joints stopped moving, from the encoders.
+        still = next(s for _, s in later_states if np.abs(s.velocity_rad_s).max() < 1e-3)
+        sim_ms = 1000 * (still.header.sim_time_s - sim_at_kill)
+        print(
+            f"zero command {wall_ms:.0f} ms (wall) after kill -9 ({stop[1].reason}); "
+            f"joints still {sim_ms:.0f} ms (sim) after"
+        )
+        assert stop[1].reason == "deadman"
+        assert wall_ms <= 300
+        assert sim_ms <= 300 + 1000 / 30  # one camera period of encoder sampling
+    finally:
+        for s in subs:
+            s.undeclare()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(10)
+        session.close()
