@@ -7,7 +7,9 @@ import importlib
 import json
 import logging
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -109,6 +111,27 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_router(args: argparse.Namespace) -> int:
+    """A Zenoh router for multi-host setups, for users without zenohd."""
+    import zenoh
+
+    cfg = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
+    if not args.config:
+        cfg.insert_json5("mode", '"router"')
+        cfg.insert_json5("listen/endpoints", json.dumps([args.listen]))
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    session = zenoh.open(cfg)
+    print(f"umay router: listening on {args.listen if not args.config else args.config}")
+    try:
+        stop.wait()
+    finally:
+        session.close()
+    return 0
+
+
 def cmd_logs(args: argparse.Namespace) -> int:
     path = Path(args.log_dir) / f"{args.name}.log"
     if not path.exists():
@@ -184,6 +207,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", help="an MCAP recording (umay run --record / umay record)")
     p.add_argument("--out", default="out/plots", help="output folder")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("router", help="run a Zenoh router (multi-host setups)")
+    p.add_argument("--listen", default="tcp/0.0.0.0:7447")
+    p.add_argument("--config", default=None, help="a Zenoh JSON5 config (router mode)")
+    p.set_defaults(func=cmd_router)
 
     p = sub.add_parser("logs", help="show a service's log file")
     p.add_argument("name", choices=(*SERVICES,))
