@@ -66,6 +66,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         Path(args.log_dir),
         listen=args.listen,
         quiet=args.quiet,
+        record=Path(args.record) if args.record else None,
     )
     if args.quiet:
         print(format_result(result))
@@ -187,6 +188,100 @@ def cmd_status(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_record(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from deploy.recording import Recorder, run_metadata
+
+    if args.duration is not None and args.duration <= 0:
+        print("umay record: --duration must be positive", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    keys = Keys(args.prefix or default_prefix())
+    metadata = {"prefix": keys.prefix, "recorded_by": "umay record"}
+    if args.scenario or args.set:
+        try:
+            metadata = run_metadata(args.scenario, args.set, keys.prefix)
+        except OSError as exc:
+            print(f"umay record: {args.scenario}: {exc.strerror}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    connect = args.connect.split(",") if args.connect else None
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    session = open_session(connect=connect)
+    try:
+        with Recorder(args.out, session, keys, args.keys, metadata) as recorder:
+            print(f"recording {recorder.key_expr} to {args.out} (Ctrl-C to stop)", file=sys.stderr)
+            stop.wait(args.duration)
+        counts = recorder.message_counts()
+    finally:
+        session.close()
+    for key, n in sorted(counts.items()):
+        print(f"{n:8d}  {key}")
+    print(f"{sum(counts.values()):8d}  messages in {args.out}")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from deploy.recording import format_info, read_info
+
+    try:
+        info = read_info(args.file)
+    except FileNotFoundError:
+        print(f"umay info: {args.file}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as exc:  # the mcap reader raises several types for a bad file
+        print(f"umay info: {args.file}: not a readable MCAP file ({exc})", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    print(format_info(info))
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from deploy.replay import REPLAYABLE, ReplayError, ReplayFailed, format_report, replay_service
+
+    if args.service not in REPLAYABLE:
+        choices = ", ".join(REPLAYABLE)
+        print(
+            f"umay replay: unknown service {args.service!r} (choose from {choices})",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
+    if not Path(args.file).is_file():
+        print(f"umay replay: {args.file}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.speed == "max":
+        speed = None
+    else:
+        try:
+            speed = float(args.speed)
+        except ValueError:
+            speed = -1.0
+        if not speed > 0:
+            print(f"umay replay: --speed {args.speed!r}: a positive number or max", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    try:
+        report = replay_service(
+            args.file,
+            args.service,
+            speed,
+            args.check,
+            Path(args.log_dir),
+            overrides=args.set,
+            scenario_path=args.scenario,
+            tolerance=args.tolerance,
+        )
+    except (ReplayError, ScenarioError) as exc:
+        print(f"umay replay: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except ReplayFailed as exc:
+        print(f"umay replay: {exc}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    print(format_report(report))
+    return 0 if report.ok else EXIT_NOT_CONVERGED
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="umay", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -196,6 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=None, help="simulated seconds")
     p.add_argument("--result", default=None, help="write the result JSON here")
     p.add_argument("--quiet", action="store_true", help="no live progress line")
+    p.add_argument("--record", default=None, metavar="OUT.mcap", help="record the run to MCAP")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("up", help="launch the four services and keep them running")
@@ -232,6 +328,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--watch", action="store_true", help="refresh every second until Ctrl-C")
     p.set_defaults(func=cmd_status)
+
+    p = sub.add_parser("record", help="record the running system's messages to an MCAP file")
+    p.add_argument("out", metavar="OUT.mcap")
+    p.add_argument("--keys", default=None, help="key expression (default: <prefix>/**)")
+    p.add_argument("--duration", type=float, default=None, help="seconds (default: Ctrl-C)")
+    p.add_argument("--prefix", default=None)
+    p.add_argument("--connect", default=None, help="Zenoh endpoint(s) of the running system")
+    p.add_argument("--scenario", default=None, help="scenario the system runs (for a replay)")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("info", help="channels, counts, rates and metadata of an MCAP recording")
+    p.add_argument("file", metavar="FILE.mcap")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("replay", help="re-run one service on a recording's inputs, compare")
+    p.add_argument("file", metavar="FILE.mcap")
+    p.add_argument("--service", required=True, help="vision|controller|actuation")
+    p.add_argument("--speed", default="max", help="playback speed factor, or max (lockstep)")
+    p.add_argument("--check", action="store_true", help="compare with the recorded outputs")
+    p.add_argument("--tolerance", type=float, default=None, help="default: 0, actuation 1e-9")
+    p.add_argument("--log-dir", default="out/logs/replay", help="the service's log file")
+    p.add_argument("--scenario", default=None, help="instead of the recorded scenario")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_replay)
     return parser
 
 

@@ -13,6 +13,7 @@ prefix (``prefix``).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import threading
 import time
@@ -81,7 +82,7 @@ def run_metadata(
     path = Path(scenario_path) if scenario_path else DEFAULT_SCENARIO
     return {
         "scenario_toml": path.read_text(),
-        "scenario_path": str(path),
+        "scenario_path": str(scenario_path) if scenario_path else "(default scenario)",
         "overrides_json": json.dumps(list(overrides)),
         "prefix": prefix,
     }
@@ -91,7 +92,7 @@ def _send_time_ns(payload: bytes) -> int | None:
     """The header's ``send_time_s`` in ns, or None if the payload has no readable header."""
     try:
         data = msgpack.unpackb(payload, raw=False)
-        return int(round(float(data["header"]["send_time_s"]) * 1e9))
+        return round(float(data["header"]["send_time_s"]) * 1e9)
     except Exception:  # not msgpack, no header: recorded anyway, the wire is what it is
         return None
 
@@ -194,10 +195,8 @@ class Recorder:
             if self._closed:
                 return
             self._closed = True
-        try:
+        with contextlib.suppress(Exception):  # the session may already be closed
             self._subscriber.undeclare()
-        except Exception:  # the session may already be closed
-            pass
         with self._lock:
             self._writer.finish()
             self._stream.close()

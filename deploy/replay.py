@@ -1,0 +1,543 @@
+"""Replay a recording into one service and compare what it publishes with what was recorded.
+
+``umay replay FILE.mcap --service controller --check`` starts only that service (the scenario
+and overrides recorded in the file, plus any extra ``--set``), under a fresh prefix on a fresh
+loopback endpoint, publishes the recorded inputs of that service re-keyed to the new prefix,
+captures its outputs and compares them, frame by frame, with the recorded ones:
+
+=========== ============================ ==========================
+service     inputs                       output
+=========== ============================ ==========================
+vision      ``sim/rgbd``                 ``vision/features``
+controller  ``sim/joint_state``,         ``controller/twist``
+            ``vision/features``
+actuation   ``sim/joint_state``,         ``actuation/joint_command``
+            ``controller/twist``
+=========== ============================ ==========================
+
+Timing: ``speed=None`` ("max") is lockstep: the inputs of frame k (joint state first), then
+wait for the output of frame k, then frame k+1; deterministic, as fast as the service goes.
+A float keeps the recorded timing divided by ``speed`` (vision may then drop frames as it
+did live: it only ever works on the newest image).
+
+With ``check``, only the frames the service answered in the recording are replayed (a frame it
+never processed, e.g. cut off when the run stopped, cannot be compared and would change its
+state), outputs are matched by ``header.frame_seq`` (the actuation deadman's ``frame_seq`` -1
+commands are ignored on both sides) and compared field by field, ignoring ``header.seq`` and
+``header.send_time_s``. Vision and controller must be bit-identical (tolerance 0); actuation
+is allowed 1e-9.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import zenoh
+from pydantic import BaseModel
+
+from common.config import DEFAULT_SCENARIO, ScenarioError, load_scenario
+from common.keys import Keys
+from common.runtime import parse_overrides
+from common.transport import alive_services, free_tcp_endpoint, open_session
+from deploy.recording import iter_messages, read_metadata, split_data_key, topics
+from deploy.supervisor import Supervisor
+
+JOINT_STATE = "sim/joint_state"
+IGNORED_FIELDS = frozenset({"header.seq", "header.send_time_s"})
+
+
+@dataclass(frozen=True)
+class ServiceIO:
+    inputs: tuple[str, ...]  # key suffixes, in the order one frame's inputs are published
+    trigger: str  # the input the service answers (one output per trigger)
+    output: str
+    tolerance: float  # default for --check
+
+
+SERVICE_IO: dict[str, ServiceIO] = {
+    "vision": ServiceIO(("sim/rgbd",), "sim/rgbd", "vision/features", 0.0),
+    "controller": ServiceIO(
+        (JOINT_STATE, "vision/features"), "vision/features", "controller/twist", 0.0
+    ),
+    "actuation": ServiceIO(
+        (JOINT_STATE, "controller/twist"), "controller/twist", "actuation/joint_command", 1e-9
+    ),
+}
+REPLAYABLE: tuple[str, ...] = tuple(SERVICE_IO)
+
+
+class ReplayError(ValueError):
+    """Bad input: not a recording, no inputs for that service, an unknown service..."""
+
+
+class ReplayFailed(RuntimeError):
+    """The service could not be started or died during the replay."""
+
+
+class Difference(BaseModel):
+    frame_seq: int
+    path: str
+    recorded: str
+    replayed: str
+
+
+class ReplayReport(BaseModel):
+    recording: str
+    service: str
+    speed: str  # "max" (lockstep) or the factor
+    prefix: str
+    log_path: str
+    inputs_published: int
+    frames: int  # trigger inputs published (one expected output each)
+    outputs: int  # captured outputs with frame_seq >= 0, repeats included
+    no_answer: int  # lockstep frames whose output did not come within the timeout
+    skipped_inputs: int  # inputs of frames the service never answered in the recording
+    wall_time_s: float
+    check: bool
+    tolerance: float
+    compared: int = 0
+    matched: int = 0
+    differing: int = 0
+    missing: int = 0  # recorded output, none replayed
+    extra: int = 0  # replayed output, none recorded
+    max_abs_diff: dict[str, float] = {}  # numeric field path → max |recorded - replayed|
+    other_diffs: dict[str, int] = {}  # non-numeric field path → frames where it differs
+    examples: list[Difference] = []
+    notes: list[str] = []
+    ok: bool
+
+
+# --- recorded data -----------------------------------------------------------------------
+@dataclass
+class Recorded:
+    suffix: str
+    log_time_ns: int
+    frame_seq: int
+    payload: bytes
+
+
+def frame_seq_of(payload: bytes) -> int | None:
+    try:
+        return int(msgpack.unpackb(payload, raw=False)["header"]["frame_seq"])
+    except Exception:  # not a message with a header
+        return None
+
+
+def source_prefix(path: str | Path, metadata: dict[str, str]) -> str:
+    if metadata.get("prefix"):
+        return metadata["prefix"]
+    prefixes = {s[0] for s in map(split_data_key, topics(path)) if s is not None}
+    if len(prefixes) != 1:
+        found = ", ".join(sorted(prefixes)) or "none"
+        raise ReplayError(f"{path}: cannot tell the recording's key prefix (found: {found})")
+    return prefixes.pop()
+
+
+def load_recorded(path: str | Path, prefix: str, suffixes: set[str]) -> list[Recorded]:
+    wanted = [f"{prefix}/{s}" for s in sorted(suffixes)]
+    out = []
+    for topic, log_time, _publish_time, data in iter_messages(path, wanted):
+        seq = frame_seq_of(data)
+        if seq is not None:
+            out.append(Recorded(topic[len(prefix) + 1 :], log_time, seq, data))
+    return out
+
+
+def first_by_frame(payloads: Iterator[tuple[int, bytes]]) -> dict[int, bytes]:
+    """First message of each frame (frame_seq -1, the deadman's, is left out)."""
+    out: dict[int, bytes] = {}
+    for seq, data in payloads:
+        if seq >= 0 and seq not in out:
+            out[seq] = data
+    return out
+
+
+def lockstep_steps(inputs: list[Recorded], io: ServiceIO) -> list[list[Recorded]]:
+    """One step per trigger: the joint states of its frame not yet published, then itself."""
+    steps: list[list[Recorded]] = []
+    pending: dict[int, list[Recorded]] = {}
+    for r in inputs:
+        if r.suffix == io.trigger:
+            steps.append([*pending.pop(r.frame_seq, []), r])
+        else:
+            pending.setdefault(r.frame_seq, []).append(r)
+    return steps
+
+
+# --- comparison --------------------------------------------------------------------------
+def flatten(obj: Any, path: str = "") -> Iterator[tuple[str, Any]]:
+    """``{"a": [1, {"b": 2}]}`` → ``("a[0]", 1), ("a[1].b", 2)``."""
+    if isinstance(obj, dict):
+        for k in sorted(obj, key=str):
+            yield from flatten(obj[k], f"{path}.{k}" if path else str(k))
+    elif isinstance(obj, list | tuple):
+        for i, v in enumerate(obj):
+            yield from flatten(v, f"{path}[{i}]")
+    else:
+        yield path, obj
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _short(v: Any) -> str:
+    text = repr(v)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def compare_messages(
+    recorded: dict[str, Any], replayed: dict[str, Any]
+) -> tuple[dict[str, float], dict[str, tuple[str, str]]]:
+    """Per numeric field path the absolute difference; per other differing path the two
+    values. ``header.seq`` and ``header.send_time_s`` are ignored."""
+    a, b = dict(flatten(recorded)), dict(flatten(replayed))
+    numeric: dict[str, float] = {}
+    other: dict[str, tuple[str, str]] = {}
+    for path in sorted(a.keys() | b.keys()):
+        if path in IGNORED_FIELDS:
+            continue
+        if path not in a or path not in b:
+            other[path] = (
+                _short(a[path]) if path in a else "(absent)",
+                _short(b[path]) if path in b else "(absent)",
+            )
+            continue
+        va, vb = a[path], b[path]
+        if _is_number(va) and _is_number(vb):
+            fa, fb = float(va), float(vb)
+            if math.isnan(fa) or math.isnan(fb):
+                numeric[path] = 0.0 if math.isnan(fa) and math.isnan(fb) else math.inf
+            else:
+                numeric[path] = abs(fa - fb)
+        elif va != vb or type(va) is not type(vb):
+            other[path] = (_short(va), _short(vb))
+    return numeric, other
+
+
+def check_outputs(report: ReplayReport, recorded: dict[int, bytes], replayed: dict[int, bytes]):
+    """Fill the comparison fields of ``report``."""
+    report.missing = len(recorded.keys() - replayed.keys())
+    report.extra = len(replayed.keys() - recorded.keys())
+    max_diff: dict[str, float] = {}
+    other: dict[str, int] = {}
+    for seq in sorted(recorded.keys() & replayed.keys()):
+        numeric, different = compare_messages(
+            msgpack.unpackb(recorded[seq], raw=False), msgpack.unpackb(replayed[seq], raw=False)
+        )
+        report.compared += 1
+        for path, d in numeric.items():
+            max_diff[path] = max(max_diff.get(path, 0.0), d)
+        over = [(p, d) for p, d in numeric.items() if d > report.tolerance]
+        for path in different:
+            other[path] = other.get(path, 0) + 1
+        if over or different:
+            report.differing += 1
+            if len(report.examples) < 5:
+                path = next(iter(different), None) or max(over, key=lambda x: x[1])[0]
+                ra = dict(flatten(msgpack.unpackb(recorded[seq], raw=False)))
+                rb = dict(flatten(msgpack.unpackb(replayed[seq], raw=False)))
+                report.examples.append(
+                    Difference(
+                        frame_seq=seq,
+                        path=path,
+                        recorded=_short(ra.get(path, "(absent)")),
+                        replayed=_short(rb.get(path, "(absent)")),
+                    )
+                )
+        else:
+            report.matched += 1
+    report.max_abs_diff = max_diff
+    report.other_diffs = other
+    report.ok = (
+        report.compared > 0 and report.differing == 0 and report.missing == 0 and not report.extra
+    )
+
+
+# --- the replay ---------------------------------------------------------------------------
+class OutputCapture:
+    """Zenoh callback threads append; the replay loop waits for a frame's output."""
+
+    def __init__(self) -> None:
+        self.cond = threading.Condition()
+        self.messages: list[tuple[int, bytes]] = []
+        self.per_frame: dict[int, int] = {}
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        data = sample.payload.to_bytes()
+        seq = frame_seq_of(data)
+        if seq is None:
+            return
+        with self.cond:
+            self.messages.append((seq, data))
+            self.per_frame[seq] = self.per_frame.get(seq, 0) + 1
+            self.cond.notify_all()
+
+    def count(self, seq: int) -> int:
+        with self.cond:
+            return self.per_frame.get(seq, 0)
+
+    def wait_for(self, seq: int, more_than: int, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        with self.cond:
+            while self.per_frame.get(seq, 0) <= more_than:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self.cond.wait(remaining)
+            return True
+
+    def wait_for_all(self, seqs: set[int], timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        with self.cond:
+            while not seqs <= self.per_frame.keys():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return
+                self.cond.wait(remaining)
+
+
+def _wait_alive(
+    session: zenoh.Session, keys: Keys, service: str, sup: Supervisor, timeout_s: float
+) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        dead = sup.exited()
+        if dead:
+            code = dead[0].exit_codes[-1]
+            raise ReplayFailed(f"{service} exited (code {code}); see {dead[0].log_path}")
+        if service in alive_services(session, keys, 0.5):
+            time.sleep(0.2)  # let its subscriptions reach this session too
+            return
+        time.sleep(0.05)
+    raise ReplayFailed(f"{service} did not come up within {timeout_s:.0f} s")
+
+
+def replay_service(
+    path: str | Path,
+    service: str,
+    speed: float | None,
+    check: bool,
+    log_dir: Path,
+    overrides: list[str] | None = None,
+    scenario_path: str | Path | None = None,
+    tolerance: float | None = None,
+    frame_timeout_s: float = 5.0,
+    startup_timeout_s: float = 30.0,
+) -> ReplayReport:
+    """Replay the recorded inputs of ``service`` into a fresh instance of it (see the module
+    docstring). ``overrides`` are applied after the recorded ones; ``scenario_path`` replaces
+    the recorded scenario. Raises ReplayError (bad input), ScenarioError, ReplayFailed."""
+    if service not in SERVICE_IO:
+        raise ReplayError(f"unknown service {service!r} (choose from {', '.join(REPLAYABLE)})")
+    if speed is not None and not speed > 0:
+        raise ReplayError(f"speed must be positive or None (max), got {speed}")
+    if tolerance is not None and not tolerance >= 0:
+        raise ReplayError(f"tolerance must be >= 0, got {tolerance}")
+    path = Path(path)
+    if not path.is_file():
+        raise ReplayError(f"{path}: no such file")
+    io = SERVICE_IO[service]
+    notes: list[str] = []
+    try:
+        metadata = read_metadata(path).get("umay", {})
+        old_prefix = source_prefix(path, metadata)
+        recorded_inputs = load_recorded(path, old_prefix, set(io.inputs))
+        recorded_outputs = first_by_frame(
+            (r.frame_seq, r.payload) for r in load_recorded(path, old_prefix, {io.output})
+        )
+    except ReplayError:
+        raise
+    except Exception as exc:  # the mcap reader raises several types for a bad file
+        raise ReplayError(f"{path}: not a readable MCAP recording ({exc})") from exc
+    if not any(r.suffix == io.trigger for r in recorded_inputs):
+        raise ReplayError(f"{path}: no {io.trigger} messages to replay into {service}")
+
+    all_overrides = [*_recorded_overrides(metadata), *(overrides or [])]
+    skipped = 0
+    if check:
+        answered = recorded_outputs.keys()
+        kept = [r for r in recorded_inputs if r.frame_seq in answered]
+        skipped = len(recorded_inputs) - len(kept)
+        recorded_inputs = kept
+        if skipped:
+            notes.append(f"{skipped} inputs of frames without a recorded output not replayed")
+        if not recorded_inputs:
+            raise ReplayError(f"{path}: no recorded {io.output} to check against")
+
+    keys = Keys(f"replay/{uuid.uuid4().hex[:12]}")
+    started = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="umay-replay-") as tmp:
+        if scenario_path is None:
+            if metadata.get("scenario_toml"):
+                scenario_path = Path(tmp) / "scenario.toml"
+                scenario_path.write_text(metadata["scenario_toml"])
+            else:
+                notes.append("the recording holds no scenario: the default one was used")
+                scenario_path = DEFAULT_SCENARIO
+        try:
+            load_scenario(scenario_path, parse_overrides(all_overrides))
+        except ScenarioError as exc:  # bad input: name the recording, not the temporary file
+            raise ScenarioError(str(exc).replace(str(scenario_path), f"{path} scenario")) from exc
+        published, no_answer, frames, capture = _run(
+            keys,
+            service,
+            io,
+            recorded_inputs,
+            speed,
+            scenario_path,
+            all_overrides,
+            log_dir,
+            frame_timeout_s,
+            startup_timeout_s,
+        )
+    replayed = first_by_frame(iter(capture.messages))
+    report = ReplayReport(
+        recording=str(path),
+        service=service,
+        speed="max" if speed is None else f"{speed:g}",
+        prefix=keys.prefix,
+        log_path=str(log_dir / f"{service}.log"),
+        inputs_published=published,
+        frames=frames,
+        outputs=sum(1 for seq, _ in capture.messages if seq >= 0),
+        no_answer=no_answer,
+        skipped_inputs=skipped,
+        wall_time_s=time.monotonic() - started,
+        check=check,
+        tolerance=io.tolerance if tolerance is None else tolerance,
+        notes=notes,
+        ok=True,
+    )
+    if check:
+        check_outputs(report, recorded_outputs, replayed)
+    return report
+
+
+def _recorded_overrides(metadata: dict[str, str]) -> list[str]:
+    import json
+
+    try:
+        items = json.loads(metadata.get("overrides_json", "[]"))
+    except ValueError as exc:
+        raise ReplayError(f"bad overrides_json in the recording's metadata: {exc}") from exc
+    return [str(i) for i in items]
+
+
+def _run(
+    keys: Keys,
+    service: str,
+    io: ServiceIO,
+    inputs: list[Recorded],
+    speed: float | None,
+    scenario_path: str | Path,
+    overrides: list[str],
+    log_dir: Path,
+    frame_timeout_s: float,
+    startup_timeout_s: float,
+) -> tuple[int, int, int, OutputCapture]:
+    """Start the service, publish, capture; returns (published, no answer, frames, capture)."""
+    endpoint = free_tcp_endpoint()
+    session = open_session(connect=[], listen=[endpoint])
+    capture = OutputCapture()
+    subscriber = session.declare_subscriber(f"{keys.prefix}/{io.output}", capture.on_sample)
+    publishers = {
+        s: session.declare_publisher(
+            f"{keys.prefix}/{s}", congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        for s in io.inputs
+    }
+    sup = Supervisor(str(scenario_path), keys.prefix, endpoint, log_dir, overrides, (service,))
+    published = no_answer = frames = 0
+    try:
+        sup.start()
+        _wait_alive(session, keys, service, sup, startup_timeout_s)
+        if speed is None:
+            for step in lockstep_steps(inputs, io):
+                seq = step[-1].frame_seq
+                before = capture.count(seq)
+                for r in step:
+                    publishers[r.suffix].put(r.payload)
+                published += len(step)
+                frames += 1
+                if not capture.wait_for(seq, before, frame_timeout_s):
+                    no_answer += 1
+                    dead = sup.exited()
+                    if dead:
+                        code = dead[0].exit_codes[-1]
+                        raise ReplayFailed(
+                            f"{service} exited (code {code}) at frame {seq}; see {dead[0].log_path}"
+                        )
+        else:
+            t0 = inputs[0].log_time_ns
+            start = time.monotonic()
+            for r in inputs:
+                delay = start + (r.log_time_ns - t0) / 1e9 / speed - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                publishers[r.suffix].put(r.payload)
+                published += 1
+                frames += r.suffix == io.trigger
+            expected = {r.frame_seq for r in inputs if r.suffix == io.trigger}
+            capture.wait_for_all(expected, frame_timeout_s)
+            no_answer = len(expected - capture.per_frame.keys())
+    finally:
+        sup.stop()
+        subscriber.undeclare()
+        for p in publishers.values():
+            p.undeclare()
+        session.close()
+    return published, no_answer, frames, capture
+
+
+def format_report(report: ReplayReport, max_fields: int = 20) -> str:
+    mode = "lockstep" if report.speed == "max" else f"speed ×{report.speed}"
+    lines = [
+        f"replay of {report.service} on {report.recording} ({mode}, {report.wall_time_s:.1f} s)",
+        f"  inputs published  {report.inputs_published} ({report.frames} frames)",
+        f"  outputs           {report.outputs}"
+        + (f"  ({report.no_answer} frames unanswered)" if report.no_answer else ""),
+        f"  service log       {report.log_path}",
+    ]
+    lines += [f"  note: {n}" for n in report.notes]
+    if not report.check:
+        return "\n".join(lines)
+    tol = "bit-identical" if report.tolerance == 0 else f"tolerance {report.tolerance:g}"
+    lines += [
+        f"  check ({tol}, by frame_seq; header.seq and header.send_time_s ignored)",
+        f"    matched {report.matched}  differing {report.differing}  "
+        f"missing {report.missing}  extra {report.extra}",
+    ]
+    over = sorted(
+        ((p, d) for p, d in report.max_abs_diff.items() if d > report.tolerance),
+        key=lambda x: (-x[1], x[0]),
+    )
+    if over or report.other_diffs:
+        lines.append("  differing fields (max |recorded - replayed| over the frames):")
+        width = max(len(p) for p, _ in [*over, *((p, 0) for p in report.other_diffs)])
+        for p, d in over[:max_fields]:
+            lines.append(f"    {p:<{width}}  {d:.6g}")
+        if len(over) > max_fields:
+            lines.append(f"    ... and {len(over) - max_fields} more numeric fields")
+        for p, n in sorted(report.other_diffs.items()):
+            lines.append(f"    {p:<{width}}  differs in {n} frames")
+        lines.append("  first differences:")
+        for e in report.examples:
+            lines.append(f"    frame {e.frame_seq}: {e.path}: {e.recorded} → {e.replayed}")
+    elif report.max_abs_diff:
+        largest = max(report.max_abs_diff.values())
+        lines.append(
+            f"    all {len(report.max_abs_diff)} numeric fields within tolerance "
+            f"(largest difference {largest:.3g})"
+        )
+    lines.append("  result: " + ("OK" if report.ok else "FAILED"))
+    return "\n".join(lines)
