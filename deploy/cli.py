@@ -58,6 +58,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         print(f"umay run: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    record = Path(args.record) if args.record else None
+    if args.plot and record is None:
+        record = Path(args.plot) / "run.mcap"  # plotting needs a recording
+    if record is not None:
+        record.parent.mkdir(parents=True, exist_ok=True)
     result = run_once(
         args.scenario,
         scenario,
@@ -66,7 +71,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         Path(args.log_dir),
         listen=args.listen,
         quiet=args.quiet,
-        record=Path(args.record) if args.record else None,
+        record=record,
     )
     if args.quiet:
         print(format_result(result))
@@ -74,6 +79,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         Console().print(result_table(result))
     if args.result:
         write_result(result, args.result)
+    if args.plot:
+        from deploy.plots import plot_recording
+
+        for path in plot_recording(record, Path(args.plot), scenario.controller.converged_px):
+            print(f"figure: {path}")
     return EXIT_CONVERGED if result.converged else EXIT_NOT_CONVERGED
 
 
@@ -291,6 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=None, help="simulated seconds")
     p.add_argument("--result", default=None, help="write the result JSON here")
     p.add_argument("--quiet", action="store_true", help="no live progress line")
+    p.add_argument("--plot", default=None, metavar="DIR", help="write the run's figures here")
     p.add_argument("--record", default=None, metavar="OUT.mcap", help="record the run to MCAP")
     p.set_defaults(func=cmd_run)
 

@@ -303,7 +303,7 @@ def image_trajectory_figure(series: RunSeries) -> Figure | None:
         linewidth=1.6,
         linestyle="--",
         zorder=4,  # above the target square it ends on
-        label="hand marker, final",
+        label="hand marker, final (it stops above the target)",
     )
     for i, (u, v) in enumerate(hand[0]):
         ax.annotate(
@@ -326,7 +326,7 @@ def image_trajectory_figure(series: RunSeries) -> Figure | None:
             marker="s",
             markersize=6,
             zorder=1.5,
-            label="target marker (desired)",
+            label="target marker (red square)",
         )
     ax.set_xlim(0, width)
     ax.set_ylim(height, 0)  # v points down

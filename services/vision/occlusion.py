@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-RING_WIDTH_PX = 4
+RING_WIDTH_PX = 2  # an occluder overlapping the marker borders it directly
 CLOSER_MARGIN_M = 0.01  # well above depth noise at 0.5 m (about 1.5 mm), below a hand's thickness
 OCCLUDED_FRACTION = 0.03
 
