@@ -223,3 +223,19 @@ def test_compare_ignores_seq_and_send_time_and_names_field_paths() -> None:
     numeric, other = compare_messages(a, b)
     assert numeric == {"header.frame_seq": 0.0, "v[0]": 0.0, "v[1]": 0.5}
     assert other == {"ok": ("True", "False")}
+
+
+def test_umay_plot_on_a_real_recording_writes_the_four_figures(
+    recording: tuple[Path, str], tmp_path: Path
+) -> None:
+    path, _ = recording
+    proc = umay("plot", str(path), "--out", str(tmp_path / "plots"))
+    assert proc.returncode == 0, proc.stderr
+    names = sorted(p.name for p in (tmp_path / "plots").glob("*.png"))
+    assert names == [
+        "ee_velocity.png",
+        "feature_error.png",
+        "image_trajectory.png",
+        "joint_velocities.png",
+    ]
+    assert all((tmp_path / "plots" / n).stat().st_size > 10_000 for n in names)
