@@ -47,17 +47,27 @@ def _overrides(args: argparse.Namespace) -> list[str]:
     return out
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
-    from deploy.run import format_result, prepare, result_table, run_once, write_result
+def _validated(args: argparse.Namespace, command: str):
+    """(overrides, scenario), or None after saying what is wrong: nothing is launched."""
+    from deploy.run import prepare
 
     try:
         overrides = _overrides(args)
-        scenario = prepare(args.scenario, overrides)
+        return overrides, prepare(args.scenario, overrides)
     except ScenarioError as exc:
-        print(f"umay run: {exc}", file=sys.stderr)
+        print(f"umay {command}: {exc}", file=sys.stderr)
+        return None
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from deploy.run import format_result, result_table, run_once, write_result
+
+    validated = _validated(args, "run")
+    if validated is None:
         return EXIT_BAD_INPUT
+    overrides, scenario = validated
     record = Path(args.record) if args.record else None
     if args.plot and record is None:
         record = Path(args.plot) / "run.mcap"  # plotting needs a recording
@@ -88,15 +98,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    from deploy.run import default_listen_endpoint, prepare
+    from deploy.run import default_listen_endpoint
     from deploy.up import run_up
 
-    try:
-        overrides = _overrides(args)
-        scenario = prepare(args.scenario, overrides)
-    except ScenarioError as exc:
-        print(f"umay up: {exc}", file=sys.stderr)
+    validated = _validated(args, "up")
+    if validated is None:
         return EXIT_BAD_INPUT
+    overrides, scenario = validated
     listen = args.listen or default_listen_endpoint()
     # Also join the well-known endpoint (or --connect), so a supervisor already running on
     # this prefix is seen even when this one had to listen elsewhere.

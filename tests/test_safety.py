@@ -5,50 +5,29 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import threading
 import time
-import uuid
 from pathlib import Path
 
 import numpy as np
 
 from common.codec import DEFAULT_MAX_BYTES, decode
-from common.keys import SERVICES, Keys
+from common.keys import SERVICES
 from common.messages import JointState, JointVelocityCommand
-from common.transport import free_tcp_endpoint, open_session
+from common.transport import open_session
 from deploy.status import collect
+from tests.conftest import launch_umay_up
 
 
 def test_controller_killed_and_not_restarted_motors_stop_within_300_ms(tmp_path: Path) -> None:
-    endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "deploy",
-            "up",
-            "--clock",
-            "realtime",
-            "--prefix",
-            keys.prefix,
-            "--listen",
-            endpoint,
-            "--connect",
-            endpoint,
-            "--log-dir",
-            str(tmp_path / "logs"),
-            "--set",
-            'supervisor.restart={controller="never"}',
-            # Slow servoing, so the arm is still moving when the controller dies.
-            "--set",
-            "controller.gain=0.3",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
+    proc, keys, endpoint = launch_umay_up(
+        tmp_path / "logs",
+        "realtime",
+        "--set",
+        'supervisor.restart={controller="never"}',
+        # Slow servoing, so the arm is still moving when the controller dies.
+        "--set",
+        "controller.gain=0.3",
     )
     session = open_session(connect=[endpoint])
     commands: list[tuple[float, JointVelocityCommand]] = []

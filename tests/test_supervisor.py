@@ -7,16 +7,16 @@ import signal
 import subprocess
 import sys
 import time
-import uuid
 from pathlib import Path
 
 import pytest
 
 from common.config import RestartPolicy, SupervisorConfig
-from common.keys import SERVICES, Keys
+from common.keys import SERVICES
 from common.transport import free_tcp_endpoint, open_session
 from deploy.status import collect
 from deploy.supervisor import Supervisor, backoff_s, wants_restart
+from tests.conftest import launch_umay_up
 
 
 def test_restart_policy_and_backoff() -> None:
@@ -58,29 +58,7 @@ def wait_for(predicate, timeout_s: float, step_s: float = 0.05):
 
 @pytest.fixture()
 def umay_up(tmp_path: Path):
-    endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "deploy",
-            "up",
-            "--clock",
-            "lockstep",
-            "--prefix",
-            keys.prefix,
-            "--listen",
-            endpoint,
-            "--connect",
-            endpoint,
-            "--log-dir",
-            str(tmp_path / "logs"),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    proc, keys, endpoint = launch_umay_up(tmp_path / "logs", "lockstep")
     session = open_session(connect=[endpoint])
     yield proc, keys, session, endpoint
     if proc.poll() is None:
