@@ -35,7 +35,7 @@ def _box_visual(size: tuple[float, float, float], xyz: np.ndarray, rgba: str, co
     return vis + col
 
 
-def _capsule_between(p0: np.ndarray, p1: np.ndarray, radius: float, rgba: str) -> str:
+def _cylinder_between(p0: np.ndarray, p1: np.ndarray, radius: float, rgba: str) -> str:
     """A cylinder visual/collision from p0 to p1 (link frame), for upper arm and forearm."""
     d = p1 - p0
     length = float(np.linalg.norm(d))
@@ -87,7 +87,7 @@ def robot_urdf(marker_size_m: float) -> str:
         nxt = dh[i + 1]
         p_next = kin.rot_x(nxt.alpha_prev_rad) @ np.array([nxt.a_prev_m, 0.0, nxt.d_m])
         if np.linalg.norm(p_next) > 0.03:
-            shapes[names[i]] += _capsule_between(np.zeros(3), p_next, 0.022, GREY)
+            shapes[names[i]] += _cylinder_between(np.zeros(3), p_next, 0.022, GREY)
     # The upper arm: link_2 → joint_3 origin (0.264 m); forearm: link_4 → joint_5 (0.212 m).
     # The hand: a box on ee_link, the green marker on its back (visual only).
     hand_centre = np.array([0.0, kin.HAND_OFFSET_M + kin.HAND_LENGTH_M / 2, 0.0])
