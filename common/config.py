@@ -62,6 +62,24 @@ class MarkerConfig(_Strict):
     size_m: float = Field(0.06, gt=0.01, le=0.2, description="side of both square markers (m)")
 
 
+class KinectConfig(_Strict):
+    """Scenario table ``[camera.kinect]``; ``enabled = false`` keeps perfect images."""
+
+    enabled: bool = False
+    seed: int = Field(0, ge=0, description="noisy runs stay reproducible")
+    min_range_m: float = Field(0.4, ge=0.0, description="near mode; 0.5 m in default mode")
+    max_range_m: float = Field(4.0, gt=0.0)
+    edge_threshold_m: float = Field(0.03, gt=0.0, description="a jump this large is an edge")
+    edge_dropout_px: int = Field(2, ge=0, le=10, description="invalid band along edges")
+    lateral_noise_px: float = Field(0.8, ge=0.0, le=5.0)
+    quantise: bool = True
+    rgb_noise_sigma: float = Field(2.0, ge=0.0, le=50.0, description="per channel, 0-255 units")
+    brightness: float = Field(1.0, gt=0.0, le=4.0, description="exposure scale")
+    colour_temperature: float = Field(
+        0.0, ge=-1.0, le=1.0, description="-1 warm (red up, blue down) … +1 cool"
+    )
+
+
 class CameraConfig(_Strict):
     width_px: int = Field(640, ge=64, le=1920)
     height_px: int = Field(480, ge=48, le=1080)
@@ -71,6 +89,7 @@ class CameraConfig(_Strict):
     look_at: Vec3 = Field(description="point on the optical axis in the arm base frame (m)")
     near_m: float = Field(0.05, gt=0.0)
     far_m: float = Field(5.0, gt=0.0)
+    kinect: KinectConfig = KinectConfig()
 
     def intrinsics(self) -> CameraIntrinsics:
         return CameraIntrinsics.from_fov(self.width_px, self.height_px, self.hfov_deg)

@@ -17,6 +17,7 @@ from pybullet_utils.bullet_client import BulletClient
 from common import kinematics as kin
 from common.camera import CameraIntrinsics, look_at_rotation, project
 from common.config import Scenario
+from services.sim.sensor_model import exposed_rgb, noisy_depth
 from services.sim.urdf import robot_urdf
 
 FloatArray = np.ndarray
@@ -99,6 +100,8 @@ class World:
         self.target_pose = kin.target_marker_pose(
             np.array(scenario.target.position), scenario.target.yaw
         )
+        self.kinect = scenario.camera.kinect
+        self._sensor_rng = np.random.default_rng(self.kinect.seed)
         self.physics_dt_s = 1.0 / scenario.sim.physics_hz
         self.sim_time_s = 0.0
         self.client = BulletClient(connection_mode=pybullet.DIRECT)
@@ -207,7 +210,8 @@ class World:
 
     # --- sensing --------------------------------------------------------------------------
     def render(self) -> tuple[np.ndarray, np.ndarray]:
-        """RGB uint8 (H, W, 3) and depth float32 metres (H, W) from the torso camera."""
+        """RGB uint8 (H, W, 3) and depth float32 metres (H, W) from the torso camera, through
+        the Kinect sensor model when ``camera.kinect.enabled``."""
         k = self.intrinsics
         _, _, rgba, depth, _ = self.client.getCameraImage(
             k.width_px,
@@ -225,6 +229,9 @@ class World:
             self.scenario.camera.near_m,
             self.scenario.camera.far_m,
         )
+        if self.kinect.enabled:
+            rgb = exposed_rgb(rgb, self.kinect, self._sensor_rng)
+            depth_m = noisy_depth(depth_m, self.kinect, self._sensor_rng)
         return np.ascontiguousarray(rgb), depth_m
 
     def truth(self) -> Truth:
