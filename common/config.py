@@ -13,9 +13,11 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from common.camera import CameraIntrinsics
+from common.camera import CameraIntrinsics, look_at_rotation
+from common.kinematics import BASE_UP, homogeneous
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "deploy" / "scenarios" / "default.toml"
 
@@ -93,6 +95,14 @@ class CameraConfig(_Strict):
 
     def intrinsics(self) -> CameraIntrinsics:
         return CameraIntrinsics.from_fov(self.width_px, self.height_px, self.hfov_deg)
+
+    def pose(self) -> np.ndarray:
+        """4×4 pose of the optical frame in the base frame (image up as close to up as it gets).
+
+        The sim renders from it; the controller and the pre-launch check use it as the camera
+        calibration (the mount the URDF and scenario describe)."""
+        rot = look_at_rotation(np.array(self.position), np.array(self.look_at), BASE_UP)
+        return homogeneous(rot, np.array(self.position, dtype=float))
 
 
 class HsvRange(_Strict):

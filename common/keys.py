@@ -12,6 +12,14 @@ from dataclasses import dataclass
 
 SERVICES: tuple[str, ...] = ("sim", "vision", "controller", "actuation")
 
+# Data keys, relative to the prefix.
+RGBD = "sim/rgbd"
+JOINT_STATE = "sim/joint_state"
+TRUTH = "sim/truth"
+FEATURES = "vision/features"
+TWIST = "controller/twist"
+JOINT_COMMAND = "actuation/joint_command"
+
 
 def default_prefix() -> str:
     explicit = os.environ.get("UMAY_PREFIX")
@@ -31,29 +39,29 @@ class Keys:
     # sim
     @property
     def rgbd(self) -> str:
-        return f"{self.prefix}/sim/rgbd"
+        return f"{self.prefix}/{RGBD}"
 
     @property
     def joint_state(self) -> str:
-        return f"{self.prefix}/sim/joint_state"
+        return f"{self.prefix}/{JOINT_STATE}"
 
     @property
     def truth(self) -> str:
         """Ground truth for evaluation only (supervisor, tests); never for perception/control."""
-        return f"{self.prefix}/sim/truth"
+        return f"{self.prefix}/{TRUTH}"
 
     # vision → controller → actuation → sim
     @property
     def features(self) -> str:
-        return f"{self.prefix}/vision/features"
+        return f"{self.prefix}/{FEATURES}"
 
     @property
     def twist(self) -> str:
-        return f"{self.prefix}/controller/twist"
+        return f"{self.prefix}/{TWIST}"
 
     @property
     def joint_command(self) -> str:
-        return f"{self.prefix}/actuation/joint_command"
+        return f"{self.prefix}/{JOINT_COMMAND}"
 
     def status(self, service: str) -> str:
         return f"{self.prefix}/{service}/status"

@@ -36,14 +36,13 @@ from matplotlib.figure import Figure
 from mcap.reader import NonSeekingReader, make_reader
 from pydantic import BaseModel
 
+from common import keys as data_keys
 from common.codec import DEFAULT_MAX_BYTES, MessageError, decode
 from common.messages import (
     EndEffectorTwist,
     Features,
-    JointState,
-    JointVelocityCommand,
-    SimTruth,
 )
+from deploy.recording import DATA_SUFFIXES
 
 log = logging.getLogger(__name__)
 
@@ -53,17 +52,14 @@ DPI = 150
 DEFAULT_CONVERGED_PX = 0.25
 
 # Key suffixes (see common/keys.py) of the channels read; sim/rgbd is deliberately absent.
-SUFFIX_FEATURES = "vision/features"
-SUFFIX_TWIST = "controller/twist"
-SUFFIX_COMMAND = "actuation/joint_command"
-SUFFIX_JOINT_STATE = "sim/joint_state"
-SUFFIX_TRUTH = "sim/truth"
+SUFFIX_FEATURES = data_keys.FEATURES
+SUFFIX_TWIST = data_keys.TWIST
+SUFFIX_COMMAND = data_keys.JOINT_COMMAND
+SUFFIX_JOINT_STATE = data_keys.JOINT_STATE
+SUFFIX_TRUTH = data_keys.TRUTH
 _MODELS: dict[str, type[BaseModel]] = {
-    SUFFIX_FEATURES: Features,
-    SUFFIX_TWIST: EndEffectorTwist,
-    SUFFIX_COMMAND: JointVelocityCommand,
-    SUFFIX_JOINT_STATE: JointState,
-    SUFFIX_TRUTH: SimTruth,
+    s: DATA_SUFFIXES[s]
+    for s in (SUFFIX_FEATURES, SUFFIX_TWIST, SUFFIX_COMMAND, SUFFIX_JOINT_STATE, SUFFIX_TRUTH)
 }
 
 # Colour-blind-safe corner colours (Okabe-Ito), kept away from the markers' green and red.

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from common import kinematics as kin
-from common.camera import look_at_rotation, project
+from common.camera import project
 from common.config import Scenario, ScenarioError
 
 IMAGE_MARGIN_PX = 8.0
@@ -13,11 +13,7 @@ IMAGE_MARGIN_PX = 8.0
 
 def marker_in_image(corners_base: np.ndarray, scenario: Scenario) -> bool:
     cam = scenario.camera
-    t_base_cam = kin.homogeneous(
-        look_at_rotation(np.array(cam.position), np.array(cam.look_at), kin.BASE_UP),
-        np.array(cam.position),
-    )
-    cam_pts = (np.linalg.inv(t_base_cam) @ np.column_stack([corners_base, np.ones(4)]).T).T
+    cam_pts = (np.linalg.inv(cam.pose()) @ np.column_stack([corners_base, np.ones(4)]).T).T
     if np.any(cam_pts[:, 2] <= cam.near_m):
         return False
     k = cam.intrinsics()

@@ -27,6 +27,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel
 
+from common import keys as data_keys
 from common.config import DEFAULT_SCENARIO
 from common.keys import Keys
 from common.messages import (
@@ -45,12 +46,12 @@ PROFILE = "umay"
 
 # Key suffix (after the prefix) → model: the data keys, the only ones recorded.
 DATA_SUFFIXES: dict[str, type[BaseModel]] = {
-    "sim/rgbd": RgbdFrame,
-    "sim/joint_state": JointState,
-    "sim/truth": SimTruth,
-    "vision/features": Features,
-    "controller/twist": EndEffectorTwist,
-    "actuation/joint_command": JointVelocityCommand,
+    data_keys.RGBD: RgbdFrame,
+    data_keys.JOINT_STATE: JointState,
+    data_keys.TRUTH: SimTruth,
+    data_keys.FEATURES: Features,
+    data_keys.TWIST: EndEffectorTwist,
+    data_keys.JOINT_COMMAND: JointVelocityCommand,
 }
 
 

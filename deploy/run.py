@@ -9,8 +9,10 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
+from pydantic import BaseModel
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
@@ -27,6 +29,7 @@ from deploy.evaluate import RunResult, pose, summarize
 from deploy.reachability import check_scenario
 from deploy.supervisor import Supervisor
 
+M = TypeVar("M", bound=BaseModel)
 log = logging.getLogger("umay.run")
 
 
@@ -60,20 +63,25 @@ class RunMonitor:
     converged_frame: int | None = None
     timeout_frame: int | None = None
     timeout_s: float = 30.0
+    rejected: int = 0
+
+    def _decode(self, sample, model: type[M]) -> M | None:
+        try:
+            return decode(sample.payload.to_bytes(), model, DEFAULT_MAX_BYTES)
+        except MessageError as exc:
+            self.rejected += 1
+            if self.rejected in (1, 10, 100, 1000) or self.rejected % 10_000 == 0:
+                log.warning("run monitor rejected %d message(s); last: %s", self.rejected, exc)
+            return None
 
     def on_truth(self, sample) -> None:
-        try:
-            t = decode(sample.payload.to_bytes(), SimTruth, DEFAULT_MAX_BYTES)
-        except MessageError as exc:
-            log.warning("bad truth message: %s", exc)
-            return
-        self.truths[t.header.frame_seq] = t
+        t = self._decode(sample, SimTruth)
+        if t is not None:
+            self.truths[t.header.frame_seq] = t
 
     def on_twist(self, sample) -> None:
-        try:
-            tw = decode(sample.payload.to_bytes(), EndEffectorTwist, DEFAULT_MAX_BYTES)
-        except MessageError as exc:
-            log.warning("bad twist message: %s", exc)
+        tw = self._decode(sample, EndEffectorTwist)
+        if tw is None:
             return
         seq = tw.header.frame_seq
         self.twists[seq] = tw

@@ -12,7 +12,6 @@ import numpy as np
 from common import kinematics as kin
 from common.camera import pixel_to_normalized
 from services.controller.ibvs import base_ee_twist_to_camera, interaction_matrix
-from services.sim.world import camera_pose
 from services.vision.features import measure_markers
 
 
@@ -25,7 +24,7 @@ def predicted_px(dq, jac, p_ee, l_s, t_base_cam, k) -> np.ndarray:
 
 def test_predicted_feature_motion_matches_the_rendered_one(world, scenario) -> None:
     k = world.intrinsics
-    t_base_cam = camera_pose(scenario.camera.position, scenario.camera.look_at)
+    t_base_cam = scenario.camera.pose()
     rng = np.random.default_rng(42)
     q0 = np.array(scenario.robot.q0)
     ratios = []

@@ -34,20 +34,22 @@ class ActuationService:
         self.manipulability = float("nan")
         self.last_output: JointVelocityCommand | None = None
 
+    def deadman_active(self) -> bool:
+        return deadman_expired(
+            time.monotonic(), self.last_valid_twist_s, self.config.deadman_timeout_s
+        )
+
     def status_fields(self) -> dict:
         return {
-            "deadman": deadman_expired(
-                time.monotonic(), self.last_valid_twist_s, self.config.deadman_timeout_s
-            ),
+            "deadman": self.deadman_active(),
             "deadman_stops": self.deadman_stops,
             "saturated_joints": self.saturated,
             "manipulability": self.manipulability,
         }
 
     def degraded(self) -> str:
-        stale = self.last_valid_twist_s is not None and deadman_expired(
-            time.monotonic(), self.last_valid_twist_s, self.config.deadman_timeout_s
-        )
+        # Before the first twist the motors are simply at rest: not a degradation.
+        stale = self.last_valid_twist_s is not None and self.deadman_active()
         return "deadman: no fresh twist, motors commanded to zero" if stale else ""
 
     def publish(self, velocity: np.ndarray, reason: str, sim_time_s: float, frame_seq: int) -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 
 from common import kinematics as kin
-from common.camera import look_at_rotation
 from common.messages import EndEffectorTwist, Features, JointState, MarkerFeatures
 from common.pairing import FramePairer
 from common.runtime import ServiceContext
@@ -26,11 +25,9 @@ def observation(m: MarkerFeatures) -> MarkerObservation:
 class ControllerService:
     def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
-        cam = ctx.scenario.camera
-        rot = look_at_rotation(np.array(cam.position), np.array(cam.look_at), kin.BASE_UP)
         self.controller = IbvsController(
             ctx.scenario.controller,
-            kin.homogeneous(rot, np.array(cam.position)),
+            ctx.scenario.camera.pose(),  # the calibration, not the simulator's truth
             ctx.scenario.target.approach_height_m,
         )
         self.node = Node("controller", ctx.keys, ctx.session, self.status_fields, self.degraded)

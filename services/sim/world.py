@@ -15,7 +15,7 @@ import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
 from common import kinematics as kin
-from common.camera import CameraIntrinsics, look_at_rotation, project
+from common.camera import CameraIntrinsics, project
 from common.config import Scenario
 from services.sim.sensor_model import exposed_rgb, noisy_depth
 from services.sim.urdf import robot_urdf
@@ -28,12 +28,6 @@ FLOOR_COLOUR = (0.55, 0.57, 0.60, 1.0)
 RED = (0.85, 0.08, 0.08, 1.0)
 OBJECT_COLOUR = (0.45, 0.55, 0.70, 1.0)  # a blue-grey toy block under the red marker
 MOTOR_FORCE_N_M = 200.0
-
-
-def camera_pose(position_m: list[float], look_at_m: list[float]) -> FloatArray:
-    """4×4 pose of the camera optical frame in the base frame (image up ≈ world up)."""
-    rot = look_at_rotation(np.array(position_m), np.array(look_at_m), kin.BASE_UP)
-    return kin.homogeneous(rot, np.array(position_m, dtype=float))
 
 
 def opengl_view_matrix(t_base_cam: FloatArray) -> list[float]:
@@ -92,7 +86,7 @@ class World:
     def __init__(self, scenario: Scenario) -> None:
         self.scenario = scenario
         self.intrinsics = scenario.camera.intrinsics()
-        self.camera_pose = camera_pose(scenario.camera.position, scenario.camera.look_at)
+        self.camera_pose = scenario.camera.pose()
         self._view = opengl_view_matrix(self.camera_pose)
         self._proj = opengl_projection_matrix(
             self.intrinsics, scenario.camera.near_m, scenario.camera.far_m
