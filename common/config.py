@@ -152,6 +152,9 @@ class ActuationConfig(_Strict):
     manipulability_threshold: float = Field(
         0.002, ge=0.0, description="below this the DLS damping ramps in"
     )
+    max_joint_acceleration_rad_s2: float = Field(
+        10.0, gt=0.0, le=1000.0, description="bound on the change between commands (rad/s²)"
+    )
 
 
 class SimConfig(_Strict):

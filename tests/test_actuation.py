@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from common import kinematics as kin
 from services.actuation.inverse import (
     damped_pinv,
     damping_for,
     deadman_expired,
+    limit_acceleration,
     limit_joint_velocities,
     twist_to_joint_velocities,
 )
@@ -59,3 +61,40 @@ def test_deadman() -> None:
     assert deadman_expired(10.0, None, 0.25)
     assert not deadman_expired(10.0, 9.9, 0.25)
     assert deadman_expired(10.0, 9.7, 0.25)
+
+
+def test_acceleration_limit_bounds_the_change_and_keeps_its_direction() -> None:
+    previous = np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.0])
+    wanted = np.array([1.1, 0.5, 0.0, 0.0, 0.0, 0.0])
+    out, limited = limit_acceleration(wanted, previous, max_accel_rad_s2=10.0, dt_s=0.02)
+    assert limited
+    change = out - previous
+    assert np.abs(change).max() == pytest.approx(10.0 * 0.02)
+    np.testing.assert_allclose(change[1] / change[0], 0.5)
+    out, limited = limit_acceleration(previous + 0.1, previous, 10.0, 0.02)
+    assert not limited
+    np.testing.assert_allclose(out, previous + 0.1)
+    out, limited = limit_acceleration(wanted, previous, 10.0, 0.0)  # no time base yet
+    assert limited
+    np.testing.assert_allclose(out, previous)
+
+
+def test_position_and_speed_limits_hold_after_the_acceleration_limit() -> None:
+    q = kin.JOINT_UPPER_RAD.copy()
+    q[1:] = 0.0
+    twist = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    previous = np.full(6, 1.0)  # moving towards joint 1's upper limit
+    cmd = twist_to_joint_velocities(
+        twist, q, 0.02, 0.002, previous_rad_s=previous, max_accel_rad_s2=1.0, dt_s=0.01
+    )
+    assert cmd.clamps.acceleration and cmd.clamps.position == [0]
+    assert cmd.velocity_rad_s[0] == 0.0  # the hard limit wins over the soft ramp
+    cmd = twist_to_joint_velocities(np.array([5.0, 0, 0, 0, 0, 0]), np.full(6, 0.4), 0.02, 0.002)
+    assert cmd.clamps.velocity and not cmd.clamps.acceleration
+    assert np.abs(cmd.velocity_rad_s).max() <= kin.JOINT_VELOCITY_LIMIT_RAD_S.max() + 1e-12
+
+
+def test_nonfinite_inverse_is_flagged() -> None:
+    cmd = twist_to_joint_velocities(np.full(6, np.inf), np.full(6, 0.5), 0.02, 0.002)
+    assert cmd.clamps.nonfinite
+    np.testing.assert_array_equal(cmd.velocity_rad_s, np.zeros(6))

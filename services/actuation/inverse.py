@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +28,55 @@ def damped_pinv(jacobian: FloatArray, damping: float) -> FloatArray:
     return j.T @ np.linalg.inv(j @ j.T + damping**2 * np.eye(j.shape[0]))
 
 
+def limit_joint_positions(
+    qdot_rad_s: FloatArray,
+    q_rad: FloatArray,
+    lower_rad: FloatArray = kin.JOINT_LOWER_RAD,
+    upper_rad: FloatArray = kin.JOINT_UPPER_RAD,
+    slow_zone_rad: float = np.deg2rad(10.0),
+) -> tuple[FloatArray, list[int]]:
+    """Motion towards a joint limit slows linearly inside ``slow_zone_rad`` and stops at the
+    limit; motion away from it is untouched. Returns the rates and the joints slowed."""
+    qdot = np.array(qdot_rad_s, dtype=float)
+    q = np.asarray(q_rad, dtype=float)
+    to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)
+    to_lower = np.clip((q - lower_rad) / slow_zone_rad, 0.0, 1.0)
+    factor = np.where(qdot > 0, to_upper, to_lower)
+    slowed = [int(i) for i in np.flatnonzero((factor < 1.0) & (qdot != 0.0))]
+    return qdot * factor, slowed
+
+
+def limit_speed(
+    qdot_rad_s: FloatArray, vmax_rad_s: FloatArray = kin.JOINT_VELOCITY_LIMIT_RAD_S
+) -> tuple[FloatArray, list[int]]:
+    """Scale the whole vector so no joint exceeds its speed limit (the direction of the
+    end-effector motion is kept). Returns the rates and the joints that were over."""
+    qdot = np.array(qdot_rad_s, dtype=float)
+    over = [int(i) for i in np.flatnonzero(np.abs(qdot) > vmax_rad_s)]
+    if over:
+        qdot /= np.max(np.abs(qdot) / vmax_rad_s)
+    return qdot, over
+
+
+def limit_acceleration(
+    qdot_rad_s: FloatArray,
+    previous_rad_s: FloatArray,
+    max_accel_rad_s2: float,
+    dt_s: float,
+) -> tuple[FloatArray, bool]:
+    """Bound the change from the previous command to ``max_accel_rad_s2 · dt_s`` per joint,
+    scaling the whole change (so the joint-space direction of the change is kept).
+    Returns the rates and whether they were limited."""
+    qdot = np.asarray(qdot_rad_s, dtype=float)
+    change = qdot - np.asarray(previous_rad_s, dtype=float)
+    ratio = np.max(np.abs(change)) / (max_accel_rad_s2 * dt_s) if dt_s > 0 else np.inf
+    if ratio <= 1.0:
+        return qdot.copy(), False
+    if not np.isfinite(ratio):  # no time has passed: keep the previous command
+        return np.asarray(previous_rad_s, dtype=float).copy(), True
+    return np.asarray(previous_rad_s, dtype=float) + change / ratio, True
+
+
 def limit_joint_velocities(
     qdot_rad_s: FloatArray,
     q_rad: FloatArray,
@@ -36,47 +85,58 @@ def limit_joint_velocities(
     vmax_rad_s: FloatArray = kin.JOINT_VELOCITY_LIMIT_RAD_S,
     slow_zone_rad: float = np.deg2rad(10.0),
 ) -> tuple[FloatArray, list[int]]:
-    """Apply position and speed limits; returns the limited rates and the saturated joints.
+    """Position limits, then speed limits; returns the rates and all joints that were limited."""
+    qdot, slowed = limit_joint_positions(qdot_rad_s, q_rad, lower_rad, upper_rad, slow_zone_rad)
+    qdot, over = limit_speed(qdot, vmax_rad_s)
+    return qdot, sorted(set(slowed + over))
 
-    Motion towards a joint limit slows linearly inside ``slow_zone_rad`` and stops at the
-    limit; then the whole vector is scaled so no joint exceeds its speed limit (the direction of
-    the end-effector motion is kept).
-    """
-    qdot = np.array(qdot_rad_s, dtype=float)
-    q = np.asarray(q_rad, dtype=float)
-    saturated: list[int] = []
-    to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)
-    to_lower = np.clip((q - lower_rad) / slow_zone_rad, 0.0, 1.0)
-    factor = np.where(qdot > 0, to_upper, to_lower)
-    saturated += [i for i in range(len(q)) if factor[i] < 1.0 and qdot[i] != 0.0]
-    qdot *= factor
-    ratio = np.max(np.abs(qdot) / vmax_rad_s) if len(qdot) else 0.0
-    if ratio > 1.0:
-        saturated += [int(i) for i in np.flatnonzero(np.abs(qdot) > vmax_rad_s)]
-        qdot /= ratio
-    return qdot, sorted(set(saturated))
+
+@dataclass(frozen=True)
+class Clamps:
+    """Which safety limits acted on one command (for the status counters)."""
+
+    position: list[int] = field(default_factory=list)  # joints slowed near a position limit
+    velocity: list[int] = field(default_factory=list)  # joints over their speed limit
+    acceleration: bool = False  # the change from the previous command was bounded
+    nonfinite: bool = False  # the inverse gave NaN/Inf: zero was commanded instead
 
 
 @dataclass(frozen=True)
 class JointCommand:
     velocity_rad_s: FloatArray
-    saturated: list[int]
+    clamps: Clamps
     manipulability: float
     damping: float
 
+    @property
+    def saturated(self) -> list[int]:
+        return sorted(set(self.clamps.position + self.clamps.velocity))
+
 
 def twist_to_joint_velocities(
-    twist_base_ee: FloatArray, q_rad: FloatArray, damping_max: float, threshold: float
+    twist_base_ee: FloatArray,
+    q_rad: FloatArray,
+    damping_max: float,
+    threshold: float,
+    previous_rad_s: FloatArray | None = None,
+    max_accel_rad_s2: float = np.inf,
+    dt_s: float = 0.0,
 ) -> JointCommand:
-    """``q̇ = J⁺_δ(q) · V_e`` followed by the joint limits (thesis eq. 5.36)."""
+    """``q̇ = J⁺_δ(q) · V_e`` (thesis eq. 5.36), then the safety limits in order of authority:
+    acceleration (soft: shapes the motion), then joint position and speed limits (hard: always
+    hold, even if that means a sharper change), then a last finite-value guard."""
     jac = kin.geometric_jacobian(q_rad)
     w = kin.manipulability(jac)
     delta = damping_for(w, damping_max, threshold)
     qdot = damped_pinv(jac, delta) @ np.asarray(twist_base_ee, dtype=float)
-    if not np.all(np.isfinite(qdot)):  # last guard: never let NaN/Inf reach the motors
-        return JointCommand(np.zeros(kin.N_JOINTS), list(range(kin.N_JOINTS)), w, delta)
-    limited, saturated = limit_joint_velocities(qdot, q_rad)
-    return JointCommand(limited, saturated, w, delta)
+    if not np.all(np.isfinite(qdot)):  # never let NaN/Inf reach the motors
+        return JointCommand(np.zeros(kin.N_JOINTS), Clamps(nonfinite=True), w, delta)
+    accelerated = False
+    if previous_rad_s is not None and np.isfinite(max_accel_rad_s2):
+        qdot, accelerated = limit_acceleration(qdot, previous_rad_s, max_accel_rad_s2, dt_s)
+    qdot, slowed = limit_joint_positions(qdot, q_rad)
+    qdot, over = limit_speed(qdot)
+    return JointCommand(qdot, Clamps(slowed, over, accelerated), w, delta)
 
 
 def deadman_expired(now_s: float, last_twist_s: float | None, timeout_s: float) -> bool:

@@ -2,6 +2,10 @@
 
 The deadman runs on the wall clock: without a fresh valid twist for ``deadman_timeout_s`` it
 commands zero velocity (again every ``deadman_timeout_s`` while it lasts).
+
+Stops (hold, deadman) are immediate; the acceleration limit shapes tracking motion only, and
+the time base for it is the sim time between consecutive commands, so after a stop the arm
+starts again from rest with a ramp.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from common.messages import EndEffectorTwist, JointState, JointVelocityCommand
 from common.pairing import FramePairer
 from common.runtime import ServiceContext
 from common.transport import Node
-from services.actuation.inverse import deadman_expired, twist_to_joint_velocities
+from services.actuation.inverse import Clamps, deadman_expired, twist_to_joint_velocities
 
 
 class ActuationService:
@@ -33,6 +37,18 @@ class ActuationService:
         self.saturated: list[int] = []
         self.manipulability = float("nan")
         self.last_output: JointVelocityCommand | None = None
+        # The command the motors follow now, and its sim time (None: at rest, no time base).
+        self.previous_rad_s = np.zeros(kin.N_JOINTS)
+        self.previous_sim_s: float | None = None
+        # Every stop and clamp, counted (commands, not joints).
+        self.counts = {
+            "hold_stops": 0,
+            "position_limit_clamps": 0,
+            "velocity_clamps": 0,
+            "acceleration_clamps": 0,
+            "nonfinite_guards": 0,
+            "damped_commands": 0,
+        }
 
     def deadman_active(self) -> bool:
         return deadman_expired(
@@ -43,6 +59,7 @@ class ActuationService:
         return {
             "deadman": self.deadman_active(),
             "deadman_stops": self.deadman_stops,
+            **self.counts,
             "saturated_joints": self.saturated,
             "manipulability": self.manipulability,
         }
@@ -60,11 +77,14 @@ class ActuationService:
         )
         if frame_seq >= 0:
             self.last_output = command
+        self.previous_rad_s = velocity
+        self.previous_sim_s = sim_time_s if frame_seq >= 0 else None  # deadman: no time base
         self.pub.put(command)
 
     def on_pair(self, twist: EndEffectorTwist, joints: JointState) -> None:
         t, seq = twist.header.sim_time_s, twist.header.frame_seq
         if not twist.valid:
+            self.counts["hold_stops"] += 1
             self.publish(np.zeros(kin.N_JOINTS), "hold", t, seq)
             return
         self.last_valid_twist_s = time.monotonic()
@@ -73,9 +93,20 @@ class ActuationService:
             np.array(joints.position_rad),
             self.config.damping,
             self.config.manipulability_threshold,
+            previous_rad_s=self.previous_rad_s,
+            max_accel_rad_s2=self.config.max_joint_acceleration_rad_s2,
+            dt_s=0.0 if self.previous_sim_s is None else max(0.0, t - self.previous_sim_s),
         )
         self.saturated, self.manipulability = cmd.saturated, cmd.manipulability
+        self.count(cmd.clamps, cmd.damping)
         self.publish(cmd.velocity_rad_s, "track", t, seq)
+
+    def count(self, clamps: Clamps, damping: float) -> None:
+        self.counts["position_limit_clamps"] += bool(clamps.position)
+        self.counts["velocity_clamps"] += bool(clamps.velocity)
+        self.counts["acceleration_clamps"] += clamps.acceleration
+        self.counts["nonfinite_guards"] += clamps.nonfinite
+        self.counts["damped_commands"] += damping > 0.0
 
     def check_deadman(self) -> None:
         now = time.monotonic()

@@ -48,6 +48,7 @@ class SimService:
         self.last_command = np.zeros(kin.N_JOINTS)
         self.last_command_s: float | None = None  # wall clock (monotonic)
         self.watchdog_stops = 0
+        self.motor_clamps = 0  # commands beyond the motors' own speed limit
 
     def status_fields(self) -> dict:
         return {
@@ -57,6 +58,7 @@ class SimService:
             "render_ms": round(self.render_ms, 2),
             "dropped_frames": self.dropped_frames,
             "watchdog_stops": self.watchdog_stops,
+            "motor_clamps": self.motor_clamps,
             "real_time_factor": round(
                 self.world.sim_time_s / max(time.monotonic() - self.started_s, 1e-9), 3
             ),
@@ -100,7 +102,9 @@ class SimService:
     def apply(self, command: JointVelocityCommand) -> None:
         # The motors' own limit, whatever the command says.
         limit = kin.JOINT_VELOCITY_LIMIT_RAD_S
-        self.last_command = np.clip(np.array(command.velocity_rad_s), -limit, limit)
+        wanted = np.array(command.velocity_rad_s)
+        self.motor_clamps += bool(np.any(np.abs(wanted) > limit))
+        self.last_command = np.clip(wanted, -limit, limit)
         self.last_command_s = time.monotonic()
         self.world.set_joint_velocities(self.last_command)
 
