@@ -46,14 +46,20 @@ def zenoh_config(
 
     Precedence: ``config_path`` argument, then ``$UMAY_ZENOH_CONFIG``, then the defaults with
     ``connect`` (argument, else ``$UMAY_ZENOH_CONNECT``, else :data:`DEFAULT_ENDPOINT`).
-    Peers find each other through gossip over the first connection.
+    Peers find each other through gossip over the first connection. With a config file, an
+    explicit ``connect`` (argument or environment) replaces the file's endpoints, so one file
+    (say a client's credentials) serves wherever the router happens to be.
     """
-    path = config_path or os.environ.get(ENV_CONFIG)
-    if path:
-        return zenoh.Config.from_file(path)
     if connect is None:
         env = os.environ.get(ENV_CONNECT, "")
-        connect = [e for e in env.split(",") if e] or [DEFAULT_ENDPOINT]
+        connect = [e for e in env.split(",") if e] or None
+    path = config_path or os.environ.get(ENV_CONFIG)
+    if path:
+        cfg = zenoh.Config.from_file(path)
+        if connect:
+            cfg.insert_json5("connect/endpoints", json.dumps(connect))
+        return cfg
+    connect = connect if connect is not None else [DEFAULT_ENDPOINT]
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("listen/endpoints", json.dumps(listen or ["tcp/127.0.0.1:0"]))

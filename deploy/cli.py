@@ -134,16 +134,34 @@ def cmd_router(args: argparse.Namespace) -> int:
     """A Zenoh router for multi-host setups, for users without zenohd."""
     import zenoh
 
-    cfg = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
-    if not args.config:
+    if args.config:
+        try:
+            cfg = zenoh.Config.from_file(args.config)
+        except Exception as exc:  # zenoh raises its own error type with the parser's message
+            print(f"umay router: {args.config}: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        # A credentials file named relative to the config is found wherever we run from.
+        dictionary = json.loads(cfg.get_json("transport/auth/usrpwd/dictionary_file"))
+        if dictionary and not Path(dictionary).is_absolute():
+            resolved = (Path(args.config).parent / dictionary).resolve()
+            cfg.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(resolved)))
+    else:
+        cfg = zenoh.Config()
         cfg.insert_json5("mode", '"router"')
-        cfg.insert_json5("listen/endpoints", json.dumps([args.listen]))
         cfg.insert_json5("scouting/multicast/enabled", "false")
+    listen = args.listen or (None if args.config else "tcp/0.0.0.0:7447")
+    if listen:
+        cfg.insert_json5("listen/endpoints", json.dumps(listen.split(",")))
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    session = zenoh.open(cfg)
-    print(f"umay router: listening on {args.listen if not args.config else args.config}")
+    try:
+        session = zenoh.open(cfg)
+    except Exception as exc:
+        print(f"umay router: cannot start: {exc}", file=sys.stderr)
+        return 1
+    endpoints = listen or ",".join(json.loads(cfg.get_json("listen/endpoints")))
+    print(f"umay router: listening on {endpoints}", flush=True)
     try:
         stop.wait()
     finally:
@@ -324,8 +342,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("router", help="run a Zenoh router (multi-host setups)")
-    p.add_argument("--listen", default="tcp/0.0.0.0:7447")
-    p.add_argument("--config", default=None, help="a Zenoh JSON5 config (router mode)")
+    p.add_argument(
+        "--listen",
+        default=None,
+        help="endpoint(s), comma-separated (default: the config's, else tcp/0.0.0.0:7447)",
+    )
+    p.add_argument(
+        "--config", default=None, help="a Zenoh JSON5 config (router mode), e.g. with an ACL"
+    )
     p.set_defaults(func=cmd_router)
 
     p = sub.add_parser("logs", help="show a service's log file")

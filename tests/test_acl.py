@@ -1,0 +1,121 @@
+"""Access control (deploy/zenoh/acl): behind the router, only the actuation service can move
+the arm and only the sim can publish camera frames; sessions without valid credentials are
+refused. The sim runs for real (realtime clock, small image) and its joint encoders tell
+whether a command reached the motors."""
+
+from __future__ import annotations
+
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from common.codec import encode
+from common.keys import Keys
+from common.messages import Header, JointState, JointVelocityCommand
+from common.transport import free_tcp_endpoint
+from tests.router_deployment import (
+    SMALL_IMAGE,
+    client_session,
+    joint_state_decoder,
+    start_router,
+    start_service,
+    stop_all,
+    wait_for_router,
+)
+
+JOINT_1_RATE_RAD_S = 0.5
+
+
+def command(seq: int) -> bytes:
+    header = Header(seq=seq, sim_time_s=0.0, send_time_s=time.time(), frame_seq=-1)
+    rates = [JOINT_1_RATE_RAD_S, 0.0, 0.0, 0.0, 0.0, 0.0]
+    return encode(JointVelocityCommand(header=header, velocity_rad_s=rates, reason="track"))
+
+
+def push_commands_as(user: str, endpoint: str, keys: Keys, states: list[JointState]) -> float:
+    """Publish joint commands for 1 s as ``user``; the fastest joint-1 speed the encoders saw."""
+    session = client_session(user, endpoint)
+    try:
+        publisher = session.declare_publisher(keys.joint_command)
+        time.sleep(0.3)  # let the declaration reach the router
+        start = len(states)
+        for seq in range(20):
+            publisher.put(command(seq))
+            time.sleep(0.05)
+        time.sleep(0.2)
+        return max((abs(s.velocity_rad_s[0]) for s in states[start:]), default=0.0)
+    finally:
+        session.close()
+
+
+def test_only_the_actuation_service_can_move_the_arm(tmp_path: Path) -> None:
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    procs = [start_router(endpoint, tmp_path)]
+    monitor = wait_for_router(endpoint)
+    try:
+        procs.append(
+            start_service(
+                "sim", endpoint, keys.prefix, tmp_path, "--set", "run.clock='realtime'",
+                *SMALL_IMAGE,
+            )
+        )  # fmt: skip
+        states: list[JointState] = []
+        sub = monitor.declare_subscriber(keys.joint_state, joint_state_decoder(states))
+        deadline = time.monotonic() + 60
+        while len(states) < 5:
+            assert time.monotonic() < deadline, "the sim never published joint states"
+            time.sleep(0.1)
+
+        seen = {user: push_commands_as(user, endpoint, keys, states) for user in
+                ("tool", "vision", "controller", "actuation")}  # fmt: skip
+        print("fastest joint-1 speed while each user sent 0.5 rad/s commands:", seen)
+        for user in ("tool", "vision", "controller"):
+            assert seen[user] < 1e-3, f"a command from {user!r} moved the arm"
+        assert seen["actuation"] == pytest.approx(JOINT_1_RATE_RAD_S, abs=0.05)
+        sub.undeclare()
+    finally:
+        monitor.close()
+        stop_all(procs[::-1])
+
+
+def test_only_the_sim_can_publish_frames_and_strangers_are_refused(tmp_path: Path) -> None:
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    procs = [start_router(endpoint, tmp_path)]
+    monitor = wait_for_router(endpoint)
+    try:
+        with pytest.raises(zenoh.ZError):
+            client_session(None, endpoint)  # no credentials
+        with pytest.raises(zenoh.ZError):
+            client_session("actuation", endpoint, password="guess")
+        procs.append(
+            start_service(
+                "sim", endpoint, keys.prefix, tmp_path, "--set", "run.clock='realtime'",
+                *SMALL_IMAGE,
+            )
+        )  # fmt: skip
+        vision = client_session("vision", endpoint)
+        received: list[bytes] = []
+        sub = vision.declare_subscriber(keys.rgbd, lambda s: received.append(s.payload.to_bytes()))
+        forged = b"forged frame"
+        rogue = client_session("controller", endpoint)
+        publisher = rogue.declare_publisher(keys.rgbd)
+        deadline = time.monotonic() + 60
+        while len(received) < 5:  # the sim's own frames arrive...
+            assert time.monotonic() < deadline, "no frames from the sim"
+            publisher.put(forged)
+            time.sleep(0.1)
+        for _ in range(10):
+            publisher.put(forged)
+            time.sleep(0.05)
+        assert forged not in received  # ...the forged ones never do
+        sub.undeclare()
+        rogue.close()
+        vision.close()
+    finally:
+        monitor.close()
+        stop_all(procs[::-1])
