@@ -76,6 +76,11 @@ def test_controller_killed_and_not_restarted_motors_stop_within_300_ms(tmp_path:
             f"joints still {sim_ms:.0f} ms (sim) after"
         )
         assert stop[1].reason == "deadman"
+        # The stop is counted where a user looks for it.
+        actuation = {v.name: v for v in collect(session, keys, 1.0)}["actuation"].status
+        assert actuation.fields["deadman_stops"] >= 1
+        assert {"acceleration_clamps", "velocity_clamps", "position_limit_clamps",
+                "nonfinite_guards", "hold_stops"} <= set(actuation.fields)  # fmt: skip
         assert wall_ms <= 300
         assert sim_ms <= 300 + 1000 / 30  # one camera period of encoder sampling
     finally:

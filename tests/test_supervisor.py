@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -68,7 +69,7 @@ def umay_up(tmp_path: Path):
 
 
 def test_kill_each_service_it_comes_back_and_the_hand_still_converges(umay_up) -> None:
-    proc, keys, session, _ = umay_up
+    proc, keys, session, endpoint = umay_up
 
     def views():
         return {v.name: v for v in collect(session, keys, 0.3)}
@@ -145,6 +146,11 @@ def test_kill_each_service_it_comes_back_and_the_hand_still_converges(umay_up) -
     elapsed = time.monotonic() - stopped
     print(f"all services gone {elapsed:.2f} s after SIGINT")
     assert gone and elapsed < 3.0
+    # Nothing left listening on the supervisor's port (bind fails while a listener holds it).
+    host, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind((host, int(port)))
 
 
 def _alive(pid: int) -> bool:
