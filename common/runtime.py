@@ -8,9 +8,11 @@ import sys
 import threading
 import tomllib
 
+import zenoh
+
 from common.config import Scenario, ScenarioError, load_scenario
 from common.keys import Keys, default_prefix
-from common.transport import open_session, setup_logging
+from common.transport import ZenohConfigError, setup_logging, zenoh_config
 
 
 def service_arguments(service: str, argv: list[str] | None) -> argparse.Namespace:
@@ -59,7 +61,16 @@ class ServiceContext:
             raise SystemExit(2) from exc
         self.keys = Keys(args.prefix or default_prefix())
         connect = args.connect.split(",") if args.connect else None
-        self.session = open_session(args.zenoh_config, connect)
+        try:
+            config = zenoh_config(args.zenoh_config, connect)
+        except ZenohConfigError as exc:
+            print(exc, file=sys.stderr)
+            raise SystemExit(2) from exc
+        try:
+            self.session = zenoh.open(config)
+        except zenoh.ZError as exc:  # e.g. the router is unreachable or refuses the login
+            print(f"{service}: cannot open the Zenoh session: {exc}", file=sys.stderr)
+            raise SystemExit(1) from exc
         self.stop = threading.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: self.stop.set())

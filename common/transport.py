@@ -37,6 +37,10 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # where `umay up` listens and tools con
 log = logging.getLogger("umay")
 
 
+class ZenohConfigError(ValueError):
+    """A Zenoh config file that cannot be read; the message names the file and the reason."""
+
+
 def zenoh_config(
     config_path: str | None = None,
     connect: list[str] | None = None,
@@ -55,9 +59,12 @@ def zenoh_config(
         connect = [e for e in env.split(",") if e] or None
     path = config_path or os.environ.get(ENV_CONFIG)
     if path:
-        cfg = zenoh.Config.from_file(path)
-        if connect:
-            cfg.insert_json5("connect/endpoints", json.dumps(connect))
+        try:
+            cfg = zenoh.Config.from_file(path)
+            if connect:
+                cfg.insert_json5("connect/endpoints", json.dumps(connect))
+        except zenoh.ZError as exc:
+            raise ZenohConfigError(f"{path}: not a usable Zenoh config: {exc}") from exc
         return cfg
     connect = connect if connect is not None else [DEFAULT_ENDPOINT]
     cfg = zenoh.Config()

@@ -5,6 +5,8 @@ whether a command reached the motors."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 import uuid
 from pathlib import Path
@@ -119,3 +121,17 @@ def test_only_the_sim_can_publish_frames_and_strangers_are_refused(tmp_path: Pat
     finally:
         monitor.close()
         stop_all(procs[::-1])
+
+
+@pytest.mark.parametrize("content", [None, "{ mode: 'peer', listen: { endpoints: [1, 2] } }"])
+def test_a_bad_zenoh_config_is_named_and_nothing_starts(tmp_path: Path, content) -> None:
+    path = tmp_path / "zenoh.json5"
+    if content is not None:
+        path.write_text(content)
+    done = subprocess.run(
+        [sys.executable, "-m", "services.vision", "--zenoh-config", str(path)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert f"{path}: not a usable Zenoh config" in done.stderr
+    assert "Traceback" not in done.stderr
