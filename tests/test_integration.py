@@ -76,8 +76,13 @@ def test_each_strategy_converges_from_the_default_scenario(mode: str, tmp_path: 
 
 
 def test_two_lockstep_runs_give_identical_results(tmp_path: Path) -> None:
+    """Wall-clock timing must not leak into a lockstep run: in the second run the actuation
+    deadman fires between every pair of frames (5 ms timeout), as it would on a loaded
+    machine where rendering takes longer than the 250 ms default."""
     first = lockstep_result("dynamic", tmp_path)
-    _, second = umay_run(tmp_path, "--mode", "dynamic")
+    _, second = umay_run(
+        tmp_path, "--mode", "dynamic", "--set", "actuation.deadman_timeout_s=0.005"
+    )
     assert second is not None
     a = {k: v for k, v in first.items() if k != "wall_time_s"}
     b = {k: v for k, v in second.items() if k != "wall_time_s"}

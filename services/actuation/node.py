@@ -5,7 +5,10 @@ commands zero velocity (again every ``deadman_timeout_s`` while it lasts).
 
 Stops (hold, deadman) are immediate; the acceleration limit shapes tracking motion only, and
 the time base for it is the sim time between consecutive commands, so after a stop the arm
-starts again from rest with a ramp.
+starts again from rest with a ramp. In lockstep the sim applies only the command that answers
+its frame (and physics waits for it), so there a deadman stop never reaches the motors and must
+not reset the limiter either: otherwise a slow render would change the trajectory and two
+lockstep runs would differ.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import time
 import numpy as np
 
 from common import kinematics as kin
+from common.config import ClockMode
 from common.messages import EndEffectorTwist, JointState, JointVelocityCommand
 from common.pairing import FramePairer
 from common.runtime import ServiceContext
@@ -26,6 +30,7 @@ class ActuationService:
     def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
         self.config = ctx.scenario.actuation
+        self.lockstep = ctx.scenario.run.clock == ClockMode.LOCKSTEP
         self.node = Node("actuation", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.joint_command)
         self.node.subscribe(ctx.keys.twist, EndEffectorTwist)
@@ -77,8 +82,9 @@ class ActuationService:
         )
         if frame_seq >= 0:
             self.last_output = command
-        self.previous_rad_s = velocity
-        self.previous_sim_s = sim_time_s if frame_seq >= 0 else None  # deadman: no time base
+        if frame_seq >= 0 or not self.lockstep:  # what the motors will follow
+            self.previous_rad_s = velocity
+            self.previous_sim_s = sim_time_s if frame_seq >= 0 else None  # deadman: from rest
         self.pub.put(command)
 
     def on_pair(self, twist: EndEffectorTwist, joints: JointState) -> None:
