@@ -391,7 +391,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--service", required=True, help="vision|controller|actuation")
     p.add_argument("--speed", default="max", help="playback speed factor, or max (lockstep)")
     p.add_argument("--check", action="store_true", help="compare with the recorded outputs")
-    p.add_argument("--tolerance", type=float, default=None, help="default: 0, actuation 1e-9")
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        default=None,
+        help="default: 1e-12, actuation 1e-9; 0 = bit-identical",
+    )
     p.add_argument("--log-dir", default="out/logs/replay", help="the service's log file")
     p.add_argument("--scenario", default=None, help="instead of the recorded scenario")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")

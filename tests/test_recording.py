@@ -146,13 +146,14 @@ def test_replay_check_fails_on_a_changed_controller_gain_and_names_the_fields(
 
 
 @pytest.mark.parametrize("service", ["vision", "controller"])
-def test_reference_recording_replays_bit_identically(service: str, tmp_path: Path) -> None:
+def test_reference_recording_replays_to_the_last_bits(service: str, tmp_path: Path) -> None:
     """The regression check for perception and control: if this fails after an intended
-    change, regenerate the reference (tests/data/make_reference.py)."""
+    change, regenerate the reference (tests/data/make_reference.py). The reference may have
+    been recorded on another CPU, hence 1e-12 rather than bit-identity."""
     assert REFERENCE.exists() and REFERENCE.stat().st_size < 2_000_000
     proc = replay(REFERENCE, service, tmp_path, "--check")
     assert proc.returncode == 0, f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
-    assert "bit-identical" in proc.stdout and "result: OK" in proc.stdout
+    assert "tolerance 1e-12" in proc.stdout and "result: OK" in proc.stdout
 
 
 def test_replay_and_info_refuse_bad_input_with_exit_2(tmp_path: Path) -> None:
