@@ -138,7 +138,9 @@ def test_kill_each_service_it_comes_back_and_the_hand_still_converges(umay_up) -
     )
     assert second.returncode == 3 and "already running" in second.stderr
 
-    pids = [views()[n].status.pid for n in SERVICES]
+    running = wait_for(all_running, 20)  # a status query may time out on a loaded machine
+    assert running, f"services not all answering: {views()}"
+    pids = [running[n].status.pid for n in SERVICES]
     proc.send_signal(signal.SIGINT)
     stopped = time.monotonic()
     proc.wait(10)
