@@ -37,12 +37,14 @@ class ClockMode(StrEnum):
 
 
 class JacobianMode(StrEnum):
-    """The four image-Jacobian strategies of the thesis (§5.6-5.7)."""
+    """The four image-Jacobian strategies of the thesis (§5.6-5.7), and points3d: the corners'
+    3-D positions from the depth camera as features instead of their image points."""
 
     CONSTANT = "constant"
     DYNAMIC = "dynamic"
     PMJ = "pmj"
     MPJ = "mpj"
+    POINTS3D = "points3d"
 
 
 class RobotConfig(_Strict):

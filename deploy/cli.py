@@ -22,7 +22,9 @@ EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 
 def _scenario_options(p: argparse.ArgumentParser, clock_default: str) -> None:
     p.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
-    p.add_argument("--mode", default=None, help="Jacobian strategy: constant|dynamic|pmj|mpj")
+    p.add_argument(
+        "--mode", default=None, help="Jacobian strategy: constant|dynamic|pmj|mpj|points3d"
+    )
     p.add_argument("--clock", default=clock_default, help="lockstep|realtime")
     p.add_argument("--prefix", default=None, help="Zenoh key prefix (default: umay/<id>)")
     p.add_argument("--listen", default=None, help="Zenoh endpoint the services connect to")

@@ -6,6 +6,14 @@ points ride on the hand: a hand twist ``(v, ω)`` expressed in the camera frame 
 the camera origin moves a point by ``Ṗ = v + ω × P``, which is the opposite of a camera moving
 with ``(v, ω)``. Hence ``ṡ = -L · (v, ω)`` and imposing ``ė = -λ e`` gives ``(v, ω) = +λ L⁺ e``.
 The four strategies of the thesis only differ in the matrix that replaces ``L⁺``.
+
+A fifth strategy, ``points3d``, uses the depth camera further: its features are the hand
+marker's four corners as 3-D points in the camera frame (``e = P - P*``, 12 entries, metres).
+Its Jacobian comes straight from ``Ṗ = v + ω × P = [I₃  -[P]×] · (v, ω)`` with no minus sign,
+so ``ė = J · (v, ω)`` (P* is fixed) and ``ė = -λ e`` gives ``(v, ω) = -λ J⁺ e``: the opposite
+sign to the image points. Every corner is driven along its own straight line to its goal, so
+the hand follows a nearly straight 3-D path and converges in depth, not only in the image.
+Every law is written ``(v, ω) = λ · M · e``; only ``M`` and ``e`` differ.
 """
 
 from __future__ import annotations
@@ -39,6 +47,30 @@ def interaction_matrix(xy: FloatArray, depth_m: FloatArray) -> FloatArray:
     return out
 
 
+def point_feature_jacobian(points_m: FloatArray) -> FloatArray:
+    """Stacked 3N×6 Jacobian of 3-D points ``points_m`` (N×3, camera frame) riding on the hand.
+
+    For a hand twist ``(v, ω)`` in the camera frame referenced at the camera origin each point
+    moves by ``Ṗ = v + ω × P = v - [P]× ω``, hence the block ``[I₃  -[P]×]`` per point. Three
+    non-collinear points already give rank 6 (only a zero twist leaves them all still).
+    """
+    points = np.asarray(points_m, dtype=float)
+    out = np.empty((3 * len(points), 6))
+    for i, p in enumerate(points):
+        out[3 * i : 3 * i + 3, :3] = np.eye(3)
+        out[3 * i : 3 * i + 3, 3:] = -skew(p)
+    return out
+
+
+def points3d_control_matrix(points_m: FloatArray) -> FloatArray:
+    """The 6×3N matrix ``M = -J⁺`` of ``(v, ω) = λ · M · e`` for ``e = P - P*``.
+
+    ``J`` is :func:`point_feature_jacobian` at the current (measured) points: the minus sign is
+    that of ``ė = J · (v, ω) = -λ e``, not the ``+`` of the image points (see the module doc).
+    """
+    return -np.linalg.pinv(point_feature_jacobian(points_m))
+
+
 def feature_error_px_rms(s_px: FloatArray, s_star_px: FloatArray) -> float:
     """RMS over the 2N pixel coordinates of ``s - s*``."""
     return float(np.sqrt(np.mean((np.asarray(s_px) - np.asarray(s_star_px)) ** 2)))
@@ -47,12 +79,14 @@ def feature_error_px_rms(s_px: FloatArray, s_star_px: FloatArray) -> float:
 def control_matrix(
     mode: JacobianMode, l_current: FloatArray, l_desired: FloatArray, l_constant: FloatArray
 ) -> FloatArray:
-    """The 6×2N matrix ``M`` of ``(v, ω) = λ · M · e`` for each strategy.
+    """The 6×2N matrix ``M`` of ``(v, ω) = λ · M · e`` for each image-point strategy.
 
     - constant: ``L_c⁺`` (frozen at the desired features with one depth taken at the start);
     - dynamic:  ``L_n⁺`` (current features, current per-point depths);
     - pmj:      ``((L_n + L*)/2)⁺``  (Malis: pseudo-inverse of the mean);
     - mpj:      ``(L_n⁺ + L*⁺)/2``   (mean of the pseudo-inverses).
+
+    points3d does not use image points: its matrix is :func:`points3d_control_matrix`.
     """
     if mode is JacobianMode.CONSTANT:
         return np.linalg.pinv(l_constant)
@@ -62,6 +96,8 @@ def control_matrix(
         return np.linalg.pinv(0.5 * (l_current + l_desired))
     if mode is JacobianMode.MPJ:
         return 0.5 * (np.linalg.pinv(l_current) + np.linalg.pinv(l_desired))
+    if mode is JacobianMode.POINTS3D:
+        raise ValueError("points3d servoes 3-D points: use points3d_control_matrix")
     raise ValueError(f"unknown Jacobian mode {mode!r}")
 
 
@@ -186,6 +222,22 @@ class IbvsController:
             self.frames_below = 0
             return ControlOutput(self._zero.copy(), False, 0.0, False)
         target = desired_observation(target, self.approach_height_m, k)
+        if self.config.mode is JacobianMode.POINTS3D:
+            error, m = self._points3d_law(hand, target)
+        else:
+            error, m = self._image_law(hand, target, k)
+        twist_cam = self.config.gain * (m @ error)
+        twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
+        twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
+        err_px = feature_error_px_rms(hand.corners_px, target.corners_px)
+        self.frames_below = self.frames_below + 1 if err_px < self.config.converged_px else 0
+        converged = self.frames_below >= self.config.converged_frames
+        return ControlOutput(twist, True, err_px, converged, remembered)
+
+    def _image_law(
+        self, hand: MarkerObservation, target: MarkerObservation, k: CameraIntrinsics
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(e, M)`` on the normalized image points (constant, dynamic, pmj, mpj)."""
         s = pixel_to_normalized(hand.corners_px, k)
         s_star = pixel_to_normalized(target.corners_px, k)
         error = (s - s_star).reshape(-1)
@@ -195,11 +247,13 @@ class IbvsController:
             # One depth for all points, taken once at the start: the target's mean depth.
             z0 = float(np.mean(target.depth_m))
             self.l_constant = interaction_matrix(s_star, np.full(len(s_star), z0))
-        m = control_matrix(self.config.mode, l_current, l_desired, self.l_constant)
-        twist_cam = self.config.gain * (m @ error)
-        twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
-        twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
-        err_px = feature_error_px_rms(hand.corners_px, target.corners_px)
-        self.frames_below = self.frames_below + 1 if err_px < self.config.converged_px else 0
-        converged = self.frames_below >= self.config.converged_frames
-        return ControlOutput(twist, True, err_px, converged, remembered)
+        return error, control_matrix(self.config.mode, l_current, l_desired, self.l_constant)
+
+    @staticmethod
+    def _points3d_law(
+        hand: MarkerObservation, target: MarkerObservation
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(e, M)`` on the measured 3-D corners (points3d); J at the current points, since
+        only they (not the goal points) ride on the hand."""
+        error = (hand.points_m - target.points_m).reshape(-1)
+        return error, points3d_control_matrix(hand.points_m)
