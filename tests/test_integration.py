@@ -66,7 +66,7 @@ def lockstep_result(mode: str, tmp_path: Path) -> dict:
     return _results[mode][0]
 
 
-@pytest.mark.parametrize("mode", ["constant", "dynamic", "pmj", "mpj"])
+@pytest.mark.parametrize("mode", ["constant", "dynamic", "pmj", "mpj", "points3d"])
 def test_each_strategy_converges_from_the_default_scenario(mode: str, tmp_path: Path) -> None:
     r = lockstep_result(mode, tmp_path)
     assert r["converged"] and r["reason"] == "converged", r
