@@ -14,10 +14,17 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from common.camera import CameraIntrinsics, look_at_rotation
-from common.kinematics import BASE_UP, homogeneous
+from common.kinematics import BASE_UP, homogeneous, rot_x, rot_y, rot_z
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "deploy" / "scenarios" / "default.toml"
 
@@ -84,27 +91,88 @@ class KinectConfig(_Strict):
     )
 
 
+class CalibrationError(_Strict):
+    """How far the camera pose the controller assumes is from the true mount: the true pose
+    composed with this offset (translation in the base frame, then a rotation about the optical
+    frame's own axes). Zero by default: a perfectly calibrated camera."""
+
+    position_m: Vec3 = [0.0, 0.0, 0.0]
+    rotation_deg: Vec3 = Field(
+        [0.0, 0.0, 0.0], description="about the optical x, y, z axes, applied in that order"
+    )
+
+
 class CameraConfig(_Strict):
     width_px: int = Field(640, ge=64, le=1920)
     height_px: int = Field(480, ge=48, le=1080)
     hfov_deg: float = Field(57.0, gt=10.0, lt=120.0)
-    rate_hz: float = Field(30.0, gt=0.0, le=120.0)
+    rgb_hz: float = Field(30.0, gt=0.0, le=120.0, description="colour frames per second")
+    depth_hz: float | None = Field(
+        None, gt=0.0, le=120.0, description="depth images per second (default: rgb_hz)"
+    )
+    depth_width_px: int | None = Field(
+        None, ge=16, le=1920, description="native depth resolution (default: the colour one)"
+    )
+    depth_height_px: int | None = Field(None, ge=12, le=1080)
     position: Vec3 = Field(description="optical centre in the arm base frame (m)")
     look_at: Vec3 = Field(description="point on the optical axis in the arm base frame (m)")
     near_m: float = Field(0.05, gt=0.0)
     far_m: float = Field(5.0, gt=0.0)
     kinect: KinectConfig = KinectConfig()
+    calibration_error: CalibrationError = CalibrationError()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> CameraConfig:
+        if self.depth_hz is not None and self.depth_hz > self.rgb_hz:
+            raise ValueError(
+                f"depth_hz ({self.depth_hz}) above rgb_hz ({self.rgb_hz}): every depth image "
+                "is taken with a colour frame"
+            )
+        if (self.depth_width_px is None) != (self.depth_height_px is None):
+            raise ValueError("give both depth_width_px and depth_height_px, or neither")
+        if self.depth_width_px is not None and self.depth_height_px is not None:
+            if self.depth_width_px > self.width_px:
+                raise ValueError("depth_width_px above width_px: depth is registered to colour")
+            if abs(
+                self.depth_width_px * self.height_px - self.depth_height_px * self.width_px
+            ) > max(self.width_px, self.height_px):
+                raise ValueError(
+                    f"depth image {self.depth_width_px}×{self.depth_height_px} does not have "
+                    f"the colour image's aspect ratio ({self.width_px}×{self.height_px})"
+                )
+        if self.near_m >= self.far_m:
+            raise ValueError(f"near_m ({self.near_m}) must be below far_m ({self.far_m})")
+        return self
+
+    @property
+    def depth_rate_hz(self) -> float:
+        return self.rgb_hz if self.depth_hz is None else self.depth_hz
 
     def intrinsics(self) -> CameraIntrinsics:
         return CameraIntrinsics.from_fov(self.width_px, self.height_px, self.hfov_deg)
 
+    def depth_intrinsics(self) -> CameraIntrinsics:
+        """The depth image's own intrinsics: same field of view, its own resolution."""
+        if self.depth_width_px is None or self.depth_height_px is None:
+            return self.intrinsics()
+        return CameraIntrinsics.from_fov(self.depth_width_px, self.depth_height_px, self.hfov_deg)
+
     def pose(self) -> np.ndarray:
         """4×4 pose of the optical frame in the base frame (image up as close to up as it gets).
 
-        The sim renders from it; the controller and the pre-launch check use it as the camera
-        calibration (the mount the URDF and scenario describe)."""
+        This is the true mount: the sim renders from it, and the pre-launch check uses it."""
         rot = look_at_rotation(np.array(self.position), np.array(self.look_at), BASE_UP)
         return homogeneous(rot, np.array(self.position, dtype=float))
+
+    def assumed_pose(self) -> np.ndarray:
+        """The pose the controller believes (its calibration): :meth:`pose` with
+        ``calibration_error`` applied; equal to it by default."""
+        true = self.pose()
+        rx, ry, rz = np.radians(self.calibration_error.rotation_deg)
+        turn = rot_x(rx) @ rot_y(ry) @ rot_z(rz)
+        return homogeneous(
+            true[:3, :3] @ turn, true[:3, 3] + np.array(self.calibration_error.position_m)
+        )
 
 
 class HsvRange(_Strict):
@@ -137,6 +205,19 @@ class VisionConfig(_Strict):
     green_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = [30, 200, 30]
     rgb_tolerance: int = Field(60, ge=1, le=255)
     min_area_px: int = Field(60, ge=4, description="smaller blobs are rejected")
+    occlusion_ring_px: int = Field(
+        5,
+        ge=1,
+        le=30,
+        description="depth pixels around a marker searched for something in front of it; "
+        "reaches past the invalid band a depth camera leaves along edges",
+    )
+    max_depth_age_s: float = Field(
+        1.2,
+        gt=0.0,
+        le=60.0,
+        description="a colour frame is paired with the newest depth image no older than this",
+    )
 
 
 class ControllerConfig(_Strict):
@@ -192,6 +273,43 @@ class SupervisorConfig(_Strict):
         return self.restart.get(service, self.default_restart)  # type: ignore[call-overload]
 
 
+class EventAction(StrEnum):
+    HIDE_TARGET = "hide_target"  # the red marker disappears (for duration_s, or until shown)
+    SHOW_TARGET = "show_target"
+    OCCLUDE_HAND = "occlude_hand"  # a panel comes between the camera and the hand's marker
+    MOVE_TARGET = "move_target"  # the object slides at velocity_m_s for duration_s
+
+
+class Event(_Strict):
+    """One entry of the scenario's ``[[events]]`` timeline (simulated time). Only the sim acts
+    on events: perception and control learn of them through the camera, as they would."""
+
+    at_s: float = Field(ge=0.0, le=3600.0, description="simulated time it starts (s)")
+    action: EventAction
+    duration_s: float | None = Field(None, gt=0.0, le=3600.0)
+    velocity_m_s: Vec3 | None = Field(None, description="move_target: base frame (m/s)")
+
+    @model_validator(mode="after")
+    def _fields_fit_the_action(self) -> Event:
+        moving = self.action is EventAction.MOVE_TARGET
+        if moving and self.velocity_m_s is None:
+            raise ValueError("move_target needs velocity_m_s")
+        if not moving and self.velocity_m_s is not None:
+            raise ValueError(f"velocity_m_s is only for move_target, not {self.action.value}")
+        if moving and float(np.linalg.norm(self.velocity_m_s)) > 0.2:
+            raise ValueError("move_target: speed above 0.2 m/s")
+        timed = self.action in (EventAction.MOVE_TARGET, EventAction.OCCLUDE_HAND)
+        if timed and self.duration_s is None:
+            raise ValueError(f"{self.action.value} needs duration_s")
+        if self.action is EventAction.SHOW_TARGET and self.duration_s is not None:
+            raise ValueError("show_target takes no duration_s")
+        return self
+
+    @property
+    def end_s(self) -> float:
+        return self.at_s + (self.duration_s or 0.0)
+
+
 class RunConfig(_Strict):
     clock: ClockMode = ClockMode.LOCKSTEP
     timeout_s: float = Field(30.0, gt=0.0, le=3600.0, description="simulated seconds")
@@ -209,6 +327,13 @@ class Scenario(_Strict):
     sim: SimConfig = SimConfig()
     run: RunConfig = RunConfig()
     supervisor: SupervisorConfig = SupervisorConfig()
+    events: list[Event] = Field(default_factory=list, max_length=100)
+
+    @property
+    def events_end_s(self) -> float:
+        """When the last scheduled event is over (0 without events): a run is not judged
+        converged before it."""
+        return max((e.end_s for e in self.events), default=0.0)
 
 
 class ScenarioError(ValueError):
@@ -223,8 +348,20 @@ def format_validation_error(err: ValidationError, source: str) -> str:
     return "\n".join(lines)
 
 
+def merge_overrides(data: dict, overrides: dict) -> dict:
+    """``overrides`` merged into ``data`` in place, table by table (nested tables too); a value
+    that is not a table replaces what was there."""
+    for key, value in overrides.items():
+        if isinstance(value, dict) and isinstance(data.get(key), dict):
+            merge_overrides(data[key], value)
+        else:
+            data[key] = value
+    return data
+
+
 def load_scenario(path: str | Path | None = None, overrides: dict | None = None) -> Scenario:
-    """Read and validate a scenario TOML file; ``overrides`` are merged per table first."""
+    """Read and validate a scenario TOML file; ``overrides`` (nested tables, as from
+    :func:`common.runtime.parse_overrides`) are merged into it first."""
     p = Path(path) if path is not None else DEFAULT_SCENARIO
     try:
         data = tomllib.loads(p.read_text())
@@ -232,8 +369,7 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         raise ScenarioError(f"{p}: no such scenario file") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{p}: not valid TOML: {exc}") from exc
-    for table, values in (overrides or {}).items():
-        data.setdefault(table, {}).update(values)
+    merge_overrides(data, overrides or {})
     try:
         return Scenario.model_validate(data)
     except ValidationError as exc:

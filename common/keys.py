@@ -13,7 +13,8 @@ from dataclasses import dataclass
 SERVICES: tuple[str, ...] = ("sim", "vision", "controller", "actuation")
 
 # Data keys, relative to the prefix.
-RGBD = "sim/rgbd"
+RGB = "sim/rgb"
+DEPTH = "sim/depth"
 JOINT_STATE = "sim/joint_state"
 TRUTH = "sim/truth"
 FEATURES = "vision/features"
@@ -38,8 +39,12 @@ class Keys:
 
     # sim
     @property
-    def rgbd(self) -> str:
-        return f"{self.prefix}/{RGBD}"
+    def rgb(self) -> str:
+        return f"{self.prefix}/{RGB}"
+
+    @property
+    def depth(self) -> str:
+        return f"{self.prefix}/{DEPTH}"
 
     @property
     def joint_state(self) -> str:

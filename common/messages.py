@@ -76,22 +76,42 @@ class ImageData(Message):
         return np.frombuffer(self.data, dtype=self.dtype).reshape(self.shape)
 
 
-class RgbdFrame(Message):
-    """Registered RGB (uint8, H×W×3) and depth (float32 metres along the optical axis, H×W;
-    0 = invalid) from the torso camera."""
+class RgbFrame(Message):
+    """Colour image (uint8, H×W×3) from the torso camera.
+
+    The depth stream may run slower than this one; every depth image is taken together with a
+    colour frame. ``depth_frame_seq`` is the ``frame_seq`` of the newest depth image taken at
+    or before this frame (-1: none yet), so a consumer knows which depth image to wait for (as
+    a driver's timestamps would tell it) and pairing stays deterministic."""
 
     header: Header
     intrinsics: CameraIntrinsics
     rgb: ImageData
-    depth_m: ImageData
+    depth_frame_seq: int = Field(-1, ge=-1)
 
     @model_validator(mode="after")
-    def _consistent(self) -> RgbdFrame:
+    def _consistent(self) -> RgbFrame:
         h, w = self.intrinsics.height_px, self.intrinsics.width_px
         if self.rgb.shape != [h, w, 3] or self.rgb.dtype != "uint8":
             raise ValueError(
                 f"rgb must be uint8 [{h}, {w}, 3], got {self.rgb.dtype} {self.rgb.shape}"
             )
+        return self
+
+
+class DepthFrame(Message):
+    """Depth image (float32, metres along the optical axis, H×W; 0 = no measurement),
+    registered to the colour camera: same viewpoint and field of view, possibly at a lower
+    resolution (``intrinsics`` are the depth image's own). ``header.frame_seq`` is the colour
+    frame taken at the same instant."""
+
+    header: Header
+    intrinsics: CameraIntrinsics
+    depth_m: ImageData
+
+    @model_validator(mode="after")
+    def _consistent(self) -> DepthFrame:
+        h, w = self.intrinsics.height_px, self.intrinsics.width_px
         if self.depth_m.shape != [h, w] or self.depth_m.dtype != "float32":
             raise ValueError(
                 f"depth_m must be float32 [{h}, {w}], got {self.depth_m.dtype} {self.depth_m.shape}"
@@ -107,23 +127,44 @@ class JointState(Message):
     velocity_rad_s: JointRates
 
 
-class MarkerFeatures(Message):
-    """One square marker: four corners in canonical order, their depths and 3-D points."""
+MarkerState = Literal["visible", "partial", "lost", "no_depth"]
 
-    visible: bool
+
+class MarkerFeatures(Message):
+    """One square marker: four corners in canonical order, their depths and 3-D points.
+
+    ``state``: ``visible`` (the whole square, corners and depths usable), ``partial`` (part of
+    it is seen: hidden by something in front, cut by the image border, or not a clean
+    quadrilateral), ``lost`` (not seen), ``no_depth`` (seen whole, but no depth measurement
+    recent enough). Only ``visible`` features may be acted on; the arrays are zeros otherwise.
+    ``occluded``: the depth image (or, between depth images, the hand marker) shows something
+    in front of the marker or of where it was last seen, i.e. it is hidden, not gone.
+    """
+
+    state: MarkerState
     corners_px: Corners2
     depth_m: Depths4
+    depth_sigma_m: Depths4 = Field(description="1-σ uncertainty of each corner depth")
     points_m: Corners3 = Field(description="corners in the camera optical frame")
+    occluded: bool = False
     reason: str = Field("", max_length=200, description="why not visible")
+
+    @property
+    def visible(self) -> bool:
+        return self.state == "visible"
 
 
 class Features(Message):
-    """Output of vision: the hand (green) and target (red) markers of one frame."""
+    """Output of vision: the hand (green) and target (red) markers of one colour frame.
+
+    ``depth_age_s``: how much older (sim time) the depth image used is than the colour frame
+    (0: taken together); None when no depth image was available."""
 
     header: Header
     intrinsics: CameraIntrinsics
     hand: MarkerFeatures
     target: MarkerFeatures
+    depth_age_s: float | None = Field(None, ge=0.0, le=1e7)
 
 
 class EndEffectorTwist(Message):
@@ -134,6 +175,7 @@ class EndEffectorTwist(Message):
     linear_m_s: Annotated[list[LinearRate], Field(min_length=3, max_length=3)]
     angular_rad_s: Annotated[list[AngularRate], Field(min_length=3, max_length=3)]
     valid: bool = Field(description="False: hold (features missing); the twist is zero")
+    hold_reason: str = Field("", max_length=200, description="why it holds, when not valid")
     mode: str = Field(max_length=32)
     error_px_rms: float = Field(
         ge=0.0, le=1e5, description="RMS of e = s - s* over the 8 coordinates"

@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 import tomllib
+from typing import Any
 
 import zenoh
 
@@ -31,19 +32,27 @@ def service_arguments(service: str, argv: list[str] | None) -> argparse.Namespac
     return parser.parse_args(argv)
 
 
-def parse_overrides(items: list[str]) -> dict[str, dict]:
-    """``["run.clock='realtime'", "controller.gain=2"]`` → ``{"run": {"clock": ...}, ...}``."""
-    out: dict[str, dict] = {}
+def parse_overrides(items: list[str]) -> dict[str, Any]:
+    """``["run.clock='realtime'", "camera.kinect.enabled=true"]`` → nested tables
+    ``{"run": {"clock": "realtime"}, "camera": {"kinect": {"enabled": True}}}``. VALUE is TOML
+    (a bare word such as realtime is taken as a string); a top-level field takes no dot
+    (``events=[{at_s = 1.0, action = "hide_target", duration_s = 1.0}]``)."""
+    out: dict[str, Any] = {}
     for item in items:
         path, sep, value = item.partition("=")
-        table, dot, name = path.strip().partition(".")
-        if not sep or not dot or not name:
+        names = [n.strip() for n in path.split(".")]
+        if not sep or not all(names):
             raise ScenarioError(f"--set {item!r}: expected TABLE.FIELD=VALUE")
         try:
             parsed = tomllib.loads(f"v = {value}")["v"]
         except tomllib.TOMLDecodeError:
-            parsed = value  # a bare word such as realtime is taken as a string
-        out.setdefault(table, {})[name] = parsed
+            parsed = value.strip()
+        table = out
+        for name in names[:-1]:
+            table = table.setdefault(name, {})
+            if not isinstance(table, dict):
+                raise ScenarioError(f"--set {item!r}: {name} is set as a value and as a table")
+        table[names[-1]] = parsed
     return out
 
 

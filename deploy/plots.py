@@ -51,7 +51,7 @@ M = TypeVar("M", bound=BaseModel)
 DPI = 150
 DEFAULT_CONVERGED_PX = 0.25
 
-# Key suffixes (see common/keys.py) of the channels read; sim/rgbd is deliberately absent.
+# Key suffixes (see common/keys.py) of the channels read; the images are deliberately absent.
 SUFFIX_FEATURES = data_keys.FEATURES
 SUFFIX_TWIST = data_keys.TWIST
 SUFFIX_COMMAND = data_keys.JOINT_COMMAND

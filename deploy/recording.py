@@ -31,11 +31,12 @@ from common import keys as data_keys
 from common.config import DEFAULT_SCENARIO
 from common.keys import Keys
 from common.messages import (
+    DepthFrame,
     EndEffectorTwist,
     Features,
     JointState,
     JointVelocityCommand,
-    RgbdFrame,
+    RgbFrame,
     SimTruth,
 )
 
@@ -46,7 +47,8 @@ PROFILE = "umay"
 
 # Key suffix (after the prefix) → model: the data keys, the only ones recorded.
 DATA_SUFFIXES: dict[str, type[BaseModel]] = {
-    data_keys.RGBD: RgbdFrame,
+    data_keys.RGB: RgbFrame,
+    data_keys.DEPTH: DepthFrame,
     data_keys.JOINT_STATE: JointState,
     data_keys.TRUTH: SimTruth,
     data_keys.FEATURES: Features,
@@ -65,7 +67,7 @@ def model_for_key(keys: Keys, key: str) -> type[BaseModel] | None:
 
 
 def split_data_key(key: str) -> tuple[str, str, type[BaseModel]] | None:
-    """``"<prefix>/sim/rgbd"`` → ``("<prefix>", "sim/rgbd", RgbdFrame)``, whatever the prefix;
+    """``"<prefix>/sim/rgb"`` → ``("<prefix>", "sim/rgb", RgbFrame)``, whatever the prefix;
     None when the key is not a data key."""
     parts = key.split("/")
     if len(parts) < 3:

@@ -8,7 +8,7 @@ captures its outputs and compares them, frame by frame, with the recorded ones:
 =========== ============================ ==========================
 service     inputs                       output
 =========== ============================ ==========================
-vision      ``sim/rgbd``                 ``vision/features``
+vision      ``sim/depth``, ``sim/rgb``   ``vision/features``
 controller  ``sim/joint_state``,         ``controller/twist``
             ``vision/features``
 actuation   ``sim/joint_state``,         ``actuation/joint_command``
@@ -66,7 +66,7 @@ class ServiceIO:
 
 
 SERVICE_IO: dict[str, ServiceIO] = {
-    "vision": ServiceIO(("sim/rgbd",), "sim/rgbd", "vision/features", 1e-12),
+    "vision": ServiceIO(("sim/depth", "sim/rgb"), "sim/rgb", "vision/features", 1e-12),
     "controller": ServiceIO(
         (JOINT_STATE, "vision/features"), "vision/features", "controller/twist", 1e-12
     ),

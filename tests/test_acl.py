@@ -102,10 +102,10 @@ def test_only_the_sim_can_publish_frames_and_strangers_are_refused(tmp_path: Pat
         )  # fmt: skip
         vision = client_session("vision", endpoint)
         received: list[bytes] = []
-        sub = vision.declare_subscriber(keys.rgbd, lambda s: received.append(s.payload.to_bytes()))
+        sub = vision.declare_subscriber(keys.rgb, lambda s: received.append(s.payload.to_bytes()))
         forged = b"forged frame"
         rogue = client_session("controller", endpoint)
-        publisher = rogue.declare_publisher(keys.rgbd)
+        publisher = rogue.declare_publisher(keys.rgb)
         deadline = time.monotonic() + 60
         while len(received) < 5:  # the sim's own frames arrive...
             assert time.monotonic() < deadline, "no frames from the sim"

@@ -10,20 +10,22 @@ import pytest
 
 from common.camera import CameraIntrinsics
 from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decode, encode
-from common.messages import Header, ImageData, JointVelocityCommand, RgbdFrame
+from common.messages import DepthFrame, Header, ImageData, JointVelocityCommand, RgbFrame
 
 K = CameraIntrinsics.from_fov(64, 48, 57.0)
 
 
-def frame() -> RgbdFrame:
+HEADER = Header(seq=3, sim_time_s=0.1, send_time_s=1.0, frame_seq=3)
+
+
+def frame() -> RgbFrame:
     rgb = np.random.default_rng(0).integers(0, 255, (48, 64, 3), dtype=np.uint8)
+    return RgbFrame(header=HEADER, intrinsics=K, rgb=ImageData.from_array(rgb), depth_frame_seq=3)
+
+
+def depth_frame() -> DepthFrame:
     depth = np.full((48, 64), 0.7, dtype=np.float32)
-    return RgbdFrame(
-        header=Header(seq=3, sim_time_s=0.1, send_time_s=1.0, frame_seq=3),
-        intrinsics=K,
-        rgb=ImageData.from_array(rgb),
-        depth_m=ImageData.from_array(depth),
-    )
+    return DepthFrame(header=HEADER, intrinsics=K, depth_m=ImageData.from_array(depth))
 
 
 def command(**kw) -> dict:
@@ -36,12 +38,16 @@ def command(**kw) -> dict:
 
 
 def test_frame_round_trip_keeps_images_as_bytes() -> None:
-    f = frame()
+    f, d = frame(), depth_frame()
     payload = encode(f)
-    assert len(payload) < 48 * 64 * 7 + 1000  # raw bytes, not lists of numbers
-    back = decode(payload, RgbdFrame, FRAME_MAX_BYTES)
+    assert len(payload) < 48 * 64 * 3 + 1000  # raw bytes, not lists of numbers
+    back = decode(payload, RgbFrame, FRAME_MAX_BYTES)
     np.testing.assert_array_equal(back.rgb.to_array(), f.rgb.to_array())
-    np.testing.assert_array_equal(back.depth_m.to_array(), f.depth_m.to_array())
+    assert back.depth_frame_seq == 3
+    payload = encode(d)
+    assert len(payload) < 48 * 64 * 4 + 1000
+    back_depth = decode(payload, DepthFrame, FRAME_MAX_BYTES)
+    np.testing.assert_array_equal(back_depth.depth_m.to_array(), d.depth_m.to_array())
 
 
 @pytest.mark.parametrize(
@@ -65,15 +71,19 @@ def test_bad_payloads_raise_message_error(payload: bytes, fragment: str) -> None
 def test_truncated_frame_is_rejected() -> None:
     payload = encode(frame())
     with pytest.raises(MessageError):
-        decode(payload[: len(payload) // 2], RgbdFrame, FRAME_MAX_BYTES)
+        decode(payload[: len(payload) // 2], RgbFrame, FRAME_MAX_BYTES)
 
 
 def test_image_size_must_match_shape() -> None:
     data = frame().model_dump()
     data["rgb"]["data"] = data["rgb"]["data"][:-3]
     with pytest.raises(MessageError, match="rgb"):
-        decode(msgpack.packb(data), RgbdFrame, FRAME_MAX_BYTES)
-    data = frame().model_dump()
+        decode(msgpack.packb(data), RgbFrame, FRAME_MAX_BYTES)
+    data = depth_frame().model_dump()
     data["depth_m"] = ImageData.from_array(np.zeros((10, 10), np.float32)).model_dump()
     with pytest.raises(MessageError, match="depth_m"):
-        decode(msgpack.packb(data), RgbdFrame, FRAME_MAX_BYTES)
+        decode(msgpack.packb(data), DepthFrame, FRAME_MAX_BYTES)
+    data = depth_frame().model_dump()
+    data["depth_m"] = ImageData.from_array(np.zeros((48, 64), np.uint8)).model_dump()
+    with pytest.raises(MessageError, match="float32"):
+        decode(msgpack.packb(data), DepthFrame, FRAME_MAX_BYTES)

@@ -23,6 +23,7 @@ from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decod
 from common.config import load_scenario
 from common.keys import SERVICES, Keys
 from common.messages import (
+    DepthFrame,
     EndEffectorTwist,
     Features,
     Header,
@@ -30,7 +31,7 @@ from common.messages import (
     JointState,
     JointVelocityCommand,
     MarkerFeatures,
-    RgbdFrame,
+    RgbFrame,
 )
 from common.transport import free_tcp_endpoint, open_session
 from deploy.run import run_once
@@ -39,14 +40,19 @@ from deploy.status import collect
 H = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
 K = CameraIntrinsics.from_fov(32, 24, 57.0)
 M = MarkerFeatures(
-    visible=True, corners_px=[[1.0, 2.0]] * 4, depth_m=[0.5] * 4, points_m=[[0.0, 0.0, 0.5]] * 4
+    state="visible",
+    corners_px=[[1.0, 2.0]] * 4,
+    depth_m=[0.5] * 4,
+    depth_sigma_m=[0.001] * 4,
+    points_m=[[0.0, 0.0, 0.5]] * 4,
 )
+FRAMES = ("rgb", "depth")
 TEMPLATES = {
-    "rgbd": RgbdFrame(
-        header=H,
-        intrinsics=K,
-        rgb=ImageData.from_array(np.zeros((24, 32, 3), np.uint8)),
-        depth_m=ImageData.from_array(np.zeros((24, 32), np.float32)),
+    "rgb": RgbFrame(
+        header=H, intrinsics=K, rgb=ImageData.from_array(np.zeros((24, 32, 3), np.uint8))
+    ),
+    "depth": DepthFrame(
+        header=H, intrinsics=K, depth_m=ImageData.from_array(np.zeros((24, 32), np.float32))
     ),
     "joint_state": JointState(header=H, position_rad=[0.1] * 6, velocity_rad_s=[0.0] * 6),
     "features": Features(header=H, intrinsics=K, hand=M, target=M),
@@ -100,8 +106,9 @@ def mutate(template: dict, rng: np.random.Generator) -> bytes:
         data[key] = [0.0] * int(rng.integers(10_000, 100_000))  # huge array
     else:
         data["surprise"] = 1  # unknown field
-    if "rgb" in data and rng.random() < 0.5:
-        data["rgb"]["data"] = data["rgb"]["data"][:-1]  # image size ≠ shape
+    for image in ("rgb", "depth_m"):
+        if image in data and rng.random() < 0.5:
+            data[image]["data"] = data[image]["data"][:-1]  # image size ≠ shape
     return msgpack.packb(data, use_bin_type=True)
 
 
@@ -111,13 +118,14 @@ def invalid_payload(name: str, template: dict, rng: np.random.Generator) -> byte
     while True:
         payload = mutate(template, rng)
         try:
-            decode(payload, model, FRAME_MAX_BYTES if name == "rgbd" else DEFAULT_MAX_BYTES)
+            decode(payload, model, FRAME_MAX_BYTES if name in FRAMES else DEFAULT_MAX_BYTES)
         except MessageError:
             return payload
 
 
 SUBSCRIBERS = {  # key → services that subscribe to it
-    "rgbd": ["vision"],
+    "rgb": ["vision"],
+    "depth": ["vision"],
     "joint_state": ["controller", "actuation"],
     "features": ["controller"],
     "twist": ["actuation"],
@@ -127,7 +135,8 @@ SUBSCRIBERS = {  # key → services that subscribe to it
 
 def key_of(keys: Keys, name: str) -> str:
     return {
-        "rgbd": keys.rgbd,
+        "rgb": keys.rgb,
+        "depth": keys.depth,
         "joint_state": keys.joint_state,
         "features": keys.features,
         "twist": keys.twist,

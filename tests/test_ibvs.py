@@ -13,9 +13,11 @@ from services.controller.ibvs import (
     MarkerObservation,
     base_ee_twist_to_camera,
     camera_twist_to_base_ee,
+    choose_pairing,
     clamp_twist,
     desired_observation,
     interaction_matrix,
+    pairing_costs_px2,
     point_feature_jacobian,
 )
 
@@ -97,10 +99,11 @@ def path_ratio(path: np.ndarray) -> float:
 
 
 def test_points3d_moves_the_hand_in_a_straight_line_and_converges_in_depth() -> None:
-    """A 6 cm marker 0.42 m away, turned by 0.8 rad, servoed 24 cm onto a target 0.58 m away:
-    points3d drives every corner along its own straight line, image-point IBVS bends."""
+    """A 6 cm marker 0.42 m away, turned by 0.6 rad, servoed 24 cm onto a target 0.58 m away:
+    points3d drives every corner along its own straight line, image-point IBVS bends. (Turned
+    by less than 45°, so the corners pair with the target's as labelled.)"""
     target = square_points(np.array([-0.05, -0.03, 0.58]))
-    start = (_axis_angle(np.array([0.0, 0.0, 1.0]), 0.8) @ square_points(np.zeros(3)).T).T
+    start = (_axis_angle(np.array([0.0, 0.0, 1.0]), 0.6) @ square_points(np.zeros(3)).T).T
     start = start + np.array([0.12, 0.08, 0.42])
     path, errors, out, hand, goal = servo_path(JacobianMode.POINTS3D, start, target)
     assert out.converged, f"error still {out.error_px_rms:.3f} px"
@@ -135,7 +138,7 @@ def test_clamp_keeps_direction() -> None:
 
 
 def observe(points: np.ndarray) -> MarkerObservation:
-    return MarkerObservation(True, project(points, K), points[:, 2].copy(), points)
+    return MarkerObservation("visible", project(points, K), points[:, 2].copy(), points)
 
 
 @pytest.mark.parametrize("mode", list(JacobianMode))
@@ -165,19 +168,65 @@ def _axis_angle_safe(w: np.ndarray, dt: float) -> np.ndarray:
     return np.eye(3) if angle == 0 else _axis_angle(w / np.linalg.norm(w), angle)
 
 
+def not_seen(state: str, occluded: bool = False) -> MarkerObservation:
+    return MarkerObservation(state, np.zeros((4, 2)), np.zeros(4), np.zeros((4, 3)), occluded)
+
+
 def test_hold_when_a_marker_is_missing_and_memory_when_the_hand_hides_the_target() -> None:
     target = observe(square_points(np.array([0.0, 0.05, 0.55])))
     hand_far = observe(square_points(np.array([0.15, -0.1, 0.5])))
     hand_near = observe(square_points(np.array([0.01, 0.05, 0.53])))
-    lost = MarkerObservation(False, np.zeros((4, 2)), np.zeros(4), np.zeros((4, 3)))
     ctrl = IbvsController(ControllerConfig(), np.eye(4))
-    assert not ctrl.step(hand_far, lost, K, np.zeros(3)).valid  # never seen: hold
+    out = ctrl.step(hand_far, not_seen("lost"), K, np.zeros(3))
+    assert not out.valid and out.hold_reason == "target lost"  # never seen: hold
     assert ctrl.step(hand_far, target, K, np.zeros(3)).valid
-    out = ctrl.step(hand_far, lost, K, np.zeros(3))
-    assert not out.valid and not np.any(out.twist_base_ee)  # lost far from the hand: hold
-    out = ctrl.step(hand_near, lost, K, np.zeros(3))
+    out = ctrl.step(hand_far, not_seen("lost", occluded=True), K, np.zeros(3))
+    assert not out.valid and not np.any(out.twist_base_ee)  # hidden far from the hand: hold
+    out = ctrl.step(hand_near, not_seen("partial", occluded=True), K, np.zeros(3))
     assert out.valid and out.target_remembered  # hidden by the hand: remembered
-    assert not ctrl.step(lost, target, K, np.zeros(3)).valid
+    out = ctrl.step(hand_near, not_seen("lost"), K, np.zeros(3))
+    assert not out.valid and out.hold_reason == "target lost"  # gone, nothing in front: hold
+    out = ctrl.step(hand_near, target, K, np.zeros(3))
+    assert out.valid and not out.target_remembered  # back: resumes
+    out = ctrl.step(not_seen("partial"), target, K, np.zeros(3))
+    assert not out.valid and out.hold_reason == "hand partial"
+    out = ctrl.step(hand_near, not_seen("no_depth"), K, np.zeros(3))
+    assert not out.valid and out.hold_reason == "target no_depth"
+
+
+def test_corner_pairing_takes_the_least_turn_and_holds_it_near_45_degrees() -> None:
+    square = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
+    for shift in range(4):  # the same square, its corners labelled from another one
+        costs = pairing_costs_px2(square, np.roll(square, shift, axis=0))
+        assert choose_pairing(costs, None) == shift
+        assert costs.min() < 1e-20
+    centre = square.mean(axis=0)
+
+    def turned(angle_deg: float) -> np.ndarray:
+        a = np.radians(angle_deg)
+        rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        return (square - centre) @ rot.T + centre + 50.0  # far away: centroid term is common
+
+    assert choose_pairing(pairing_costs_px2(turned(30.0), square), None) == 0
+    assert choose_pairing(pairing_costs_px2(turned(60.0), square), None) == 1
+    # Just past 45°: the pairing in use stays (hysteresis), far past it switches.
+    assert choose_pairing(pairing_costs_px2(turned(47.0), square), 0) == 0
+    assert choose_pairing(pairing_costs_px2(turned(70.0), square), 0) == 1
+
+
+def test_the_controller_pairs_corners_whatever_vision_labels_them() -> None:
+    """Vision labels each marker's corners on its own; the hand must not be turned by 90° to
+    match labels: every relabelling of the target gives the same twist."""
+    target_points = square_points(np.array([0.0, 0.05, 0.55]))
+    hand = observe(square_points(np.array([0.05, 0.0, 0.5])))
+    twists = []
+    for shift in range(4):
+        target = observe(np.roll(target_points, shift, axis=0))
+        ctrl = IbvsController(ControllerConfig(mode=JacobianMode.CONSTANT), np.eye(4))
+        twists.append(ctrl.step(hand, target, K, np.zeros(3)).twist_base_ee)
+    for twist in twists[1:]:
+        np.testing.assert_allclose(twist, twists[0], atol=1e-12)
+    assert abs(twists[0][5]) < 1e-9  # no turn about the optical axis is asked for
 
 
 def test_desired_features_rise_towards_the_camera() -> None:

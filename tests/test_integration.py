@@ -113,9 +113,10 @@ def test_bad_input_exits_2_naming_the_field_and_launches_nothing(
 def marker(u0: float) -> MarkerFeatures:
     corners = [[u0, 200.0], [u0 + 50, 200.0], [u0 + 50, 250.0], [u0, 250.0]]
     return MarkerFeatures(
-        visible=True,
+        state="visible",
         corners_px=corners,
         depth_m=[0.5] * 4,
+        depth_sigma_m=[0.001] * 4,
         points_m=[[(u - 319.5) * 0.5 / 589.0, (v - 239.5) * 0.5 / 589.0, 0.5] for u, v in corners],
     )
 

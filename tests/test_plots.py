@@ -51,16 +51,18 @@ START = square((190.0, 150.0), 60.0, -0.35)
 def marker(corners: np.ndarray | None) -> MarkerFeatures:
     if corners is None:
         return MarkerFeatures(
-            visible=False,
+            state="lost",
             corners_px=[[0.0, 0.0]] * 4,
             depth_m=[0.0] * 4,
+            depth_sigma_m=[0.0] * 4,
             points_m=[[0.0, 0.0, 0.0]] * 4,
             reason="no blob",
         )
     return MarkerFeatures(
-        visible=True,
+        state="visible",
         corners_px=corners.tolist(),
         depth_m=[0.8] * 4,
+        depth_sigma_m=[0.001] * 4,
         points_m=[[0.0, 0.0, 0.8]] * 4,
     )
 
@@ -85,7 +87,8 @@ def fake_run(k: int) -> dict[str, bytes]:
     error = float(np.sqrt(np.mean((hand - TARGET) ** 2)))
     q_dot = [0.6 * decay * np.cos(j + 0.4 * k * PERIOD_S) for j in range(6)]
     return {
-        "sim/rgbd": b"not decoded: the big channel is skipped",
+        "sim/rgb": b"not decoded: the big channels are skipped",
+        "sim/depth": b"not decoded either",
         "sim/joint_state": encode(
             JointState(
                 header=header(k), position_rad=[0.1 * k * PERIOD_S] * 6, velocity_rad_s=q_dot
@@ -181,7 +184,7 @@ def test_missing_channel_skips_only_its_figure(tmp_path: Path) -> None:
 
 
 def test_recording_without_wanted_channels_writes_nothing(tmp_path: Path) -> None:
-    wanted = tuple(s for s in fake_run(0) if s != "sim/rgbd")
+    wanted = tuple(s for s in fake_run(0) if s not in ("sim/rgb", "sim/depth"))
     rec = write_recording(tmp_path / "run.mcap", skip=wanted)
     assert plot_recording(rec, tmp_path / "figs") == []
 

@@ -69,7 +69,7 @@ def test_run_record_writes_an_indexed_zstd_mcap_with_every_data_key(
 ) -> None:
     path, prefix = recording
     keys = Keys(prefix)
-    data_keys = [keys.rgbd, keys.joint_state, keys.truth, keys.features, keys.twist]
+    data_keys = [keys.rgb, keys.depth, keys.joint_state, keys.truth, keys.features, keys.twist]
     data_keys.append(keys.joint_command)
     with path.open("rb") as f:
         reader = make_reader(f)
@@ -98,7 +98,7 @@ def test_run_record_writes_an_indexed_zstd_mcap_with_every_data_key(
             model = model_for_key(keys, channel.topic)
             decoded = decode(message.data, model, FRAME_MAX_BYTES)
             assert message.publish_time == round(decoded.header.send_time_s * 1e9)
-            frames += channel.topic == keys.rgbd
+            frames += channel.topic == keys.rgb
     assert frames >= 10  # 0.5 s at 30 Hz
 
     info = read_info(path)
@@ -110,14 +110,16 @@ def test_run_record_writes_an_indexed_zstd_mcap_with_every_data_key(
     assert info.compression == ["zstd"] and info.chunk_count == len(summary.chunk_indexes)
     assert info.metadata["umay"]["prefix"] == prefix
     assert 0.0 < info.duration_s < 60.0
-    rgbd = by_topic[keys.rgbd]
-    assert rgbd.rate_hz is not None and rgbd.rate_hz > 0.5
+    for frames_key in (keys.rgb, keys.depth):
+        rate = by_topic[frames_key].rate_hz
+        assert rate is not None and rate > 0.5
     log_times = [t for _topic, t, _pub, _data in iter_messages(path)]
     assert log_times == sorted(log_times) and len(log_times) == info.message_count
 
     shown = umay("info", str(path))
     assert shown.returncode == 0, shown.stderr
-    assert keys.rgbd in shown.stdout and "zstd" in shown.stdout and "RgbdFrame" in shown.stdout
+    assert keys.rgb in shown.stdout and "zstd" in shown.stdout and "RgbFrame" in shown.stdout
+    assert keys.depth in shown.stdout and "DepthFrame" in shown.stdout
 
 
 @pytest.mark.parametrize("service", ["vision", "controller", "actuation"])

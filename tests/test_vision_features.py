@@ -250,7 +250,7 @@ def test_corner_depths_exact_on_clean_plane():
     rgb, depth = render([marker])
     result = vf.corner_depths(depth, vf.segment(rgb, "red", CFG), marker.corners_px, K)
     assert result is not None
-    depths, points = result
+    depths, points = result.depths_m, result.points_m
     assert np.ptp(marker.points_m[:, 2]) > 0.02, "the test plane should be clearly tilted"
     np.testing.assert_allclose(depths, marker.points_m[:, 2], atol=1e-3)
     np.testing.assert_allclose(points, marker.points_m, atol=1e-3)
@@ -268,7 +268,7 @@ def test_corner_depths_robust_to_holes_and_edge_jumps():
     depth[inside & (rng.random(SHAPE) < 0.03)] = BACKGROUND_Z_M  # flying pixels: erosion misses
     result = vf.corner_depths(depth, vf.segment(rgb, "red", CFG), marker.corners_px, K)
     assert result is not None
-    err_m = np.abs(result[0] - marker.points_m[:, 2])
+    err_m = np.abs(result.depths_m - marker.points_m[:, 2])
     assert np.max(err_m) <= 2e-3, f"corner depth errors {err_m} m"
 
 
@@ -282,10 +282,10 @@ def test_corner_depths_fallback_and_failure():
     few[rows[:10], cols[:10]] = 0.7  # 10 valid pixels: median fallback
     result = vf.corner_depths(few, mask, marker.corners_px, K)
     assert result is not None
-    np.testing.assert_allclose(result[0], 0.7)
+    np.testing.assert_allclose(result.depths_m, 0.7)
     assert vf.corner_depths(np.zeros_like(depth), mask, marker.corners_px, K) is None
     m = vf.measure_marker(rgb, np.zeros_like(depth), K, "red", CFG)
-    assert not m.visible and m.reason == "no valid depth"
+    assert m.state == "no_depth" and m.reason == "no valid depth"
 
 
 # --- 4. segmentation and rejection -------------------------------------------------------------
@@ -322,7 +322,7 @@ def test_missing_marker_is_not_visible():
     rgb, depth = render([hand])
     result = vf.measure_markers(rgb, depth, K, CFG)
     assert result["hand"].visible
-    assert not result["target"].visible
+    assert result["target"].state == "lost"
     assert result["target"].reason == "no blob"
     assert not result["target"].corners_px.any()
 
@@ -424,7 +424,7 @@ def test_marker_partly_hidden_by_a_closer_object_is_occluded():
     rgb[150:330, u_left - 20 : u_left + 25] = (140, 150, 165)  # a blue-grey arm in front
     depth[150:330, u_left - 20 : u_left + 25] = 0.45
     m = vf.measure_marker(rgb, depth, K, "red", CFG)
-    assert not m.visible and m.reason == "occluded"
+    assert m.state == "partial" and m.reason == "occluded" and m.occluded
     assert vf.square_corners(vf.segment(rgb, "red", CFG), CFG.min_area_px) is not None
 
 

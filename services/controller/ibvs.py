@@ -18,7 +18,7 @@ Every law is written ``(v, ω) = λ · M · e``; only ``M`` and ``e`` differ.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -136,13 +136,20 @@ def clamp_twist(twist: FloatArray, max_linear_m_s: float, max_angular_rad_s: flo
 
 @dataclass(frozen=True)
 class MarkerObservation:
-    """What the controller needs of one marker: pixel corners (4×2), depths (4,) and the
-    corners' 3-D points in the camera frame (4×3)."""
+    """What the controller needs of one marker: its state (``visible``, ``partial``, ``lost``
+    or ``no_depth``, see :class:`common.messages.MarkerFeatures`), pixel corners (4×2), depths
+    (4,), the corners' 3-D points in the camera frame (4×3), and whether something is seen in
+    front of it (hidden rather than gone)."""
 
-    visible: bool
+    state: str
     corners_px: FloatArray
     depth_m: FloatArray
     points_m: FloatArray
+    occluded: bool = False
+
+    @property
+    def visible(self) -> bool:
+        return self.state == "visible"
 
 
 def desired_observation(
@@ -162,7 +169,7 @@ def desired_observation(
     if normal @ p.mean(axis=0) > 0:  # make it face the camera (at the origin)
         normal = -normal
     raised = p + approach_height_m * normal
-    return MarkerObservation(True, project(raised, k), raised[:, 2].copy(), raised)
+    return MarkerObservation("visible", project(raised, k), raised[:, 2].copy(), raised)
 
 
 @dataclass(frozen=True)
@@ -172,6 +179,46 @@ class ControlOutput:
     error_px_rms: float
     converged: bool
     target_remembered: bool = False  # s* from memory: the hand hides the target
+    hold_reason: str = ""  # why the twist is zero, when not valid
+
+
+def rolled(observation: MarkerObservation, shift: int) -> MarkerObservation:
+    """The same marker with its corners relabelled: corner i becomes corner (i + shift) % 4."""
+    if shift == 0:
+        return observation
+    return replace(
+        observation,
+        corners_px=np.roll(observation.corners_px, -shift, axis=0),
+        depth_m=np.roll(observation.depth_m, -shift, axis=0),
+        points_m=np.roll(observation.points_m, -shift, axis=0),
+    )
+
+
+# Another pairing of corners must cut the squared image error by this factor to replace the
+# current one (hysteresis: near a 45° relative turn two pairings are almost as good).
+CORNER_SWITCH_RATIO = 0.7
+
+
+def pairing_costs_px2(hand_px: FloatArray, target_px: FloatArray) -> FloatArray:
+    """Squared shape mismatch (px²) for each of the 4 cyclic pairings of the hand's corners
+    with the target's (entry k pairs hand corner i with target corner (i + k) % 4).
+
+    The two squares look the same turned by 90°, so which target corner a hand corner must go
+    to is a choice: vision labels each marker's corners on its own. The corners are compared
+    about their centroids (the offset between the squares is the same for every pairing and
+    would drown the difference), so the least cost is the pairing that needs the least turn
+    about the optical axis; it is also the one with the least squared image error."""
+    hand = hand_px - hand_px.mean(axis=0)
+    target = target_px - target_px.mean(axis=0)
+    return np.array([float(np.sum((hand - np.roll(target, -k, axis=0)) ** 2)) for k in range(4)])
+
+
+def choose_pairing(costs_px2: FloatArray, current: int | None) -> int:
+    """The best pairing, unless the current one is nearly as good (hysteresis)."""
+    best = int(np.argmin(costs_px2))
+    if current is None or costs_px2[best] < CORNER_SWITCH_RATIO * costs_px2[current]:
+        return best
+    return current
 
 
 # The hand counts as hiding the target when its marker's centre is within this many target
@@ -194,16 +241,19 @@ class IbvsController:
 
     State: the frozen constant Jacobian, the convergence counter, and the last fully seen target.
     As the hand closes in it necessarily hides the target from the fixed camera; the desired
-    features are then taken from that memory. A target that vanishes with the hand far from it
-    is lost: the controller holds (zero twist).
+    features are then taken from that memory, but only while vision sees something in front of
+    the target (``occluded``) and the hand is near it. Otherwise, while either marker is not
+    visible, the controller holds (zero twist, ``valid`` False, ``hold_reason`` says why) and
+    resumes when it is back.
     """
 
     config: ControllerConfig
     t_base_cam: FloatArray  # assumed camera pose (calibration), never the simulator's truth
     approach_height_m: float = 0.0
-    l_constant: FloatArray | None = None
+    l_constant: FloatArray | None = None  # 8×6, rows in the target's own corner labelling
     frames_below: int = 0
     last_target: MarkerObservation | None = None
+    pairing: int | None = None  # hand corner i goes to target corner (i + pairing) % 4
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
 
     def step(
@@ -216,12 +266,27 @@ class IbvsController:
         remembered = False
         if target.visible:
             self.last_target = target
-        elif self.last_target is not None and hand_hides_target(hand, self.last_target):
+        elif (
+            target.occluded
+            and self.last_target is not None
+            and hand_hides_target(hand, self.last_target)
+        ):
             target, remembered = self.last_target, True
         if not (hand.visible and target.visible):
             self.frames_below = 0
-            return ControlOutput(self._zero.copy(), False, 0.0, False)
+            which = "hand" if not hand.visible else "target"
+            state = hand.state if not hand.visible else target.state
+            return ControlOutput(self._zero.copy(), False, 0.0, False, False, f"{which} {state}")
         target = desired_observation(target, self.approach_height_m, k)
+        if self.l_constant is None:
+            # One depth for all points, taken once at the start: the target's mean depth.
+            z0 = float(np.mean(target.depth_m))
+            xy = pixel_to_normalized(target.corners_px, k)
+            self.l_constant = interaction_matrix(xy, np.full(len(xy), z0))
+        self.pairing = choose_pairing(
+            pairing_costs_px2(hand.corners_px, target.corners_px), self.pairing
+        )
+        target = rolled(target, self.pairing)
         if self.config.mode is JacobianMode.POINTS3D:
             error, m = self._points3d_law(hand, target)
         else:
@@ -237,17 +302,16 @@ class IbvsController:
     def _image_law(
         self, hand: MarkerObservation, target: MarkerObservation, k: CameraIntrinsics
     ) -> tuple[FloatArray, FloatArray]:
-        """``(e, M)`` on the normalized image points (constant, dynamic, pmj, mpj)."""
+        """``(e, M)`` on the normalized image points (constant, dynamic, pmj, mpj); ``target``
+        already paired with the hand's corners."""
         s = pixel_to_normalized(hand.corners_px, k)
         s_star = pixel_to_normalized(target.corners_px, k)
         error = (s - s_star).reshape(-1)
         l_current = interaction_matrix(s, hand.depth_m)
         l_desired = interaction_matrix(s_star, target.depth_m)
-        if self.l_constant is None:
-            # One depth for all points, taken once at the start: the target's mean depth.
-            z0 = float(np.mean(target.depth_m))
-            self.l_constant = interaction_matrix(s_star, np.full(len(s_star), z0))
-        return error, control_matrix(self.config.mode, l_current, l_desired, self.l_constant)
+        assert self.l_constant is not None and self.pairing is not None
+        l_constant = np.roll(self.l_constant, -2 * self.pairing, axis=0)  # 2 rows per corner
+        return error, control_matrix(self.config.mode, l_current, l_desired, l_constant)
 
     @staticmethod
     def _points3d_law(

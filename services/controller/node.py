@@ -18,7 +18,7 @@ from services.controller.ibvs import IbvsController, MarkerObservation
 
 def observation(m: MarkerFeatures) -> MarkerObservation:
     return MarkerObservation(
-        m.visible, np.array(m.corners_px), np.array(m.depth_m), np.array(m.points_m)
+        m.state, np.array(m.corners_px), np.array(m.depth_m), np.array(m.points_m), m.occluded
     )
 
 
@@ -27,7 +27,7 @@ class ControllerService:
         self.ctx = ctx
         self.controller = IbvsController(
             ctx.scenario.controller,
-            ctx.scenario.camera.pose(),  # the calibration, not the simulator's truth
+            ctx.scenario.camera.assumed_pose(),  # the calibration, not the simulator's truth
             ctx.scenario.target.approach_height_m,
         )
         self.node = Node("controller", ctx.keys, ctx.session, self.status_fields, self.degraded)
@@ -38,6 +38,7 @@ class ControllerService:
         self.error_px = float("nan")
         self.converged = False
         self.holding = False
+        self.hold_reason = ""
         self.last_output: EndEffectorTwist | None = None
         self.target_remembered = False
 
@@ -47,11 +48,12 @@ class ControllerService:
             "error_px_rms": self.error_px,
             "converged": self.converged,
             "holding": self.holding,
+            "hold_reason": self.hold_reason,
             "target_remembered": self.target_remembered,
         }
 
     def degraded(self) -> str:
-        return "holding: a marker is missing" if self.holding else ""
+        return f"holding: {self.hold_reason}" if self.holding else ""
 
     def on_pair(self, features: Features, joints: JointState) -> None:
         p_ee = kin.forward_kinematics(np.array(joints.position_rad))[:3, 3]
@@ -60,11 +62,13 @@ class ControllerService:
         )
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
+        self.hold_reason = out.hold_reason
         self.last_output = EndEffectorTwist(
             header=self.node.header(features.header.sim_time_s, features.header.frame_seq),
             linear_m_s=out.twist_base_ee[:3].tolist(),
             angular_rad_s=out.twist_base_ee[3:].tolist(),
             valid=out.valid,
+            hold_reason=out.hold_reason,
             mode=self.controller.config.mode.value,
             error_px_rms=out.error_px_rms,
             converged=out.converged,

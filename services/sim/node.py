@@ -1,10 +1,16 @@
-"""Sim service: steps the pybullet world, publishes RGB-D frames, joint states and (for
-evaluation only) ground truth; applies joint velocity commands.
+"""Sim service: steps the pybullet world, publishes colour frames, depth images, joint states
+and (for evaluation only) ground truth; applies joint velocity commands.
+
+The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the first colour frame
+at or after each tick of ``camera.depth_hz`` (registered, possibly at a lower resolution). Per
+frame the joint state goes out first, then the depth image if one was taken, then the colour
+frame, which names the newest depth image (``depth_frame_seq``).
 
 Clock modes:
 - lockstep: render frame k, publish it, wait for the command derived from frame k, apply it for
   one camera period, repeat. Deterministic and independent of machine speed. A frame whose
-  command does not come back within ``sim.lockstep_resend_s`` is published again (same seq).
+  command does not come back within ``sim.lockstep_resend_s`` is published again (the same
+  messages, not a new render).
 - realtime: physics follows the wall clock; a frame is rendered at each camera tick, and ticks
   missed while rendering are counted as dropped.
 """
@@ -20,9 +26,17 @@ import numpy as np
 from common import kinematics as kin
 from common.config import ClockMode
 from common.keys import SERVICES
-from common.messages import ImageData, JointState, JointVelocityCommand, RgbdFrame, SimTruth
+from common.messages import (
+    DepthFrame,
+    ImageData,
+    JointState,
+    JointVelocityCommand,
+    RgbFrame,
+    SimTruth,
+)
 from common.runtime import ServiceContext
-from common.transport import Node, alive_services
+from common.transport import Node, TypedPublisher, alive_services
+from services.sim.events import TIME_EPSILON_S
 from services.sim.world import World
 
 log = logging.getLogger("umay.sim")
@@ -33,15 +47,21 @@ class SimService:
         self.ctx = ctx
         self.scenario = ctx.scenario
         self.world = World(ctx.scenario)
-        self.period_s = 1.0 / ctx.scenario.camera.rate_hz
+        self.period_s = 1.0 / ctx.scenario.camera.rgb_hz
+        self.depth_period_s = 1.0 / ctx.scenario.camera.depth_rate_hz
         self.substeps = max(1, round(self.period_s / self.world.physics_dt_s))
         self.frame_seq = 0
+        self.next_depth_s = 0.0
+        self.depth_frame_seq = -1  # frame_seq of the newest depth image
+        self.depth_images = 0
+        self._last_frame: list[tuple[TypedPublisher, object]] = []  # for a lockstep resend
         self.dropped_frames = 0
         self.render_ms = 0.0
         self.started_s = time.monotonic()
         self.node = Node("sim", ctx.keys, ctx.session, self.status_fields)
         keys = ctx.keys
-        self.pub_frame = self.node.publisher(keys.rgbd)
+        self.pub_rgb = self.node.publisher(keys.rgb)
+        self.pub_depth = self.node.publisher(keys.depth)
         self.pub_joints = self.node.publisher(keys.joint_state)
         self.pub_truth = self.node.publisher(keys.truth)
         self.node.subscribe(keys.joint_command, JointVelocityCommand)
@@ -55,6 +75,9 @@ class SimService:
             "clock": self.scenario.run.clock.value,
             "sim_time_s": round(self.world.sim_time_s, 4),
             "frame_seq": self.frame_seq,
+            "depth_images": self.depth_images,
+            "target_hidden": self.world.scene.target_hidden,
+            "hand_occluded": self.world.scene.hand_occluded_since_s is not None,
             "render_ms": round(self.render_ms, 2),
             "dropped_frames": self.dropped_frames,
             "watchdog_stops": self.watchdog_stops,
@@ -66,38 +89,71 @@ class SimService:
 
     # --- publishing one camera frame ----------------------------------------------------
     def publish_frame(self) -> None:
+        """Render and publish camera frame ``frame_seq`` (with a depth image when one is due)."""
         started_publish = time.perf_counter()
         seq, t = self.frame_seq, self.world.sim_time_s
+        self.world.update_scene()
         q, qdot = self.world.joint_state()
+        with_depth = t + TIME_EPSILON_S >= self.next_depth_s
         started = time.perf_counter()
-        rgb, depth_m = self.world.render()
+        rgb, depth_m = self.world.render(with_depth)
         self.render_ms = 1000.0 * (time.perf_counter() - started)
         truth = self.world.truth()
         header = self.node.header(t, seq)
         # Joint state first, so a consumer has it when the frame's features arrive.
-        self.pub_joints.put(
-            JointState(header=header, position_rad=q.tolist(), velocity_rad_s=qdot.tolist())
-        )
-        self.pub_truth.put(
-            SimTruth(
-                header=header,
-                hand_marker_pose=truth.hand_marker_pose.reshape(-1).tolist(),
-                target_marker_pose=truth.target_marker_pose.reshape(-1).tolist(),
-                hand_corners_px=truth.hand_corners_px.tolist(),
-                target_corners_px=truth.target_corners_px.tolist(),
-                ee_position_m=truth.ee_position_m.tolist(),
-                joint_position_rad=q.tolist(),
+        messages: list[tuple[TypedPublisher, object]] = [
+            (
+                self.pub_joints,
+                JointState(header=header, position_rad=q.tolist(), velocity_rad_s=qdot.tolist()),
+            ),
+            (
+                self.pub_truth,
+                SimTruth(
+                    header=header,
+                    hand_marker_pose=truth.hand_marker_pose.reshape(-1).tolist(),
+                    target_marker_pose=truth.target_marker_pose.reshape(-1).tolist(),
+                    hand_corners_px=truth.hand_corners_px.tolist(),
+                    target_corners_px=truth.target_corners_px.tolist(),
+                    ee_position_m=truth.ee_position_m.tolist(),
+                    joint_position_rad=q.tolist(),
+                ),
+            ),
+        ]
+        if depth_m is not None:
+            while self.next_depth_s <= t + TIME_EPSILON_S:  # keep the schedule, do not drift
+                self.next_depth_s += self.depth_period_s
+            self.depth_frame_seq = seq
+            self.depth_images += 1
+            messages.append(
+                (
+                    self.pub_depth,
+                    DepthFrame(
+                        header=self.node.header(t, seq),
+                        intrinsics=self.world.depth_intrinsics,
+                        depth_m=ImageData.from_array(depth_m),
+                    ),
+                )
+            )
+        messages.append(
+            (
+                self.pub_rgb,
+                RgbFrame(
+                    header=self.node.header(t, seq),
+                    intrinsics=self.world.intrinsics,
+                    rgb=ImageData.from_array(rgb),
+                    depth_frame_seq=self.depth_frame_seq,
+                ),
             )
         )
-        self.pub_frame.put(
-            RgbdFrame(
-                header=header,
-                intrinsics=self.world.intrinsics,
-                rgb=ImageData.from_array(rgb),
-                depth_m=ImageData.from_array(depth_m),
-            )
-        )
+        for publisher, message in messages:
+            publisher.put(message)
+        self._last_frame = messages
         self.node.processing.add(1000.0 * (time.perf_counter() - started_publish))
+
+    def republish_frame(self) -> None:
+        """The last frame's messages again, unchanged (a lockstep resend)."""
+        for publisher, message in self._last_frame:
+            publisher.put(message)
 
     def apply(self, command: JointVelocityCommand) -> None:
         # The motors' own limit, whatever the command says.
@@ -145,7 +201,7 @@ class SimService:
                     break
                 if time.monotonic() - sent > resend_s:
                     log.info("no command for frame %d yet; publishing it again", self.frame_seq)
-                    self.publish_frame()
+                    self.republish_frame()
                     sent = time.monotonic()
             else:
                 return

@@ -63,8 +63,9 @@ def robot_urdf(marker_size_m: float) -> str:
     dh = kin.UMAY_DH
     links: list[str] = []
     joints: list[str] = []
-    # Torso: the right shoulder (DH frame 0) sits at the torso's upper right corner.
-    torso = _box_visual((0.14, 0.42, 0.26), np.array([-0.06, -0.17, -0.13]), DARK, False)
+    # Torso: the right shoulder (DH frame 0) sits near its upper right corner, 6 cm below the
+    # top; its front face (x = 0.01) carries the camera at mid-width.
+    torso = _box_visual((0.14, 0.48, 0.26), np.array([-0.06, -0.14, -0.13]), DARK, False)
     shoulder = _box_visual((0.05, 0.04, 0.05), np.array([0.0, 0.0, 0.0]), GREY, False)
     links.append(f'<link name="base_link">{_inertial(0.0)}{torso}{shoulder}</link>')
 

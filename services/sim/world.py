@@ -17,6 +17,7 @@ from pybullet_utils.bullet_client import BulletClient
 from common import kinematics as kin
 from common.camera import CameraIntrinsics, project
 from common.config import Scenario
+from services.sim.events import SceneState, scene_state
 from services.sim.sensor_model import exposed_rgb, noisy_depth
 from services.sim.urdf import robot_urdf
 
@@ -27,6 +28,10 @@ TABLE_COLOUR = (0.86, 0.84, 0.80, 1.0)
 FLOOR_COLOUR = (0.55, 0.57, 0.60, 1.0)
 RED = (0.85, 0.08, 0.08, 1.0)
 OBJECT_COLOUR = (0.45, 0.55, 0.70, 1.0)  # a blue-grey toy block under the red marker
+OCCLUDER_COLOUR = (0.92, 0.92, 0.90, 1.0)  # a sheet of paper
+OCCLUDER_GAP_M = 0.08  # the occluding panel hangs this far in front of the hand's marker
+OCCLUDER_SCALE = 2.5  # its side, relative to the marker's apparent size at that distance
+HIDDEN_POSITION_M = (0.0, -50.0, 0.0)  # where a hidden body is parked (far below the floor)
 MOTOR_FORCE_N_M = 200.0
 
 
@@ -71,6 +76,24 @@ def depth_buffer_to_metres(buffer: FloatArray, near_m: float, far_m: float) -> F
     return z.astype(np.float32)
 
 
+def quaternion_from_rotation(rot: FloatArray) -> list[float]:
+    """pybullet (x, y, z, w) quaternion of a 3×3 rotation matrix (Shepperd's method)."""
+    m = np.asarray(rot, dtype=float)
+    trace = np.trace(m)
+    if trace > 0:
+        s = 2.0 * np.sqrt(trace + 1.0)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
+        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
+        q[i] = s / 4
+        q[j] = (m[j, i] + m[i, j]) / s
+        q[k] = (m[k, i] + m[i, k]) / s
+    return [float(v) for v in q]
+
+
 @dataclass(frozen=True)
 class Truth:
     hand_marker_pose: FloatArray
@@ -91,9 +114,16 @@ class World:
         self._proj = opengl_projection_matrix(
             self.intrinsics, scenario.camera.near_m, scenario.camera.far_m
         )
-        self.target_pose = kin.target_marker_pose(
+        self.depth_intrinsics = scenario.camera.depth_intrinsics()
+        self._depth_proj = opengl_projection_matrix(
+            self.depth_intrinsics, scenario.camera.near_m, scenario.camera.far_m
+        )
+        self.initial_target_pose = kin.target_marker_pose(
             np.array(scenario.target.position), scenario.target.yaw
         )
+        self.target_pose = self.initial_target_pose.copy()
+        self.scene = scene_state([], 0.0)
+        self.occluder_body: int | None = None
         self.kinect = scenario.camera.kinect
         self._sensor_rng = np.random.default_rng(self.kinect.seed)
         self.physics_dt_s = 1.0 / scenario.sim.physics_hz
@@ -106,6 +136,7 @@ class World:
         self.ee_link = self._link_index("ee_link")
         self._build_scene()
         self.reset(np.array(scenario.robot.q0))
+        self.update_scene()
 
     # --- construction ---------------------------------------------------------------------
     def _load_robot(self) -> int:
@@ -158,18 +189,82 @@ class World:
         size = self.scenario.marker.size_m
         top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M
         height = top_y - TABLE_TOP_Y_M
+        self._target_quat = self.client.getQuaternionFromEuler([0.0, self.scenario.target.yaw, 0.0])
+        self.object_body: int | None = None
         if height > 0.005:
             side = size * 1.25
-            centre_obj = np.array(
-                [self.target_pose[0, 3], TABLE_TOP_Y_M + height / 2, self.target_pose[2, 3]]
+            self.object_body = self._box(
+                (side / 2, height / 2, side / 2),
+                self._object_centre(),
+                OBJECT_COLOUR,
+                True,
+                self._target_quat,
             )
-            quat_obj = self.client.getQuaternionFromEuler([0.0, self.scenario.target.yaw, 0.0])
-            self._box((side / 2, height / 2, side / 2), centre_obj, OBJECT_COLOUR, True, quat_obj)
         # The red square itself: visual only.
-        centre = self.target_pose[:3, 3] - self.target_pose[:3, 2] * kin.MARKER_THICKNESS_M / 2
-        quat = self.client.getQuaternionFromEuler([0.0, self.scenario.target.yaw, 0.0])
         self.target_body = self._box(
-            (size / 2, kin.MARKER_THICKNESS_M / 2, size / 2), centre, RED, False, quat
+            (size / 2, kin.MARKER_THICKNESS_M / 2, size / 2),
+            self._marker_centre(),
+            RED,
+            False,
+            self._target_quat,
+        )
+
+    def _marker_centre(self) -> FloatArray:
+        return self.target_pose[:3, 3] - self.target_pose[:3, 2] * kin.MARKER_THICKNESS_M / 2
+
+    def _object_centre(self) -> FloatArray:
+        """Centre of the block under the marker: straight below the marker, down to the table."""
+        top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M
+        return np.array(
+            [self.target_pose[0, 3], (top_y + TABLE_TOP_Y_M) / 2, self.target_pose[2, 3]]
+        )
+
+    # --- scenario events ------------------------------------------------------------------
+    def update_scene(self) -> SceneState:
+        """Put the scene in the state the scenario's events give at the current sim time."""
+        state = scene_state(self.scenario.events, self.sim_time_s)
+        previous, self.scene = self.scene, state
+        moved = not np.array_equal(state.target_offset_m, previous.target_offset_m)
+        if moved:
+            self.target_pose = self.initial_target_pose.copy()
+            self.target_pose[:3, 3] += state.target_offset_m
+            if self.object_body is not None:
+                self.client.resetBasePositionAndOrientation(
+                    self.object_body, self._object_centre().tolist(), self._target_quat
+                )
+        if moved or state.target_hidden != previous.target_hidden:
+            where = HIDDEN_POSITION_M if state.target_hidden else self._marker_centre().tolist()
+            self.client.resetBasePositionAndOrientation(
+                self.target_body, list(where), self._target_quat
+            )
+        if state.hand_occluded_since_s != previous.hand_occluded_since_s:
+            self._place_occluder(state.hand_occluded_since_s is not None)
+        return state
+
+    def _place_occluder(self, active: bool) -> None:
+        """A paper panel between the camera and the hand's marker, where the marker is now (the
+        arm holds still while it cannot see its hand, so the panel need not follow it)."""
+        if self.occluder_body is not None:
+            self.client.removeBody(self.occluder_body)
+            self.occluder_body = None
+        if not active:
+            return
+        eye = self.camera_pose[:3, 3]
+        marker = (self.ee_pose() @ kin.hand_marker_in_ee())[:3, 3]
+        distance = float(np.linalg.norm(marker - eye))
+        along = (marker - eye) / distance
+        side = OCCLUDER_SCALE * self.scenario.marker.size_m * (distance - OCCLUDER_GAP_M) / distance
+        x = np.cross(kin.BASE_UP, along)
+        x /= np.linalg.norm(x)
+        rot = np.column_stack([x, np.cross(along, x), along])  # thin z along the line of sight
+        visual = self.client.createVisualShape(
+            pybullet.GEOM_BOX, halfExtents=[side / 2, side / 2, 0.001], rgbaColor=OCCLUDER_COLOUR
+        )
+        self.occluder_body = self.client.createMultiBody(
+            baseMass=0.0,
+            baseVisualShapeIndex=visual,
+            basePosition=(marker - OCCLUDER_GAP_M * along).tolist(),
+            baseOrientation=quaternion_from_rotation(rot),
         )
 
     # --- state ----------------------------------------------------------------------------
@@ -203,15 +298,13 @@ class World:
         return kin.homogeneous(rot, np.array(state[4]))
 
     # --- sensing --------------------------------------------------------------------------
-    def render(self) -> tuple[np.ndarray, np.ndarray]:
-        """RGB uint8 (H, W, 3) and depth float32 metres (H, W) from the torso camera, through
-        the Kinect sensor model when ``camera.kinect.enabled``."""
-        k = self.intrinsics
+    def _render(self, k: CameraIntrinsics, projection: list[float]) -> tuple[np.ndarray, ...]:
+        """Perfect RGB uint8 (H, W, 3) and depth float32 metres (H, W) at ``k``'s size."""
         _, _, rgba, depth, _ = self.client.getCameraImage(
             k.width_px,
             k.height_px,
             viewMatrix=self._view,
-            projectionMatrix=self._proj,
+            projectionMatrix=projection,
             renderer=pybullet.ER_TINY_RENDERER,
             shadow=0,
             lightDirection=[0.4, -0.3, 1.0],
@@ -223,9 +316,22 @@ class World:
             self.scenario.camera.near_m,
             self.scenario.camera.far_m,
         )
+        return rgb, depth_m
+
+    def render(self, with_depth: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """RGB uint8 (H, W, 3) at the colour resolution and, if ``with_depth``, depth float32
+        metres at the depth resolution (registered: same viewpoint and field of view), through
+        the Kinect sensor model when ``camera.kinect.enabled``. One render serves both when
+        the resolutions agree."""
+        rgb, depth_m = self._render(self.intrinsics, self._proj)
+        if not with_depth:
+            depth_m = None
+        elif self.depth_intrinsics != self.intrinsics:
+            _, depth_m = self._render(self.depth_intrinsics, self._depth_proj)
         if self.kinect.enabled:
             rgb = exposed_rgb(rgb, self.kinect, self._sensor_rng)
-            depth_m = noisy_depth(depth_m, self.kinect, self._sensor_rng)
+            if depth_m is not None:
+                depth_m = noisy_depth(depth_m, self.kinect, self._sensor_rng)
         return np.ascontiguousarray(rgb), depth_m
 
     def truth(self) -> Truth:

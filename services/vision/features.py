@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
 from common.config import VisionConfig
-from services.vision.occlusion import RING_WIDTH_PX, is_occluded
+from services.vision.occlusion import is_occluded
 
 FloatArray = NDArray[np.float64]
 Color = Literal["red", "green"]
@@ -66,33 +66,78 @@ DEPTH_GATE_MIN_M = 0.01  # depths this close to the median are never gross outli
 MAD_TO_SIGMA = 1.4826  # median absolute deviation → standard deviation for Gaussian noise
 
 
+# Why a marker is not usable → its state (see common.messages.MarkerFeatures).
+REASON_STATES: dict[str, str] = {
+    "no blob": "lost",
+    "blob too small": "partial",  # a sliver of it shows
+    "touches image border": "partial",
+    "not a quadrilateral": "partial",
+    "occluded": "partial",
+    "not the marker's size": "partial",
+    "no valid depth": "no_depth",
+    "no depth image": "no_depth",
+    "depth image too old": "no_depth",
+}
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    """A plane seen by the depth camera, as inverse depth linear in normalized coordinates:
+    ``1/Z = c · (x, y, 1)`` (exact for a plane: ``n·P = d`` with ``P = Z·(x, y, 1)``), with the
+    least-squares covariance of ``c``, so depth and its uncertainty follow for any ray."""
+
+    coefficients: FloatArray  # (3,) in 1/m
+    covariance: FloatArray  # (3, 3) in 1/m²
+
+    def depths_m(self, xy: FloatArray) -> FloatArray:
+        rays = np.column_stack([np.asarray(xy, dtype=float), np.ones(len(xy))])
+        return 1.0 / (rays @ self.coefficients)
+
+    def depth_sigmas_m(self, xy: FloatArray) -> FloatArray:
+        """1-σ of the plane's depth along each ray: σ(1/Z)·Z², σ(1/Z)² = φᵀ·C·φ."""
+        rays = np.column_stack([np.asarray(xy, dtype=float), np.ones(len(xy))])
+        inverse_var = np.einsum("ij,jk,ik->i", rays, self.covariance, rays)
+        return np.sqrt(np.maximum(inverse_var, 0.0)) * self.depths_m(xy) ** 2
+
+
 @dataclass(frozen=True)
 class MarkerMeasurement:
     """One marker in one frame.
 
     ``corners_px`` (4, 2) sub-pixel (u, v) in canonical order; ``depths_m`` (4,) Z of each
-    corner (m); ``points_m`` (4, 3) corners in the camera optical frame (m); ``area_px`` the
-    blob's pixel count (0 when there is no blob). When not visible the arrays are zeros and
-    ``reason`` says why ("no blob", "blob too small", "touches image border",
-    "not a quadrilateral", "no valid depth", "occluded"); otherwise ``reason`` is "".
+    corner (m) and ``depth_sigmas_m`` (4,) its 1-σ uncertainty; ``points_m`` (4, 3) corners in
+    the camera optical frame (m); ``area_px`` the blob's pixel count (0 when there is no blob);
+    ``plane`` the depth plane the depths come from (None when they do not come from a fit).
+    ``state``: "visible", or why not (see :data:`REASON_STATES`, ``reason`` says which);
+    when not visible the arrays are zeros. ``occluded``: something is seen in front of it.
     """
 
-    visible: bool
+    state: str
     corners_px: FloatArray
     depths_m: FloatArray
+    depth_sigmas_m: FloatArray
     points_m: FloatArray
     area_px: float
     reason: str
+    occluded: bool = False
+    plane: PlaneFit | None = None
+
+    @property
+    def visible(self) -> bool:
+        return self.state == "visible"
 
 
-def _invisible(reason: str, area_px: float = 0.0) -> MarkerMeasurement:
+def not_visible(reason: str, area_px: float = 0.0, occluded: bool = False) -> MarkerMeasurement:
+    """A marker that cannot be used, for ``reason`` (a key of :data:`REASON_STATES`)."""
     return MarkerMeasurement(
-        visible=False,
+        state=REASON_STATES[reason],
         corners_px=np.zeros((4, 2)),
         depths_m=np.zeros(4),
+        depth_sigmas_m=np.zeros(4),
         points_m=np.zeros((4, 3)),
         area_px=float(area_px),
         reason=reason,
+        occluded=occluded,
     )
 
 
@@ -651,80 +696,154 @@ def _outlier_threshold(values: FloatArray, floor: float) -> float:
     return max(DEPTH_OUTLIER_SIGMAS * sigma, floor)
 
 
-def _fit_plane(points_m: FloatArray) -> tuple[FloatArray, float]:
-    """Least-squares plane ``n·p = d`` (unit n, d in m) through N×3 points."""
-    centre, axes, _ = cv2.PCACompute2(points_m, mean=None)
-    normal = axes[2]  # least spread: across the plane
-    return normal, float(normal @ centre[0])
+def fit_inverse_depth_plane(xy: FloatArray, z_m: FloatArray) -> PlaneFit | None:
+    """Plane through a marker's depth samples despite holes, edge jumps and flying pixels.
 
-
-def _robust_plane(points_m: FloatArray) -> tuple[FloatArray, float]:
-    """Plane through the marker's 3-D points despite holes, edge jumps and flying pixels.
-
-    A few percent of pixels far behind would dominate a least-squares plane (its normal
-    would follow them), so gross outliers go first: Z farther from the median Z than 3
-    robust σ (at least 1 cm; a tilted 6 cm marker spans a few cm). Then a least-squares
-    plane, and one refit without points off it by more than 3 robust σ (at least 1 mm).
+    ``xy`` (N, 2) normalized coordinates, ``z_m`` (N,) their depths. Gross outliers go first
+    (Z farther from the median than 3 robust σ, at least 1 cm: a few percent of pixels far
+    behind would otherwise tilt the plane); then least squares on ``1/Z = c·(x, y, 1)``, and
+    one refit without the samples off it by more than 3 robust σ (at least 1 mm). The
+    covariance of ``c`` comes from the residuals of the final fit (noise, quantisation and
+    lateral jitter as they are). None with fewer than :data:`DEPTH_MIN_PLANE_PIXELS` samples or
+    a plane seen edge-on.
     """
-    z = points_m[:, 2]
-    near = np.abs(z - _median(z)) <= _outlier_threshold(z, DEPTH_GATE_MIN_M)
+    near = np.abs(z_m - _median(z_m)) <= _outlier_threshold(z_m, DEPTH_GATE_MIN_M)
     if np.count_nonzero(near) >= DEPTH_MIN_PLANE_PIXELS:
-        points_m = points_m[near]
-    normal, offset = _fit_plane(points_m)
-    residuals = points_m @ normal - offset
-    inliers = np.abs(residuals) <= _outlier_threshold(residuals, DEPTH_OUTLIER_MIN_M)
+        xy, z_m = xy[near], z_m[near]
+    if len(z_m) < DEPTH_MIN_PLANE_PIXELS:
+        return None
+    rays = np.column_stack([xy, np.ones(len(xy))])
+    coefficients = np.linalg.lstsq(rays, 1.0 / z_m, rcond=None)[0]
+    residuals_m = z_m - 1.0 / (rays @ coefficients)
+    inliers = np.abs(residuals_m) <= _outlier_threshold(residuals_m, DEPTH_OUTLIER_MIN_M)
     if np.count_nonzero(inliers) >= DEPTH_MIN_PLANE_PIXELS:
-        normal, offset = _fit_plane(points_m[inliers])
-    return normal, offset
+        rays, z_m = rays[inliers], z_m[inliers]
+        coefficients = np.linalg.lstsq(rays, 1.0 / z_m, rcond=None)[0]
+    normal_matrix = rays.T @ rays
+    if np.linalg.cond(normal_matrix) > 1e12:
+        return None
+    inverse_residuals = 1.0 / z_m - rays @ coefficients
+    variance = float(inverse_residuals @ inverse_residuals) / max(len(z_m) - 3, 1)
+    return PlaneFit(coefficients, variance * np.linalg.inv(normal_matrix))
+
+
+@dataclass(frozen=True)
+class CornerDepths:
+    """Depths (4,), their 1-σ (4,), the corners' 3-D points (4, 3), all in m, and the plane
+    they come from (None for the few-pixel median fallback)."""
+
+    depths_m: FloatArray
+    sigmas_m: FloatArray
+    points_m: FloatArray
+    plane: PlaneFit | None
+
+
+def registered_mask(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """A colour-resolution 0/255 mask at the depth image's resolution (pixels at least half
+    covered), for a depth image registered to the colour one at a lower resolution."""
+    if mask.shape[:2] == shape[:2]:
+        return mask
+    small = cv2.resize(mask, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    return np.where(small >= 128, 255, 0).astype(np.uint8)
+
+
+def to_depth_pixels(corners_px: FloatArray, k: CameraIntrinsics, k_depth: CameraIntrinsics):
+    """Colour-image pixels → the registered depth image's pixels (same rays)."""
+    xy = pixel_to_normalized(corners_px, k)
+    return np.column_stack(
+        [k_depth.fx_px * xy[:, 0] + k_depth.cx_px, k_depth.fy_px * xy[:, 1] + k_depth.cy_px]
+    )
 
 
 def corner_depths(
-    depth_m: np.ndarray, mask: np.ndarray, corners_px: np.ndarray, k: CameraIntrinsics
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """Depth Z (4,) in m and optical-frame points (4, 3) in m of a flat marker's corners.
+    depth_m: np.ndarray,
+    mask: np.ndarray,
+    corners_px: np.ndarray,
+    k: CameraIntrinsics,
+    k_depth: CameraIntrinsics | None = None,
+) -> CornerDepths | None:
+    """Depths, uncertainties and optical-frame points of a flat marker's corners.
 
     The corners themselves sit on the depth discontinuity, so their depth comes from a plane
-    fitted (with outlier rejection, see :func:`_robust_plane`) to the back-projected valid
-    depth pixels well inside the marker, intersected with each corner's viewing ray
-    ``(x, y, 1)·Z``. With fewer than 20 valid pixels (but at least 3) all corners get the
-    median depth; with fewer than 3, or a plane seen edge-on, the result is None.
+    fitted (:func:`fit_inverse_depth_plane`) to the valid depth pixels well inside the marker,
+    evaluated along each corner's viewing ray ``(x, y, 1)·Z``. ``mask`` and ``corners_px`` are
+    at the colour resolution (intrinsics ``k``); ``depth_m`` is registered to it, at its own
+    resolution ``k_depth`` (default: the same). With fewer than 20 valid pixels (but at least
+    3) all corners get the median depth and the samples' spread as uncertainty; with fewer than
+    3, or a plane seen edge-on, the result is None.
     """
     corners = np.asarray(corners_px, dtype=float).reshape(4, 2)
-    uv, z = _marker_depth_pixels(depth_m, mask, corners)
+    k_depth = k_depth or k
+    depth_corners = corners if k_depth == k else to_depth_pixels(corners, k, k_depth)
+    uv, z = _marker_depth_pixels(depth_m, registered_mask(mask, depth_m.shape), depth_corners)
     if len(z) < DEPTH_MIN_PIXELS:
         return None
-    if len(z) < DEPTH_MIN_PLANE_PIXELS:
+    corner_xy = pixel_to_normalized(corners, k)
+    plane = None
+    if len(z) >= DEPTH_MIN_PLANE_PIXELS:
+        plane = fit_inverse_depth_plane(pixel_to_normalized(uv, k_depth), z)
+    if plane is None:
+        if len(z) >= DEPTH_MIN_PLANE_PIXELS:
+            return None  # enough samples, but no plane: seen edge-on
         depths = np.full(4, _median(z))
+        sigmas = np.full(4, MAD_TO_SIGMA * _median(np.abs(z - _median(z))) / math.sqrt(len(z)))
     else:
-        normal, offset = _robust_plane(back_project(uv, z, k))
-        xy = pixel_to_normalized(corners, k)
-        denom = xy @ normal[:2] + normal[2]  # n · (x, y, 1) of each corner's ray
-        if np.any(np.abs(denom) < 1e-6):
-            return None
-        depths = offset / denom
-        if not np.all((depths > 0) & (depths < np.inf)):
-            return None
-    return depths, back_project(corners, depths, k)
+        depths = plane.depths_m(corner_xy)
+        sigmas = plane.depth_sigmas_m(corner_xy)
+    if not np.all((depths > 0) & (depths < np.inf)):
+        return None
+    return CornerDepths(depths, sigmas, back_project(corners, depths, k), plane)
 
 
 # --- per frame ---------------------------------------------------------------------------------
 def _measure(
-    quad: _QuadResult,
-    mask: np.ndarray,
+    quad: MarkerQuad,
     depth_m: np.ndarray,
     k: CameraIntrinsics,
-    previous_corners_px: np.ndarray | None,
+    k_depth: CameraIntrinsics | None,
+    ring_px: int,
 ) -> MarkerMeasurement:
+    """Depths and occlusion check of a marker whose corners are in their final order."""
     if quad.corners_px is None:
-        return _invisible(quad.reason, quad.area_px)
-    corners = order_corners(quad.corners_px, previous_corners_px)
-    depth = corner_depths(depth_m, mask, corners, k)
+        occluded = quad.area_px > 0 and _blob_occluded(quad.mask, depth_m, ring_px)
+        return not_visible(quad.reason, quad.area_px, occluded)
+    corners, mask = quad.corners_px, quad.mask
+    depth = corner_depths(depth_m, mask, corners, k, k_depth)
     if depth is None:
-        return _invisible("no valid depth", quad.area_px)
-    depths, points = depth
-    if is_occluded(*_around(corners, RING_WIDTH_PX + 3, depth_m, mask), depths):
-        return _invisible("occluded", quad.area_px)
-    return MarkerMeasurement(True, corners, depths, points, quad.area_px, "")
+        return not_visible("no valid depth", quad.area_px)
+    k_depth = k_depth or k
+    depth_corners = corners if k_depth == k else to_depth_pixels(corners, k, k_depth)
+    crops = _around(depth_corners, ring_px + 3, depth_m, registered_mask(mask, depth_m.shape))
+    if is_occluded(*crops, depth.depths_m, ring_px):
+        return not_visible("occluded", quad.area_px, occluded=True)
+    return MarkerMeasurement(
+        "visible",
+        corners,
+        depth.depths_m,
+        depth.sigmas_m,
+        depth.points_m,
+        quad.area_px,
+        "",
+        plane=depth.plane,
+    )
+
+
+def _blob_occluded(mask: np.ndarray, depth_m: np.ndarray, ring_px: int) -> bool:
+    """Is something in front of a blob that did not make a whole square? Its nearest depth
+    (5th percentile: a tilted marker spans centimetres) against the ring around it."""
+    small = registered_mask(mask, depth_m.shape)
+    rows, cols = np.nonzero(small)
+    if rows.size == 0:
+        return False
+    pad = ring_px + 3
+    r0, r1 = max(rows.min() - pad, 0), rows.max() + pad + 1
+    c0, c1 = max(cols.min() - pad, 0), cols.max() + pad + 1
+    crop_mask, crop_depth = small[r0:r1, c0:c1], depth_m[r0:r1, c0:c1]
+    inside = crop_depth[(crop_mask > 0) & (crop_depth > 0) & np.isfinite(crop_depth)]
+    if inside.size < DEPTH_MIN_PIXELS:
+        return False
+    nearest_m = np.percentile(inside, 5.0, keepdims=True)
+    return is_occluded(crop_depth, crop_mask, nearest_m, ring_px)
 
 
 def _around(corners_px: FloatArray, margin_px: int, *images: np.ndarray) -> list[np.ndarray]:
@@ -734,10 +853,11 @@ def _around(corners_px: FloatArray, margin_px: int, *images: np.ndarray) -> list
     return [image[r0:r1, c0:c1] for image in images]
 
 
-def _check_frame(rgb: np.ndarray, depth_m: np.ndarray) -> None:
+def _check_frame(rgb: np.ndarray, depth_m: np.ndarray, k_depth: CameraIntrinsics | None) -> None:
     _check_rgb(rgb)
-    if depth_m.shape != rgb.shape[:2]:
-        raise ValueError(f"depth {depth_m.shape} does not match image {rgb.shape[:2]}")
+    expected = rgb.shape[:2] if k_depth is None else (k_depth.height_px, k_depth.width_px)
+    if depth_m.shape != expected:
+        raise ValueError(f"depth {depth_m.shape} does not match the expected {expected}")
 
 
 def measure_marker(
@@ -747,16 +867,57 @@ def measure_marker(
     color: Color,
     cfg: VisionConfig,
     previous_corners_px: np.ndarray | None = None,
+    k_depth: CameraIntrinsics | None = None,
 ) -> MarkerMeasurement:
-    """Corners (px), corner depths (m) and 3-D corners (m, optical frame) of one marker.
+    """Corners (px), corner depths (m) and 3-D corners (m, optical frame) of one marker, from a
+    colour image and the depth image taken with it (``k_depth``: its intrinsics when its
+    resolution differs).
 
     ``previous_corners_px``: the same marker's corners from the previous frame, to keep the
     corner labelling stable (see :func:`order_corners`).
     """
-    _check_frame(rgb, depth_m)
+    _check_frame(rgb, depth_m, k_depth)
     mask, roi = _marker_mask(rgb, _coarse_image(rgb, cfg), color, cfg)
     (quad,) = _find_quads([(mask, roi)], cfg.min_area_px)
-    return _measure(quad, mask, depth_m, k, previous_corners_px)
+    corners = quad.corners_px
+    if corners is not None:
+        corners = order_corners(corners, previous_corners_px)
+    return _measure(
+        MarkerQuad(corners, quad.reason, quad.area_px, mask),
+        depth_m,
+        k,
+        k_depth,
+        cfg.occlusion_ring_px,
+    )
+
+
+@dataclass(frozen=True)
+class MarkerQuad:
+    """A marker found in colour alone: corners (canonical order) or why not, and its mask."""
+
+    corners_px: FloatArray | None
+    reason: str
+    area_px: float
+    mask: np.ndarray
+
+
+def find_marker_quads(
+    rgb: np.ndarray, cfg: VisionConfig, previous: dict[str, np.ndarray] | None = None
+) -> dict[str, MarkerQuad]:
+    """Both markers in a colour image, keyed ``"hand"`` (green) and ``"target"`` (red);
+    ``previous`` maps the same keys to last frame's corners (to keep their order)."""
+    _check_rgb(rgb)
+    previous = previous or {}
+    coarse = _coarse_image(rgb, cfg)  # shared: the colour conversion is a costly step
+    masks = [_marker_mask(rgb, coarse, color, cfg) for color in MARKERS.values()]
+    quads = _find_quads(masks, cfg.min_area_px)  # both markers' sides refined in one batch
+    out = {}
+    for name, quad, (mask, _) in zip(MARKERS, quads, masks, strict=True):
+        corners = None
+        if quad.corners_px is not None:
+            corners = order_corners(quad.corners_px, previous.get(name))
+        out[name] = MarkerQuad(corners, quad.reason, quad.area_px, mask)
+    return out
 
 
 def measure_markers(
@@ -765,15 +926,25 @@ def measure_markers(
     k: CameraIntrinsics,
     cfg: VisionConfig,
     previous: dict[str, np.ndarray] | None = None,
+    k_depth: CameraIntrinsics | None = None,
 ) -> dict[str, MarkerMeasurement]:
-    """Both markers, keyed ``"hand"`` (green) and ``"target"`` (red); ``previous`` maps the
-    same keys to last frame's corners (missing keys: no previous)."""
-    _check_frame(rgb, depth_m)
-    previous = previous or {}
-    coarse = _coarse_image(rgb, cfg)  # shared: the colour conversion is a costly step
-    masks = [_marker_mask(rgb, coarse, color, cfg) for color in MARKERS.values()]
-    quads = _find_quads(masks, cfg.min_area_px)  # both markers' sides refined in one batch
+    """Both markers, keyed ``"hand"`` (green) and ``"target"`` (red), from a colour image and
+    the depth image taken with it; ``previous`` maps the same keys to last frame's corners
+    (missing keys: no previous)."""
+    _check_frame(rgb, depth_m, k_depth)
     return {
-        name: _measure(quad, mask, depth_m, k, previous.get(name))
-        for name, quad, (mask, _) in zip(MARKERS, quads, masks, strict=True)
+        name: measure_quad(quad, depth_m, k, cfg, k_depth)
+        for name, quad in find_marker_quads(rgb, cfg, previous).items()
     }
+
+
+def measure_quad(
+    quad: MarkerQuad,
+    depth_m: np.ndarray,
+    k: CameraIntrinsics,
+    cfg: VisionConfig,
+    k_depth: CameraIntrinsics | None = None,
+) -> MarkerMeasurement:
+    """Depths and occlusion check of a marker found by :func:`find_marker_quads`, with the
+    depth image taken together with the colour image."""
+    return _measure(quad, depth_m, k, k_depth, cfg.occlusion_ring_px)

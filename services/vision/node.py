@@ -1,58 +1,99 @@
-"""Vision service: RGB-D frame → corners, depths and 3-D points of both markers."""
+"""Vision service: colour frames + depth images → corners, depths and 3-D points of both markers.
+
+One event loop: depth images are kept (the last few, by the colour frame they were taken
+with); each colour frame is measured with the depth image it names (``depth_frame_seq``). If
+that image has not arrived yet the frame waits for it, at most ``DEPTH_WAIT_S``, then makes do
+with the newest one, so a lost depth image delays one frame instead of stalling the stream.
+"""
 
 from __future__ import annotations
 
-import numpy as np
+import time
+from collections import OrderedDict
 
 from common.codec import FRAME_MAX_BYTES
-from common.messages import Features, MarkerFeatures, RgbdFrame
+from common.messages import DepthFrame, Features, MarkerFeatures, RgbFrame
 from common.runtime import ServiceContext
 from common.transport import Node
-from services.vision.features import MarkerMeasurement, measure_markers
+from services.vision.features import MarkerMeasurement
+from services.vision.tracking import DepthImage, TrackerState, observe
+
+DEPTH_WAIT_S = 0.5  # wall clock: how long a colour frame waits for its depth image
+DEPTH_CACHE = 4  # depth images kept
 
 
 def to_message(m: MarkerMeasurement) -> MarkerFeatures:
     return MarkerFeatures(
-        visible=m.visible,
+        state=m.state,  # type: ignore[arg-type]
         corners_px=m.corners_px.tolist(),
         depth_m=m.depths_m.tolist(),
+        depth_sigma_m=m.depth_sigmas_m.tolist(),
         points_m=m.points_m.tolist(),
+        occluded=m.occluded,
         reason=m.reason,
     )
+
+
+def depth_for(frame: RgbFrame, depths: OrderedDict[int, DepthFrame]) -> DepthFrame | None:
+    """The depth image ``frame`` names, else the newest one taken at or before it."""
+    if frame.depth_frame_seq in depths:
+        return depths[frame.depth_frame_seq]
+    older = [seq for seq in depths if seq <= frame.header.frame_seq]
+    return depths[max(older)] if older else None
 
 
 class VisionService:
     def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
         self.config = ctx.scenario.vision
+        self.marker_size_m = ctx.scenario.marker.size_m
         self.node = Node("vision", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.features)
-        self.node.subscribe(ctx.keys.rgbd, RgbdFrame, FRAME_MAX_BYTES, latest_only=True)
-        # Last visible corners per marker: keeps the corner order from flipping as a square turns.
-        self.previous: dict[str, np.ndarray] = {}
-        self.visible: dict[str, bool] = {"hand": False, "target": False}
+        self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=True)
+        self.node.subscribe(ctx.keys.depth, DepthFrame, FRAME_MAX_BYTES)
+        self.tracker = TrackerState()
+        self.depths: OrderedDict[int, DepthFrame] = OrderedDict()
+        self.waiting: RgbFrame | None = None  # a colour frame whose depth image is on its way
+        self.waiting_since_s = 0.0
+        self.depth_waits = 0  # colour frames that had to wait for their depth image
+        self.depth_missed = 0  # ... and went on without it
+        self.depth_age_s: float | None = None
+        self.states: dict[str, str] = {"hand": "lost", "target": "lost"}
         self.reasons: dict[str, str] = {"hand": "", "target": ""}
 
     def status_fields(self) -> dict:
-        # RGB and depth come registered in one frame, so the depth is as old as the image.
         return {
-            "markers_visible": dict(self.visible),
+            "markers": dict(self.states),
             "lost_reasons": dict(self.reasons),
-            "depth_age_s": 0.0,
+            "depth_age_s": self.depth_age_s,
+            "depth_waits": self.depth_waits,
+            "depth_missed": self.depth_missed,
         }
 
     def degraded(self) -> str:
-        lost = [f"{n}: {r}" for n, r in self.reasons.items() if r]
-        return "marker not visible (" + "; ".join(lost) + ")" if lost else ""
+        lost = [f"{n}: {self.states[n]}, {r}" for n, r in self.reasons.items() if r]
+        return "marker not usable (" + "; ".join(lost) + ")" if lost else ""
 
-    def on_frame(self, frame: RgbdFrame) -> None:
-        rgb, depth = frame.rgb.to_array(), frame.depth_m.to_array()
-        measured = measure_markers(rgb, depth, frame.intrinsics, self.config, self.previous)
+    def on_frame(self, frame: RgbFrame) -> None:
+        depth_frame = depth_for(frame, self.depths)
+        depth = None
+        if depth_frame is not None:
+            depth = DepthImage(
+                depth_frame.depth_m.to_array(),
+                depth_frame.intrinsics,
+                max(0.0, frame.header.sim_time_s - depth_frame.header.sim_time_s),
+            )
+        self.depth_age_s = None if depth is None else depth.age_s
+        measured, self.tracker = observe(
+            frame.rgb.to_array(),
+            frame.intrinsics,
+            depth,
+            self.config,
+            self.marker_size_m,
+            self.tracker,
+        )
         for name, m in measured.items():
-            self.visible[name] = m.visible
-            self.reasons[name] = m.reason
-            if m.visible:
-                self.previous[name] = m.corners_px
+            self.states[name], self.reasons[name] = m.state, m.reason
         header = self.node.header(frame.header.sim_time_s, frame.header.frame_seq)
         self.pub.put(
             Features(
@@ -60,11 +101,37 @@ class VisionService:
                 intrinsics=frame.intrinsics,
                 hand=to_message(measured["hand"]),
                 target=to_message(measured["target"]),
+                depth_age_s=self.depth_age_s,
             )
         )
 
+    def on_event(self, key: str, msg: RgbFrame | DepthFrame) -> None:
+        if isinstance(msg, DepthFrame):
+            self.depths[msg.header.frame_seq] = msg
+            while len(self.depths) > DEPTH_CACHE:
+                self.depths.popitem(last=False)
+            if self.waiting is not None and msg.header.frame_seq >= self.waiting.depth_frame_seq:
+                frame, self.waiting = self.waiting, None
+                self.on_frame(frame)
+            return
+        newest_depth = max(self.depths, default=-1)
+        if msg.depth_frame_seq > newest_depth:
+            if self.waiting is not None:  # a newer frame replaces the one that waited
+                self.node.received[key].dropped += 1
+            else:
+                self.depth_waits += 1
+            self.waiting, self.waiting_since_s = msg, time.monotonic()
+            return
+        self.on_frame(msg)
+
+    def on_idle(self) -> None:
+        if self.waiting is not None and time.monotonic() - self.waiting_since_s > DEPTH_WAIT_S:
+            frame, self.waiting = self.waiting, None
+            self.depth_missed += 1
+            self.on_frame(frame)
+
     def run(self) -> None:
-        self.node.spin(self.ctx.stop, lambda _key, frame: self.on_frame(frame))
+        self.node.spin(self.ctx.stop, self.on_event, timeout_s=0.05, on_idle=self.on_idle)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -39,5 +39,23 @@ def occluder_fraction(
     return float(np.mean(depth < marker_min_depth_m - CLOSER_MARGIN_M))
 
 
-def is_occluded(depth_m: np.ndarray, mask: np.ndarray, corner_depths_m: np.ndarray) -> bool:
-    return occluder_fraction(depth_m, mask, float(np.min(corner_depths_m))) > OCCLUDED_FRACTION
+def is_occluded(
+    depth_m: np.ndarray, mask: np.ndarray, corner_depths_m: np.ndarray, ring_px: int = RING_WIDTH_PX
+) -> bool:
+    """Something closer than the marker borders it. ``ring_px`` should reach past the band of
+    invalid depth a depth camera leaves along an occluder's edge (a few pixels on a Kinect),
+    where that edge's depth cannot be seen."""
+    fraction = occluder_fraction(depth_m, mask, float(np.min(corner_depths_m)), ring_px)
+    return fraction > OCCLUDED_FRACTION
+
+
+def hidden_behind(depth_m: np.ndarray, region: np.ndarray, marker_min_depth_m: float) -> bool:
+    """A marker that was last seen in ``region`` (mask of that quadrilateral, same size as
+    ``depth_m``) at ``marker_min_depth_m`` is now (partly) hidden by something in front: more
+    than :data:`OCCLUDED_FRACTION` of the valid depth there is closer than it was (a marker
+    that is gone, not hidden, leaves the surface it lay on). False when the depth cannot tell."""
+    depth = depth_m[region > 0]
+    depth = depth[np.isfinite(depth) & (depth > 0)]
+    if depth.size == 0:
+        return False
+    return float(np.mean(depth < marker_min_depth_m - CLOSER_MARGIN_M)) > OCCLUDED_FRACTION

@@ -1,0 +1,183 @@
+"""Marker states from frame to frame: colour in every frame, depth whenever it comes. Pure.
+
+The depth stream may be slower than the colour one (the thesis ran depth at 1 Hz). A colour
+frame taken together with a depth image is measured in full (:func:`measure_quad`: corners,
+plane-fitted corner depths, occlusion check); each such view is remembered per marker. Between
+depth images the corners still come from colour, and the depths from that memory:
+
+- the target lies on the table, so its plane stays where it was (a slide along the table does
+  not move it): its corner rays are intersected with the remembered plane, and a square whose
+  sides then do not come out at the marker's known size is taken as partly hidden;
+- the hand moves, so its corners keep the depths measured last (what the thesis did).
+
+A marker that is not visible is ``occluded`` when something is seen in front of where it was
+last: in the depth image when there is a fresh one, else when the hand's marker is over it
+(in eye-to-hand servoing the hand is what comes between the camera and the target).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
+from common.config import VisionConfig
+from services.vision.features import (
+    FloatArray,
+    MarkerMeasurement,
+    MarkerQuad,
+    PlaneFit,
+    find_marker_quads,
+    measure_quad,
+    not_visible,
+    to_depth_pixels,
+)
+from services.vision.occlusion import hidden_behind
+
+# How each marker's depth is carried between depth images (see the module docstring).
+HELD_DEPTH = {"hand": "corners", "target": "plane"}
+SIZE_TOLERANCE = 0.15  # relative: a side further off the marker's size is not the whole square
+NEAR_DIAGONALS = 2.0  # the hand is "over" the target within this many target diagonals
+
+
+@dataclass(frozen=True)
+class DepthImage:
+    """A depth image, its intrinsics, and how much older it is than the colour frame (sim s;
+    0 when they were taken together)."""
+
+    depth_m: np.ndarray
+    intrinsics: CameraIntrinsics
+    age_s: float
+
+
+@dataclass(frozen=True)
+class MarkerMemory:
+    """A marker's last view with a depth image taken at the same time."""
+
+    corners_px: FloatArray
+    depths_m: FloatArray
+    depth_sigmas_m: FloatArray
+    plane: PlaneFit | None
+
+
+@dataclass(frozen=True)
+class TrackerState:
+    """What one frame leaves for the next: the last visible corners of each marker (to keep
+    their order) and its last view with depth."""
+
+    previous_corners: dict[str, FloatArray] = field(default_factory=dict)
+    memory: dict[str, MarkerMemory] = field(default_factory=dict)
+
+
+def hand_over(hand_corners_px: FloatArray | None, target_corners_px: FloatArray) -> bool:
+    """The hand's marker is within a few target diagonals of where the target was seen."""
+    if hand_corners_px is None:
+        return False
+    diagonal = float(np.linalg.norm(target_corners_px[0] - target_corners_px[2]))
+    gap = float(np.linalg.norm(hand_corners_px.mean(axis=0) - target_corners_px.mean(axis=0)))
+    return gap < NEAR_DIAGONALS * diagonal
+
+
+def side_lengths_m(points_m: FloatArray) -> FloatArray:
+    return np.linalg.norm(points_m - np.roll(points_m, -1, axis=0), axis=1)
+
+
+def _region_mask(corners_px: FloatArray, shape: tuple[int, ...]) -> np.ndarray:
+    mask = np.zeros(shape[:2], np.uint8)
+    shift_bits = 4
+    vertices = np.round(corners_px * (1 << shift_bits)).astype(np.int32)
+    cv2.fillConvexPoly(mask, vertices, 255, cv2.LINE_8, shift_bits)
+    return mask
+
+
+def _hidden_in_depth(memory: MarkerMemory | None, depth: DepthImage, k: CameraIntrinsics) -> bool:
+    """Is something in front of where the marker was last seen, in a fresh depth image?"""
+    if memory is None:
+        return False
+    corners = to_depth_pixels(memory.corners_px, k, depth.intrinsics)
+    region = _region_mask(corners, depth.depth_m.shape)
+    return hidden_behind(depth.depth_m, region, float(np.min(memory.depths_m)))
+
+
+def _held(
+    name: str,
+    quad: MarkerQuad,
+    memory: MarkerMemory | None,
+    k: CameraIntrinsics,
+    marker_size_m: float,
+) -> MarkerMeasurement:
+    """A marker found in colour, measured with the depth remembered from its last full view."""
+    assert quad.corners_px is not None
+    if memory is None:
+        return not_visible("no valid depth", quad.area_px)
+    corners = quad.corners_px
+    if HELD_DEPTH[name] == "plane" and memory.plane is not None:
+        xy = pixel_to_normalized(corners, k)
+        depths, sigmas = memory.plane.depths_m(xy), memory.plane.depth_sigmas_m(xy)
+        if not np.all((depths > 0) & np.isfinite(depths)):
+            return not_visible("no valid depth", quad.area_px)
+        points = back_project(corners, depths, k)
+        sides = side_lengths_m(points)
+        if np.max(np.abs(sides / marker_size_m - 1.0)) > SIZE_TOLERANCE:
+            return not_visible("not the marker's size", quad.area_px)
+    else:
+        depths, sigmas = memory.depths_m.copy(), memory.depth_sigmas_m.copy()
+        points = back_project(corners, depths, k)
+    return MarkerMeasurement(
+        "visible", corners, depths, sigmas, points, quad.area_px, "", plane=memory.plane
+    )
+
+
+def observe(
+    rgb: np.ndarray,
+    k: CameraIntrinsics,
+    depth: DepthImage | None,
+    cfg: VisionConfig,
+    marker_size_m: float,
+    state: TrackerState,
+) -> tuple[dict[str, MarkerMeasurement], TrackerState]:
+    """Both markers in one colour frame, with the newest depth image (None: none yet), and
+    the state for the next frame."""
+    quads = find_marker_quads(rgb, cfg, state.previous_corners)
+    fresh = depth is not None and depth.age_s == 0.0
+    usable = depth is not None and depth.age_s <= cfg.max_depth_age_s
+    measured: dict[str, MarkerMeasurement] = {}
+    for name, quad in quads.items():
+        memory = state.memory.get(name)
+        if fresh:
+            assert depth is not None
+            m = measure_quad(quad, depth.depth_m, k, cfg, depth.intrinsics)
+            if not m.visible and not m.occluded and _hidden_in_depth(memory, depth, k):
+                m = not_visible(m.reason, m.area_px, occluded=True)
+        elif quad.corners_px is None:
+            m = not_visible(quad.reason, quad.area_px)
+        elif not usable:
+            m = not_visible("no depth image" if depth is None else "depth image too old")
+        else:
+            m = _held(name, quad, memory, k, marker_size_m)
+        measured[name] = m
+    if not fresh:  # no depth to tell: the hand over the target's last place is what hides it
+        target, last = measured["target"], state.memory.get("target")
+        if (
+            not target.visible
+            and last is not None
+            and hand_over(quads["hand"].corners_px, last.corners_px)
+        ):
+            measured["target"] = not_visible(target.reason, target.area_px, occluded=True)
+    return measured, _next_state(state, measured, fresh)
+
+
+def _next_state(
+    state: TrackerState, measured: dict[str, MarkerMeasurement], fresh: bool
+) -> TrackerState:
+    previous = dict(state.previous_corners)
+    memory = dict(state.memory)
+    for name, m in measured.items():
+        if not m.visible:
+            continue
+        previous[name] = m.corners_px
+        if fresh:
+            memory[name] = MarkerMemory(m.corners_px, m.depths_m, m.depth_sigmas_m, m.plane)
+    return TrackerState(previous, memory)
