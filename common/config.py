@@ -191,26 +191,30 @@ class HsvRange(_Strict):
 
 class VisionConfig(_Strict):
     segmentation: Literal["hsv", "rgb"] = "hsv"
+    # HSV: hue bands with a high saturation floor and a low value floor, so that exposure
+    # changes (value) leave the masks alone; low-saturation table, arm and floor stay out.
     red_hsv: list[HsvRange] = Field(
         default_factory=lambda: [
-            HsvRange(lower=[0, 120, 60], upper=[8, 255, 255]),
-            HsvRange(lower=[172, 120, 60], upper=[179, 255, 255]),
+            HsvRange(lower=[0, 120, 30], upper=[8, 255, 255]),
+            HsvRange(lower=[172, 120, 30], upper=[179, 255, 255]),
         ]
     )
     green_hsv: list[HsvRange] = Field(
-        default_factory=lambda: [HsvRange(lower=[45, 120, 60], upper=[75, 255, 255])]
+        default_factory=lambda: [HsvRange(lower=[45, 120, 30], upper=[75, 255, 255])]
     )
-    # RGB mode (the thesis's first method): a reference colour and a per-channel tolerance.
-    red_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = [200, 30, 30]
-    green_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = [30, 200, 30]
-    rgb_tolerance: int = Field(60, ge=1, le=255)
+    # RGB mode (the thesis's first method): a reference colour per marker and a per-channel
+    # tolerance, calibrated on the markers as the default scene renders them (diffuse light).
+    red_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = [130, 12, 12]
+    green_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = [15, 115, 22]
+    rgb_tolerance: int = Field(50, ge=1, le=255)
     min_area_px: int = Field(60, ge=4, description="smaller blobs are rejected")
     occlusion_ring_px: int = Field(
         5,
         ge=1,
         le=30,
-        description="depth pixels around a marker searched for something in front of it; "
-        "reaches past the invalid band a depth camera leaves along edges",
+        description="invalid depth pixels next to a marker count as something in front of it "
+        "when a closer surface lies this near (past the band a depth camera leaves invalid "
+        "along an occluder's edge)",
     )
     max_depth_age_s: float = Field(
         1.2,

@@ -320,6 +320,39 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0 if report.ok else EXIT_NOT_CONVERGED
 
 
+def cmd_accuracy(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from common.config import load_scenario
+    from common.runtime import parse_overrides
+    from deploy.accuracy import default_conditions, evaluate, format_table
+
+    if args.frames < 1:
+        print("umay accuracy: --frames must be at least 1", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        overrides = parse_overrides(args.set)
+        scenarios = [load_scenario(p, overrides) for p in (args.scenario or [None])]
+    except ScenarioError as exc:
+        print(f"umay accuracy: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    conditions = default_conditions(args.seed)
+    with Progress(transient=True) as bar:
+        task = bar.add_task("postures", total=args.frames * len(scenarios))
+        results = evaluate(
+            scenarios,
+            args.frames,
+            conditions,
+            args.seed,
+            progress=lambda done, _total: bar.update(task, completed=done),
+        )
+    print(format_table(results))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps([r.model_dump() for r in results], indent=2) + "\n")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="umay", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -342,6 +375,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", help="an MCAP recording (umay run --record / umay record)")
     p.add_argument("--out", default="out/plots", help="output folder")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("accuracy", help="vision against ground truth under sensor conditions")
+    p.add_argument("--scenario", action="append", default=None, help="scenario TOML (repeatable)")
+    p.add_argument("--frames", type=int, default=100, help="postures per scenario")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None, metavar="OUT.json", help="write the results here")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_accuracy)
 
     p = sub.add_parser("router", help="run a Zenoh router (multi-host setups)")
     p.add_argument(

@@ -13,6 +13,8 @@ from common.messages import EndEffectorTwist, SimTruth
 
 
 class RunResult(BaseModel):
+    """One run, judged against the simulator's ground truth (units in the names)."""
+
     scenario: str
     mode: str
     clock: str
@@ -25,6 +27,14 @@ class RunResult(BaseModel):
     final_position_error_m: float | None
     final_orientation_error_deg: float | None
     path_length_m: float | None
+    path_ratio: float | None = None  # hand path over the straight line from start to end
+    peak_ee_speed_m_s: float | None = None
+    peak_joint_speed_rad_s: float | None = None
+    min_manipulability: float | None = None
+    marker_lost_s: float | None = None  # sim time the controller held: a marker not visible
+    tracking_position_error_m: float | None = None  # median while the target moved
+    tracking_max_position_error_m: float | None = None
+    tracking_pixel_rms: float | None = None  # median while the target moved
     detail: str = ""
 
 
@@ -49,6 +59,65 @@ def path_length_m(truths: dict[int, SimTruth], last_frame: int) -> float:
     return float(np.sum(np.linalg.norm(np.diff(np.array(points), axis=0), axis=1)))
 
 
+def marker_goal_error_m(truth: SimTruth, approach_height_m: float) -> float:
+    """Distance of the green marker from its goal (the red marker raised), from ground truth."""
+    goal = kin.goal_marker_pose(pose(truth.target_marker_pose), approach_height_m)
+    return float(np.linalg.norm(pose(truth.hand_marker_pose)[:3, 3] - goal[:3, 3]))
+
+
+def motion_metrics(truths: dict[int, SimTruth], last_frame: int) -> dict[str, float | None]:
+    """Path ratio, peak hand speed, peak joint speed and least manipulability up to
+    ``last_frame`` (ground truth, sampled once per camera frame)."""
+    frames = [truths[k] for k in sorted(truths) if k <= last_frame]
+    if len(frames) < 2:
+        return {}
+    t = np.array([f.header.sim_time_s for f in frames])
+    ee = np.array([f.ee_position_m for f in frames])
+    q = np.array([f.joint_position_rad for f in frames])
+    dt = np.maximum(np.diff(t), 1e-9)
+    steps = np.linalg.norm(np.diff(ee, axis=0), axis=1)
+    straight = float(np.linalg.norm(ee[-1] - ee[0]))
+    return {
+        "path_ratio": float(np.sum(steps) / straight) if straight > 1e-6 else None,
+        "peak_ee_speed_m_s": float(np.max(steps / dt)),
+        "peak_joint_speed_rad_s": float(np.max(np.abs(np.diff(q, axis=0)) / dt[:, None])),
+        "min_manipulability": float(
+            min(kin.manipulability(kin.geometric_jacobian(qi)) for qi in q)
+        ),
+    }
+
+
+def tracking_metrics(
+    truths: dict[int, SimTruth],
+    twists: dict[int, EndEffectorTwist],
+    last_frame: int,
+    moving: list[tuple[float, float]],
+    approach_height_m: float,
+    settle_s: float = 1.0,
+) -> dict[str, float | None]:
+    """Position error (median and max) and pixel error (median) while the target moved, from
+    ``settle_s`` after each move began to its end (``moving``: (start, end) sim times)."""
+
+    def in_window(t: float) -> bool:
+        return any(start + settle_s <= t <= end for start, end in moving)
+
+    seqs = [k for k in sorted(truths) if k <= last_frame and in_window(truths[k].header.sim_time_s)]
+    if not seqs:
+        return {}
+    errors = np.array([marker_goal_error_m(truths[k], approach_height_m) for k in seqs])
+    pixels = [twists[k].error_px_rms for k in seqs if k in twists and twists[k].valid]
+    return {
+        "tracking_position_error_m": float(np.median(errors)),
+        "tracking_max_position_error_m": float(np.max(errors)),
+        "tracking_pixel_rms": float(np.median(pixels)) if pixels else None,
+    }
+
+
+def held_time_s(twists: dict[int, EndEffectorTwist], last_frame: int, period_s: float) -> float:
+    """Sim time the controller held because a marker was not visible."""
+    return period_s * sum(1 for k, tw in twists.items() if k <= last_frame and not tw.valid)
+
+
 def summarize(
     scenario: str,
     mode: str,
@@ -60,15 +129,23 @@ def summarize(
     wall_time_s: float,
     approach_height_m: float,
     detail: str = "",
+    period_s: float = 1.0 / 30.0,
+    moving: list[tuple[float, float]] | None = None,
 ) -> RunResult:
     """Result at ``last_frame`` (the frame whose twist decided the outcome). Errors compare the
-    green marker with its goal: the red marker raised by ``approach_height_m``."""
+    green marker with its goal: the red marker raised by ``approach_height_m``. ``period_s``:
+    the camera period; ``moving``: (start, end) sim times of the target's moves."""
     truth = truths.get(last_frame) if last_frame is not None else None
     twist = twists.get(last_frame) if last_frame is not None else None
     hand = pose(truth.hand_marker_pose) if truth else None
     target = (
         kin.goal_marker_pose(pose(truth.target_marker_pose), approach_height_m) if truth else None
     )
+    extra: dict[str, float | None] = {}
+    if truth is not None and last_frame is not None:
+        extra.update(motion_metrics(truths, last_frame))
+        extra.update(tracking_metrics(truths, twists, last_frame, moving or [], approach_height_m))
+        extra["marker_lost_s"] = held_time_s(twists, last_frame, period_s)
     return RunResult(
         scenario=scenario,
         mode=mode,
@@ -85,4 +162,5 @@ def summarize(
         final_orientation_error_deg=square_orientation_error_deg(hand, target) if truth else None,
         path_length_m=path_length_m(truths, last_frame) if truth else None,
         detail=detail,
+        **extra,
     )

@@ -20,7 +20,7 @@ from rich.text import Text
 
 from common import kinematics as kin
 from common.codec import DEFAULT_MAX_BYTES, MessageError, decode
-from common.config import Scenario, load_scenario
+from common.config import EventAction, Scenario, load_scenario
 from common.keys import Keys
 from common.messages import EndEffectorTwist, SimTruth
 from common.runtime import parse_overrides
@@ -63,6 +63,7 @@ class RunMonitor:
     converged_frame: int | None = None
     timeout_frame: int | None = None
     timeout_s: float = 30.0
+    not_before_s: float = 0.0  # convergence counts once the scenario's events are over
     rejected: int = 0
 
     def _decode(self, sample, model: type[M]) -> M | None:
@@ -87,7 +88,7 @@ class RunMonitor:
         self.twists[seq] = tw
         if self.decided.is_set():
             return
-        if tw.converged:
+        if tw.converged and tw.header.sim_time_s >= self.not_before_s:
             self.converged_frame = seq
             self.decided.set()
         elif tw.header.sim_time_s >= self.timeout_s:
@@ -115,7 +116,7 @@ def run_once(
     """
     endpoint = listen or default_listen_endpoint()
     keys = Keys(prefix)
-    monitor = RunMonitor(timeout_s=scenario.run.timeout_s)
+    monitor = RunMonitor(timeout_s=scenario.run.timeout_s, not_before_s=scenario.events_end_s)
     session = open_session(connect=[], listen=[endpoint])
     recorder = None
     if record is not None:
@@ -183,6 +184,8 @@ def run_once(
         wall,
         scenario.target.approach_height_m,
         detail,
+        period_s=1.0 / scenario.camera.rgb_hz,
+        moving=[(e.at_s, e.end_s) for e in scenario.events if e.action is EventAction.MOVE_TARGET],
     )
 
 

@@ -63,7 +63,7 @@ def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> N
         assert {"sim_time_s", "real_time_factor", "render_ms", "dropped_frames"} <= set(
             out["sim"]["status"]["fields"]
         )
-        assert {"markers_visible", "depth_age_s"} <= set(out["vision"]["status"]["fields"])
+        assert {"markers", "lost_reasons", "depth_age_s"} <= set(out["vision"]["status"]["fields"])
         assert {"mode", "error_px_rms", "converged"} <= set(out["controller"]["status"]["fields"])
         assert {"deadman", "saturated_joints"} <= set(out["actuation"]["status"]["fields"])
 

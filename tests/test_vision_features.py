@@ -312,7 +312,9 @@ def test_hsv_finds_both_markers_across_brightness(brightness):
 def test_rgb_mode_finds_both_markers_at_nominal_brightness():
     hand, target = two_markers()
     rgb, depth = render([hand, target])
-    result = vf.measure_markers(rgb, depth, K, VisionConfig(segmentation="rgb"))
+    # RGB thresholds are calibrated on the markers' colours as rendered (as the thesis did).
+    cfg = VisionConfig(segmentation="rgb", red_rgb=list(RED), green_rgb=list(GREEN))
+    result = vf.measure_markers(rgb, depth, K, cfg)
     assert result["hand"].visible, result["hand"].reason
     assert result["target"].visible, result["target"].reason
 

@@ -10,6 +10,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pybullet
 from pybullet_utils.bullet_client import BulletClient
@@ -95,6 +96,38 @@ def quaternion_from_rotation(rot: FloatArray) -> list[float]:
 
 
 @dataclass(frozen=True)
+class MarkerView:
+    """What the camera sees of a marker (ground truth, for evaluation): the fraction of its
+    square showing the marker itself (0 outside the image or hidden, 1 wholly in view), and
+    whether another part of the robot touches its outline (within a few pixels: a depth
+    camera's invalid band along edges and its lateral noise hide whether it overlaps), where a
+    measurement may fairly refuse it."""
+
+    fraction: float
+    touched: bool
+
+
+def _square_pixels(
+    corners_px: FloatArray, grow_px: float, shape: tuple[int, ...]
+) -> tuple[np.ndarray, int]:
+    """Mask (of ``shape``) of the pixels of a convex quadrilateral grown (or, negative, shrunk)
+    by about ``grow_px``, and how many pixels it has in all, outside the image included."""
+    centre = corners_px.mean(axis=0)
+    radius = max(float(np.linalg.norm(corners_px - centre, axis=1).min()), 2.0)
+    quad = centre + (corners_px - centre) * (1.0 + grow_px / radius)
+    lo = np.floor(quad.min(axis=0)).astype(int) - 1
+    hi = np.ceil(quad.max(axis=0)).astype(int) + 2
+    box = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
+    cv2.fillConvexPoly(box, np.round((quad - lo) * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+    mask = np.zeros(shape[:2], bool)
+    r0, c0 = max(lo[1], 0), max(lo[0], 0)
+    r1, c1 = min(hi[1], shape[0]), min(hi[0], shape[1])
+    if r1 > r0 and c1 > c0:
+        mask[r0:r1, c0:c1] = box[r0 - lo[1] : r1 - lo[1], c0 - lo[0] : c1 - lo[0]] > 0
+    return mask, int(np.count_nonzero(box))
+
+
+@dataclass(frozen=True)
 class Truth:
     hand_marker_pose: FloatArray
     target_marker_pose: FloatArray
@@ -111,13 +144,8 @@ class World:
         self.intrinsics = scenario.camera.intrinsics()
         self.camera_pose = scenario.camera.pose()
         self._view = opengl_view_matrix(self.camera_pose)
-        self._proj = opengl_projection_matrix(
-            self.intrinsics, scenario.camera.near_m, scenario.camera.far_m
-        )
+        self._projections: dict[CameraIntrinsics, list[float]] = {}
         self.depth_intrinsics = scenario.camera.depth_intrinsics()
-        self._depth_proj = opengl_projection_matrix(
-            self.depth_intrinsics, scenario.camera.near_m, scenario.camera.far_m
-        )
         self.initial_target_pose = kin.target_marker_pose(
             np.array(scenario.target.position), scenario.target.yaw
         )
@@ -298,13 +326,20 @@ class World:
         return kin.homogeneous(rot, np.array(state[4]))
 
     # --- sensing --------------------------------------------------------------------------
-    def _render(self, k: CameraIntrinsics, projection: list[float]) -> tuple[np.ndarray, ...]:
-        """Perfect RGB uint8 (H, W, 3) and depth float32 metres (H, W) at ``k``'s size."""
+    def _projection(self, k: CameraIntrinsics) -> list[float]:
+        if k not in self._projections:
+            cam = self.scenario.camera
+            self._projections[k] = opengl_projection_matrix(k, cam.near_m, cam.far_m)
+        return self._projections[k]
+
+    def render_perfect(self, k: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+        """Perfect RGB uint8 (H, W, 3) and depth float32 metres (H, W) from the camera's pose,
+        with intrinsics ``k`` (the same field of view at another resolution, say)."""
         _, _, rgba, depth, _ = self.client.getCameraImage(
             k.width_px,
             k.height_px,
             viewMatrix=self._view,
-            projectionMatrix=projection,
+            projectionMatrix=self._projection(k),
             renderer=pybullet.ER_TINY_RENDERER,
             shadow=0,
             lightDirection=[0.4, -0.3, 1.0],
@@ -323,11 +358,11 @@ class World:
         metres at the depth resolution (registered: same viewpoint and field of view), through
         the Kinect sensor model when ``camera.kinect.enabled``. One render serves both when
         the resolutions agree."""
-        rgb, depth_m = self._render(self.intrinsics, self._proj)
+        rgb, depth_m = self.render_perfect(self.intrinsics)
         if not with_depth:
             depth_m = None
         elif self.depth_intrinsics != self.intrinsics:
-            _, depth_m = self._render(self.depth_intrinsics, self._depth_proj)
+            _, depth_m = self.render_perfect(self.depth_intrinsics)
         if self.kinect.enabled:
             rgb = exposed_rgb(rgb, self.kinect, self._sensor_rng)
             if depth_m is not None:
@@ -352,6 +387,33 @@ class World:
             target_corners_px=corners_px(self.target_pose),
             ee_position_m=ee[:3, 3],
         )
+
+    def marker_visibility(self, touch_px: float = 6.0) -> dict[str, MarkerView]:
+        """Ground truth for evaluation: how much of each marker the camera sees, from a
+        segmentation render. Keys ``hand`` and ``target``; see :class:`MarkerView`."""
+        k = self.intrinsics
+        _, _, _, _, seg = self.client.getCameraImage(
+            k.width_px,
+            k.height_px,
+            viewMatrix=self._view,
+            projectionMatrix=self._projection(k),
+            renderer=pybullet.ER_TINY_RENDERER,
+            shadow=0,
+            flags=pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+        )
+        seg = np.asarray(seg).reshape(k.height_px, k.width_px)
+        truth = self.truth()
+        own = {"hand": self.robot + ((self.ee_link + 1) << 24), "target": self.target_body}
+        corners = {"hand": truth.hand_corners_px, "target": truth.target_corners_px}
+        robot = (seg >= 0) & ((seg & ((1 << 24) - 1)) == self.robot)
+        out = {}
+        for name, quad in corners.items():
+            inside, total = _square_pixels(quad, -1.5, seg.shape)  # its edge pixels aside
+            seen = np.count_nonzero(seg[inside] == own[name])
+            around, _ = _square_pixels(quad, touch_px, seg.shape)
+            touched = np.count_nonzero(robot[around] & (seg[around] != own[name])) > 0
+            out[name] = MarkerView(seen / total if total else 0.0, bool(touched))
+        return out
 
     def close(self) -> None:
         self.client.disconnect()

@@ -163,6 +163,11 @@ def _threshold(image: np.ndarray, color: Color, cfg: VisionConfig) -> np.ndarray
     return cv2.inRange(image, lower, upper)
 
 
+def colour_mask(rgb: np.ndarray, color: Color, cfg: VisionConfig) -> np.ndarray:
+    """0/255 mask of the pixels of a marker colour, without clean-up (for small crops)."""
+    return _threshold(_threshold_space(np.ascontiguousarray(rgb), cfg), color, cfg)
+
+
 def _open_close(mask: np.ndarray) -> np.ndarray:
     """3×3 opening then closing: drops isolated pixels and fills pinholes. With a square
     kernel a straight digital edge is left exactly as it was (a 3×3 block fits inside any

@@ -17,45 +17,82 @@ OCCLUDED_FRACTION = 0.03
 
 
 def occluder_fraction(
-    depth_m: np.ndarray, mask: np.ndarray, marker_min_depth_m: float, ring_px: int = RING_WIDTH_PX
+    depth_m: np.ndarray,
+    mask: np.ndarray,
+    marker_min_depth_m: float,
+    reach_px: int = RING_WIDTH_PX,
+    ring_px: int = RING_WIDTH_PX,
 ) -> float:
-    """Fraction of the valid-depth pixels in a ring around ``mask`` that lie more than
-    :data:`CLOSER_MARGIN_M` in front of the marker's nearest corner."""
+    """Fraction of the ring of ``ring_px`` pixels around ``mask`` taken by something in front
+    of the marker (closer than its nearest corner by :data:`CLOSER_MARGIN_M`).
+
+    A depth camera leaves no valid depth along an occluder's edge (the Kinect's edge dropout),
+    which is exactly where it borders the marker; an invalid ring pixel therefore counts as
+    occluder when a closer surface lies within ``reach_px`` of it. Other invalid pixels are
+    left out (too close, too far, shiny: nothing is known there); a closer object near the
+    marker but not touching it leaves valid background in the ring and does not count.
+    """
     ys, xs = np.nonzero(mask)
     if ys.size == 0:
         return 0.0
-    pad = ring_px + 2
+    pad = max(ring_px, reach_px) + 2
     y0, y1 = max(0, ys.min() - pad), min(mask.shape[0], ys.max() + pad + 1)
     x0, x1 = max(0, xs.min() - pad), min(mask.shape[1], xs.max() + pad + 1)
     roi = (mask[y0:y1, x0:x1] > 0).astype(np.uint8)
-    kernel_outer = np.ones((2 * ring_px + 3, 2 * ring_px + 3), np.uint8)
-    outer = cv2.dilate(roi, kernel_outer)
+    outer = cv2.dilate(roi, np.ones((2 * ring_px + 3, 2 * ring_px + 3), np.uint8))
     inner = cv2.dilate(roi, np.ones((3, 3), np.uint8))
     ring = (outer > 0) & (inner == 0)
-    depth = depth_m[y0:y1, x0:x1][ring]
-    depth = depth[np.isfinite(depth) & (depth > 0)]
-    if depth.size == 0:
+    depth = depth_m[y0:y1, x0:x1]
+    valid = np.isfinite(depth) & (depth > 0)
+    closer = valid & (depth < marker_min_depth_m - CLOSER_MARGIN_M)
+    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
+    near_closer = cv2.dilate(closer.astype(np.uint8), kernel) > 0
+    occluder = closer | (~valid & near_closer)
+    known = np.count_nonzero(ring & (valid | occluder))
+    if known == 0:
         return 0.0
-    return float(np.mean(depth < marker_min_depth_m - CLOSER_MARGIN_M))
+    return float(np.count_nonzero(ring & occluder) / known)
 
 
 def is_occluded(
-    depth_m: np.ndarray, mask: np.ndarray, corner_depths_m: np.ndarray, ring_px: int = RING_WIDTH_PX
+    depth_m: np.ndarray,
+    mask: np.ndarray,
+    corner_depths_m: np.ndarray,
+    reach_px: int = RING_WIDTH_PX,
 ) -> bool:
-    """Something closer than the marker borders it. ``ring_px`` should reach past the band of
-    invalid depth a depth camera leaves along an occluder's edge (a few pixels on a Kinect),
-    where that edge's depth cannot be seen."""
-    fraction = occluder_fraction(depth_m, mask, float(np.min(corner_depths_m)), ring_px)
+    """Something closer than the marker borders it. ``reach_px`` should reach past the band of
+    invalid depth a depth camera leaves along an occluder's edge (a few pixels on a Kinect)."""
+    fraction = occluder_fraction(depth_m, mask, float(np.min(corner_depths_m)), reach_px)
     return fraction > OCCLUDED_FRACTION
 
 
-def hidden_behind(depth_m: np.ndarray, region: np.ndarray, marker_min_depth_m: float) -> bool:
-    """A marker that was last seen in ``region`` (mask of that quadrilateral, same size as
-    ``depth_m``) at ``marker_min_depth_m`` is now (partly) hidden by something in front: more
-    than :data:`OCCLUDED_FRACTION` of the valid depth there is closer than it was (a marker
-    that is gone, not hidden, leaves the surface it lay on). False when the depth cannot tell."""
-    depth = depth_m[region > 0]
-    depth = depth[np.isfinite(depth) & (depth > 0)]
-    if depth.size == 0:
+UNCOVERED_MIN_FRACTION = 0.1  # less of the old place left uncovered: all of it is hidden
+UNCOVERED_COLOUR_FRACTION = 0.5  # a marker partly hidden still shows its colour where uncovered
+
+
+def hidden_behind(
+    depth_m: np.ndarray, region: np.ndarray, marker_depth_m: np.ndarray, colour: np.ndarray
+) -> bool:
+    """Is a marker that vanished from ``region`` (where it was last seen, at
+    ``marker_depth_m`` per pixel) hidden by something in front, rather than gone?
+
+    ``depth_m``, ``region`` (0/255), ``marker_depth_m`` and ``colour`` (0/255: pixels of the
+    marker's colour) are crops of the same size. Something is in front where the depth is now
+    clearly closer than the marker's surface was. If
+    (nearly) all of the old place is covered, the marker is hidden; if part of it is
+    uncovered, a marker still lying there would show its colour in that part, so it is hidden
+    only if it does. False when nothing closer is there, or the depth cannot tell.
+    """
+    inside = (region > 0) & np.isfinite(depth_m) & (depth_m > 0)
+    n_valid = int(np.count_nonzero(inside))
+    if n_valid == 0:
         return False
-    return float(np.mean(depth < marker_min_depth_m - CLOSER_MARGIN_M)) > OCCLUDED_FRACTION
+    closer = inside & (depth_m < marker_depth_m - CLOSER_MARGIN_M)
+    if np.count_nonzero(closer) <= OCCLUDED_FRACTION * n_valid:
+        return False
+    uncovered = inside & ~closer
+    n_uncovered = int(np.count_nonzero(uncovered))
+    if n_uncovered < UNCOVERED_MIN_FRACTION * n_valid:
+        return True
+    shows_colour = np.count_nonzero(uncovered & (colour > 0)) / n_uncovered
+    return shows_colour >= UNCOVERED_COLOUR_FRACTION

@@ -25,10 +25,12 @@ import numpy as np
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
 from common.config import VisionConfig
 from services.vision.features import (
+    MARKERS,
     FloatArray,
     MarkerMeasurement,
     MarkerQuad,
     PlaneFit,
+    colour_mask,
     find_marker_quads,
     measure_quad,
     not_visible,
@@ -92,13 +94,38 @@ def _region_mask(corners_px: FloatArray, shape: tuple[int, ...]) -> np.ndarray:
     return mask
 
 
-def _hidden_in_depth(memory: MarkerMemory | None, depth: DepthImage, k: CameraIntrinsics) -> bool:
-    """Is something in front of where the marker was last seen, in a fresh depth image?"""
+def _hidden_in_depth(
+    name: str,
+    memory: MarkerMemory | None,
+    rgb: np.ndarray,
+    k: CameraIntrinsics,
+    depth: DepthImage,
+    cfg: VisionConfig,
+) -> bool:
+    """Is something in front of where the marker was last seen, in a fresh depth image (and
+    is the marker hidden there rather than gone)? Checked at the colour resolution."""
     if memory is None:
         return False
-    corners = to_depth_pixels(memory.corners_px, k, depth.intrinsics)
-    region = _region_mask(corners, depth.depth_m.shape)
-    return hidden_behind(depth.depth_m, region, float(np.min(memory.depths_m)))
+    region = _region_mask(memory.corners_px, rgb.shape)
+    rows, cols = np.nonzero(region)
+    if rows.size == 0:
+        return False
+    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    # The depth pixel under each colour pixel of the crop (registered images, same rays).
+    uv = np.column_stack([np.arange(c0, c1, dtype=float), np.full(c1 - c0, float(r0))])
+    du = np.rint(to_depth_pixels(uv, k, depth.intrinsics)[:, 0]).astype(int)
+    vv = np.column_stack([np.full(r1 - r0, float(c0)), np.arange(r0, r1, dtype=float)])
+    dv = np.rint(to_depth_pixels(vv, k, depth.intrinsics)[:, 1]).astype(int)
+    h, w = depth.depth_m.shape
+    depth_crop = depth.depth_m[np.clip(dv, 0, h - 1)[:, None], np.clip(du, 0, w - 1)[None, :]]
+    colour = colour_mask(rgb[r0:r1, c0:c1], MARKERS[name], cfg)
+    # The marker's surface along each pixel's ray: its plane, else its nearest corner.
+    surface = np.full(depth_crop.shape, float(np.min(memory.depths_m)))
+    if memory.plane is not None:
+        vv, uu = np.mgrid[r0:r1, c0:c1]
+        uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(float)
+        surface = memory.plane.depths_m(pixel_to_normalized(uv, k)).reshape(depth_crop.shape)
+    return hidden_behind(depth_crop, region[r0:r1, c0:c1], surface, colour)
 
 
 def _held(
@@ -149,7 +176,11 @@ def observe(
         if fresh:
             assert depth is not None
             m = measure_quad(quad, depth.depth_m, k, cfg, depth.intrinsics)
-            if not m.visible and not m.occluded and _hidden_in_depth(memory, depth, k):
+            if (
+                not m.visible
+                and not m.occluded
+                and _hidden_in_depth(name, memory, rgb, k, depth, cfg)
+            ):
                 m = not_visible(m.reason, m.area_px, occluded=True)
         elif quad.corners_px is None:
             m = not_visible(quad.reason, quad.area_px)
