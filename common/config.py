@@ -231,6 +231,11 @@ class ControllerConfig(_Strict):
     converged_frames: int = Field(5, ge=1, description="consecutive frames below the threshold")
     max_linear_m_s: float = Field(0.15, gt=0.0, description="twist clamp, linear (m/s)")
     max_angular_rad_s: float = Field(1.0, gt=0.0, description="twist clamp, angular (rad/s)")
+    track_target_motion: bool = Field(
+        True,
+        description="estimate the target's velocity from its recent views, feed it forward, "
+        "and carry a hidden target along it",
+    )
 
 
 class ActuationConfig(_Strict):

@@ -136,9 +136,11 @@ class MarkerFeatures(Message):
     ``state``: ``visible`` (the whole square, corners and depths usable), ``partial`` (part of
     it is seen: hidden by something in front, cut by the image border, or not a clean
     quadrilateral), ``lost`` (not seen), ``no_depth`` (seen whole, but no depth measurement
-    recent enough). Only ``visible`` features may be acted on; the arrays are zeros otherwise.
-    ``occluded``: the depth image (or, between depth images, the hand marker) shows something
-    in front of the marker or of where it was last seen, i.e. it is hidden, not gone.
+    recent enough). The arrays are zeros unless the state is ``visible``, or ``fitted`` is
+    set: a ``partial`` marker whose corners (hidden ones included) were found by fitting its
+    known square, on its known plane, to the edges of it that are seen. ``occluded``: the
+    depth image (or, between depth images, the hand marker) shows something in front of the
+    marker or of where it was last seen, i.e. it is hidden, not gone.
     """
 
     state: MarkerState
@@ -147,11 +149,16 @@ class MarkerFeatures(Message):
     depth_sigma_m: Depths4 = Field(description="1-σ uncertainty of each corner depth")
     points_m: Corners3 = Field(description="corners in the camera optical frame")
     occluded: bool = False
+    fitted: bool = False
     reason: str = Field("", max_length=200, description="why not visible")
 
     @property
     def visible(self) -> bool:
         return self.state == "visible"
+
+    @property
+    def usable(self) -> bool:
+        return self.visible or (self.state == "partial" and self.fitted)
 
 
 class Features(Message):

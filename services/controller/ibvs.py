@@ -18,6 +18,7 @@ Every law is written ``(v, ω) = λ · M · e``; only ``M`` and ``e`` differ.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -146,10 +147,15 @@ class MarkerObservation:
     depth_m: FloatArray
     points_m: FloatArray
     occluded: bool = False
+    fitted: bool = False  # partly hidden, corners fitted from its visible edges (usable)
 
     @property
     def visible(self) -> bool:
         return self.state == "visible"
+
+    @property
+    def usable(self) -> bool:
+        return self.visible or (self.state == "partial" and self.fitted)
 
 
 def desired_observation(
@@ -170,6 +176,67 @@ def desired_observation(
         normal = -normal
     raised = p + approach_height_m * normal
     return MarkerObservation("visible", project(raised, k), raised[:, 2].copy(), raised)
+
+
+# Target motion: its velocity is the slope of its corners' centroid over the recent full views.
+TARGET_VELOCITY_WINDOW_S = 0.5
+TARGET_VELOCITY_MIN_SPAN_S = 0.2  # fewer views than this span: no estimate (zero)
+TARGET_MAX_SPEED_M_S = 0.3  # a faster estimate is a glitch, not the object
+PREDICTION_HORIZON_S = 1.0  # a hidden target is carried along its velocity this long at most
+
+
+@dataclass
+class TargetMotion:
+    """The target's recent full views (sim time, 3-D corners in the camera frame): how fast it
+    moves, and where it is while the hand hides it. Times are passed in (sim time)."""
+
+    views: deque[tuple[float, FloatArray]] = field(default_factory=deque)
+
+    def add(self, t_s: float, points_m: FloatArray) -> None:
+        self.views.append((t_s, np.asarray(points_m, dtype=float)))
+        while self.views and self.views[0][0] < t_s - TARGET_VELOCITY_WINDOW_S:
+            self.views.popleft()
+
+    def velocity_m_s(self, t_s: float) -> FloatArray:
+        """Velocity (m/s, camera frame) believed at ``t_s``: the least-squares slope of the
+        corners' centroid over the window before the latest view, kept for at most
+        :data:`PREDICTION_HORIZON_S` after it (a target hidden longer may have stopped); zero
+        until the views span enough time."""
+        if not self.views or t_s - self.views[-1][0] > PREDICTION_HORIZON_S:
+            return np.zeros(3)
+        if self.views[-1][0] - self.views[0][0] < TARGET_VELOCITY_MIN_SPAN_S:
+            return np.zeros(3)
+        t = np.array([v[0] for v in self.views])
+        centres = np.array([v[1].mean(axis=0) for v in self.views])
+        dt = t - t.mean()
+        velocity = dt @ (centres - centres.mean(axis=0)) / float(dt @ dt)
+        speed = float(np.linalg.norm(velocity))
+        if speed > TARGET_MAX_SPEED_M_S:
+            velocity *= TARGET_MAX_SPEED_M_S / speed
+        return velocity
+
+    def predicted(
+        self, last: MarkerObservation, t_s: float, k: CameraIntrinsics
+    ) -> MarkerObservation:
+        """``last`` (its latest view) carried to ``t_s`` along the velocity believed then."""
+        if not self.views:
+            return last
+        horizon_s = min(max(t_s - self.views[-1][0], 0.0), PREDICTION_HORIZON_S)
+        shift = self.velocity_m_s(t_s) * horizon_s
+        if not np.any(shift):
+            return last
+        points = last.points_m + shift
+        return replace(
+            last, corners_px=project(points, k), depth_m=points[:, 2].copy(), points_m=points
+        )
+
+
+def image_feature_rate(xy: FloatArray, depth_m: FloatArray, velocity_m_s: FloatArray) -> FloatArray:
+    """ṡ (2N,) of normalized points at ``xy`` (N×2), depths Z (N,), all translating with
+    ``velocity_m_s`` in the camera frame: ẋ = (vx − x·vz)/Z, ẏ = (vy − y·vz)/Z."""
+    vx, vy, vz = velocity_m_s
+    rates = np.column_stack([(vx - xy[:, 0] * vz) / depth_m, (vy - xy[:, 1] * vz) / depth_m])
+    return rates.reshape(-1)
 
 
 @dataclass(frozen=True)
@@ -239,12 +306,13 @@ def hand_hides_target(hand: MarkerObservation, last_target: MarkerObservation) -
 class IbvsController:
     """Per-frame IBVS step.
 
-    State: the frozen constant Jacobian, the convergence counter, and the last fully seen target.
-    As the hand closes in it necessarily hides the target from the fixed camera; the desired
-    features are then taken from that memory, but only while vision sees something in front of
-    the target (``occluded``) and the hand is near it. Otherwise, while either marker is not
-    visible, the controller holds (zero twist, ``valid`` False, ``hold_reason`` says why) and
-    resumes when it is back.
+    State: the frozen constant Jacobian, the convergence counter, the last usable view of the
+    target and its recent motion. As the hand closes in it necessarily hides the target from
+    the fixed camera: while vision can fit the partly hidden square it is used as seen; when it
+    cannot, the desired features come from the last view carried along the target's estimated
+    velocity, but only while vision sees something in front of the target (``occluded``) and
+    the hand is near it. Otherwise, while either marker is not usable, the controller holds
+    (zero twist, ``valid`` False, ``hold_reason`` says why) and resumes when it is back.
     """
 
     config: ControllerConfig
@@ -254,6 +322,7 @@ class IbvsController:
     frames_below: int = 0
     last_target: MarkerObservation | None = None
     pairing: int | None = None  # hand corner i goes to target corner (i + pairing) % 4
+    motion: TargetMotion = field(default_factory=TargetMotion)
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
 
     def step(
@@ -262,17 +331,21 @@ class IbvsController:
         target: MarkerObservation,
         k: CameraIntrinsics,
         p_ee_base_m: FloatArray,
+        t_s: float = 0.0,
     ) -> ControlOutput:
+        """One control step on the markers seen in the camera frame taken at sim time ``t_s``
+        with the end effector (encoders, forward kinematics) at ``p_ee_base_m``."""
         remembered = False
-        if target.visible:
+        if target.usable:
             self.last_target = target
+            self.motion.add(t_s, target.points_m)
         elif (
             target.occluded
             and self.last_target is not None
             and hand_hides_target(hand, self.last_target)
         ):
-            target, remembered = self.last_target, True
-        if not (hand.visible and target.visible):
+            target, remembered = self.motion.predicted(self.last_target, t_s, k), True
+        if not (hand.visible and target.usable):
             self.frames_below = 0
             which = "hand" if not hand.visible else "target"
             state = hand.state if not hand.visible else target.state
@@ -287,11 +360,17 @@ class IbvsController:
             pairing_costs_px2(hand.corners_px, target.corners_px), self.pairing
         )
         target = rolled(target, self.pairing)
+        track = self.config.track_target_motion
+        velocity = self.motion.velocity_m_s(t_s) if track else np.zeros(3)
         if self.config.mode is JacobianMode.POINTS3D:
             error, m = self._points3d_law(hand, target)
+            target_rate = np.tile(velocity, len(target.points_m))
         else:
             error, m = self._image_law(hand, target, k)
-        twist_cam = self.config.gain * (m @ error)
+            xy = pixel_to_normalized(target.corners_px, k)
+            target_rate = image_feature_rate(xy, target.depth_m, velocity)
+        # ė = ṡ − ṡ* = −λe, with ṡ* the goal's own motion fed forward (zero for a still target).
+        twist_cam = m @ (self.config.gain * error - target_rate)
         twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
         twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
         err_px = feature_error_px_rms(hand.corners_px, target.corners_px)

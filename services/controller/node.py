@@ -18,7 +18,12 @@ from services.controller.ibvs import IbvsController, MarkerObservation
 
 def observation(m: MarkerFeatures) -> MarkerObservation:
     return MarkerObservation(
-        m.state, np.array(m.corners_px), np.array(m.depth_m), np.array(m.points_m), m.occluded
+        m.state,
+        np.array(m.corners_px),
+        np.array(m.depth_m),
+        np.array(m.points_m),
+        m.occluded,
+        m.fitted,
     )
 
 
@@ -39,6 +44,7 @@ class ControllerService:
         self.converged = False
         self.holding = False
         self.hold_reason = ""
+        self.target_speed_m_s = 0.0  # estimated; set by the event loop, read by status queries
         self.last_output: EndEffectorTwist | None = None
         self.target_remembered = False
 
@@ -50,6 +56,7 @@ class ControllerService:
             "holding": self.holding,
             "hold_reason": self.hold_reason,
             "target_remembered": self.target_remembered,
+            "target_speed_m_s": self.target_speed_m_s,
         }
 
     def degraded(self) -> str:
@@ -58,11 +65,17 @@ class ControllerService:
     def on_pair(self, features: Features, joints: JointState) -> None:
         p_ee = kin.forward_kinematics(np.array(joints.position_rad))[:3, 3]
         out = self.controller.step(
-            observation(features.hand), observation(features.target), features.intrinsics, p_ee
+            observation(features.hand),
+            observation(features.target),
+            features.intrinsics,
+            p_ee,
+            features.header.sim_time_s,
         )
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
         self.hold_reason = out.hold_reason
+        velocity = self.controller.motion.velocity_m_s(features.header.sim_time_s)
+        self.target_speed_m_s = float(np.linalg.norm(velocity))
         self.last_output = EndEffectorTwist(
             header=self.node.header(features.header.sim_time_s, features.header.frame_seq),
             linear_m_s=out.twist_base_ee[:3].tolist(),

@@ -109,7 +109,9 @@ class MarkerMeasurement:
     the camera optical frame (m); ``area_px`` the blob's pixel count (0 when there is no blob);
     ``plane`` the depth plane the depths come from (None when they do not come from a fit).
     ``state``: "visible", or why not (see :data:`REASON_STATES`, ``reason`` says which);
-    when not visible the arrays are zeros. ``occluded``: something is seen in front of it.
+    when not visible the arrays are zeros, unless ``fitted``: a partly hidden marker whose
+    corners were found from its visible edges, known size and plane
+    (:mod:`services.vision.partial`). ``occluded``: something is seen in front of it.
     """
 
     state: str
@@ -121,10 +123,16 @@ class MarkerMeasurement:
     reason: str
     occluded: bool = False
     plane: PlaneFit | None = None
+    fitted: bool = False
 
     @property
     def visible(self) -> bool:
         return self.state == "visible"
+
+    @property
+    def usable(self) -> bool:
+        """Corners and depths can be acted on: seen whole, or fitted from what is seen."""
+        return self.visible or self.fitted
 
 
 def not_visible(reason: str, area_px: float = 0.0, occluded: bool = False) -> MarkerMeasurement:
@@ -810,7 +818,7 @@ def _measure(
 ) -> MarkerMeasurement:
     """Depths and occlusion check of a marker whose corners are in their final order."""
     if quad.corners_px is None:
-        occluded = quad.area_px > 0 and _blob_occluded(quad.mask, depth_m, ring_px)
+        occluded = quad.area_px > 0 and _blob_occluded(quad.mask, depth_m, k_depth or k, ring_px)
         return not_visible(quad.reason, quad.area_px, occluded)
     corners, mask = quad.corners_px, quad.mask
     depth = corner_depths(depth_m, mask, corners, k, k_depth)
@@ -818,8 +826,13 @@ def _measure(
         return not_visible("no valid depth", quad.area_px)
     k_depth = k_depth or k
     depth_corners = corners if k_depth == k else to_depth_pixels(corners, k, k_depth)
-    crops = _around(depth_corners, ring_px + 3, depth_m, registered_mask(mask, depth_m.shape))
-    if is_occluded(*crops, depth.depths_m, ring_px):
+    bounds = _bounding_box(depth_corners, ring_px + 3, depth_m.shape)
+    r0, r1, c0, c1 = bounds
+    crop_mask = registered_mask(mask, depth_m.shape)[r0:r1, c0:c1]
+    surface = float(np.min(depth.depths_m))
+    if depth.plane is not None:
+        surface = plane_depth_image(depth.plane, k_depth, bounds)
+    if is_occluded(depth_m[r0:r1, c0:c1], crop_mask, surface, ring_px):
         return not_visible("occluded", quad.area_px, occluded=True)
     return MarkerMeasurement(
         "visible",
@@ -833,29 +846,47 @@ def _measure(
     )
 
 
-def _blob_occluded(mask: np.ndarray, depth_m: np.ndarray, ring_px: int) -> bool:
-    """Is something in front of a blob that did not make a whole square? Its nearest depth
-    (5th percentile: a tilted marker spans centimetres) against the ring around it."""
+def plane_depth_image(
+    plane: PlaneFit, k: CameraIntrinsics, bounds: tuple[int, int, int, int]
+) -> FloatArray:
+    """Depth of ``plane`` along the ray of every pixel in ``bounds`` (row0, row1, col0, col1)
+    of an image with intrinsics ``k``: the marker's surface, extended around it."""
+    r0, r1, c0, c1 = bounds
+    vv, uu = np.mgrid[r0:r1, c0:c1]
+    uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(float)
+    return plane.depths_m(pixel_to_normalized(uv, k)).reshape(r1 - r0, c1 - c0)
+
+
+def _blob_occluded(
+    mask: np.ndarray, depth_m: np.ndarray, k_depth: CameraIntrinsics, ring_px: int
+) -> bool:
+    """Is something in front of a blob that did not make a whole square? The ring around it
+    against the plane of its own depth (else its nearest depth: a tilted marker spans
+    centimetres)."""
     small = registered_mask(mask, depth_m.shape)
     rows, cols = np.nonzero(small)
     if rows.size == 0:
         return False
     pad = ring_px + 3
-    r0, r1 = max(rows.min() - pad, 0), rows.max() + pad + 1
-    c0, c1 = max(cols.min() - pad, 0), cols.max() + pad + 1
+    bounds = (
+        max(rows.min() - pad, 0),
+        min(rows.max() + pad + 1, depth_m.shape[0]),
+        max(cols.min() - pad, 0),
+        min(cols.max() + pad + 1, depth_m.shape[1]),
+    )
+    r0, r1, c0, c1 = bounds
     crop_mask, crop_depth = small[r0:r1, c0:c1], depth_m[r0:r1, c0:c1]
-    inside = crop_depth[(crop_mask > 0) & (crop_depth > 0) & np.isfinite(crop_depth)]
-    if inside.size < DEPTH_MIN_PIXELS:
+    eroded = cv2.erode(crop_mask, MORPH_KERNEL)
+    vv, uu = np.nonzero((eroded > 0) & (crop_depth > 0) & np.isfinite(crop_depth))
+    if vv.size < DEPTH_MIN_PIXELS:
         return False
-    nearest_m = np.percentile(inside, 5.0, keepdims=True)
-    return is_occluded(crop_depth, crop_mask, nearest_m, ring_px)
-
-
-def _around(corners_px: FloatArray, margin_px: int, *images: np.ndarray) -> list[np.ndarray]:
-    """Crops of the images to the corners' bounding box grown by ``margin_px`` (so a check
-    on a marker's surroundings need not scan the whole frame)."""
-    r0, r1, c0, c1 = _bounding_box(corners_px, margin_px, images[0].shape)
-    return [image[r0:r1, c0:c1] for image in images]
+    z = crop_depth[vv, uu].astype(float)
+    uv = np.column_stack([uu + c0, vv + r0]).astype(float)
+    plane = fit_inverse_depth_plane(pixel_to_normalized(uv, k_depth), z)
+    surface: FloatArray | float = float(np.percentile(z, 5.0))
+    if plane is not None:
+        surface = plane_depth_image(plane, k_depth, bounds)
+    return is_occluded(crop_depth, crop_mask, surface, ring_px)
 
 
 def _check_frame(rgb: np.ndarray, depth_m: np.ndarray, k_depth: CameraIntrinsics | None) -> None:

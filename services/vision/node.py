@@ -30,6 +30,7 @@ def to_message(m: MarkerMeasurement) -> MarkerFeatures:
         depth_sigma_m=m.depth_sigmas_m.tolist(),
         points_m=m.points_m.tolist(),
         occluded=m.occluded,
+        fitted=m.fitted,
         reason=m.reason,
     )
 

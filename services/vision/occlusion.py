@@ -12,19 +12,23 @@ import cv2
 import numpy as np
 
 RING_WIDTH_PX = 2  # an occluder overlapping the marker borders it directly
-CLOSER_MARGIN_M = 0.01  # well above depth noise at 0.5 m (about 1.5 mm), below a hand's thickness
+# In front of the marker's surface (its plane, per pixel) by more than this: about 5 σ of Kinect
+# noise at 0.5 m (1.2 mm) and less than a hand held just above the object.
+CLOSER_MARGIN_M = 0.006
 OCCLUDED_FRACTION = 0.03
 
 
 def occluder_fraction(
     depth_m: np.ndarray,
     mask: np.ndarray,
-    marker_min_depth_m: float,
+    surface_m: np.ndarray | float,
     reach_px: int = RING_WIDTH_PX,
     ring_px: int = RING_WIDTH_PX,
 ) -> float:
     """Fraction of the ring of ``ring_px`` pixels around ``mask`` taken by something in front
-    of the marker (closer than its nearest corner by :data:`CLOSER_MARGIN_M`).
+    of the marker: closer than ``surface_m`` (the marker's surface along each pixel's ray, i.e.
+    its plane extended, an array of ``depth_m``'s shape; or one depth) by
+    :data:`CLOSER_MARGIN_M`.
 
     A depth camera leaves no valid depth along an occluder's edge (the Kinect's edge dropout),
     which is exactly where it borders the marker; an invalid ring pixel therefore counts as
@@ -43,8 +47,9 @@ def occluder_fraction(
     inner = cv2.dilate(roi, np.ones((3, 3), np.uint8))
     ring = (outer > 0) & (inner == 0)
     depth = depth_m[y0:y1, x0:x1]
+    surface = surface_m[y0:y1, x0:x1] if isinstance(surface_m, np.ndarray) else surface_m
     valid = np.isfinite(depth) & (depth > 0)
-    closer = valid & (depth < marker_min_depth_m - CLOSER_MARGIN_M)
+    closer = valid & (depth < surface - CLOSER_MARGIN_M)
     kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
     near_closer = cv2.dilate(closer.astype(np.uint8), kernel) > 0
     occluder = closer | (~valid & near_closer)
@@ -57,13 +62,13 @@ def occluder_fraction(
 def is_occluded(
     depth_m: np.ndarray,
     mask: np.ndarray,
-    corner_depths_m: np.ndarray,
+    surface_m: np.ndarray | float,
     reach_px: int = RING_WIDTH_PX,
 ) -> bool:
-    """Something closer than the marker borders it. ``reach_px`` should reach past the band of
-    invalid depth a depth camera leaves along an occluder's edge (a few pixels on a Kinect)."""
-    fraction = occluder_fraction(depth_m, mask, float(np.min(corner_depths_m)), reach_px)
-    return fraction > OCCLUDED_FRACTION
+    """Something in front of the marker borders it (see :func:`occluder_fraction`).
+    ``reach_px`` should reach past the band of invalid depth a depth camera leaves along an
+    occluder's edge (a few pixels on a Kinect)."""
+    return occluder_fraction(depth_m, mask, surface_m, reach_px) > OCCLUDED_FRACTION
 
 
 UNCOVERED_MIN_FRACTION = 0.1  # less of the old place left uncovered: all of it is hidden

@@ -34,12 +34,23 @@ from services.vision.features import (
     find_marker_quads,
     measure_quad,
     not_visible,
+    plane_depth_image,
     to_depth_pixels,
 )
-from services.vision.occlusion import hidden_behind
+from services.vision.occlusion import CLOSER_MARGIN_M, hidden_behind
+from services.vision.partial import (
+    MAX_STRAY_FRACTION,
+    SquareOnPlane,
+    fit_square_to_blob,
+    stray_fraction,
+    true_edge_points,
+)
 
 # How each marker's depth is carried between depth images (see the module docstring).
 HELD_DEPTH = {"hand": "corners", "target": "plane"}
+# Markers whose partly hidden views are fitted (services.vision.partial): the target, which the
+# hand necessarily covers at the end; the hand moves, so its remembered plane is not its own.
+FITTED = ("target",)
 SIZE_TOLERANCE = 0.15  # relative: a side further off the marker's size is not the whole square
 NEAR_DIAGONALS = 2.0  # the hand is "over" the target within this many target diagonals
 
@@ -94,6 +105,28 @@ def _region_mask(corners_px: FloatArray, shape: tuple[int, ...]) -> np.ndarray:
     return mask
 
 
+def _depth_under(
+    depth: DepthImage, k: CameraIntrinsics, bounds: tuple[int, int, int, int]
+) -> np.ndarray:
+    """The depth image's pixel under each colour pixel of ``bounds`` (row0, row1, col0, col1)
+    of the colour image: registered images, the same rays."""
+    r0, r1, c0, c1 = bounds
+    columns = np.column_stack([np.arange(c0, c1, dtype=float), np.full(c1 - c0, float(r0))])
+    rows = np.column_stack([np.full(r1 - r0, float(c0)), np.arange(r0, r1, dtype=float)])
+    du = np.rint(to_depth_pixels(columns, k, depth.intrinsics)[:, 0]).astype(int)
+    dv = np.rint(to_depth_pixels(rows, k, depth.intrinsics)[:, 1]).astype(int)
+    h, w = depth.depth_m.shape
+    return depth.depth_m[np.clip(dv, 0, h - 1)[:, None], np.clip(du, 0, w - 1)[None, :]]
+
+
+def _surface(memory: MarkerMemory, k: CameraIntrinsics, bounds: tuple[int, int, int, int]):
+    """The marker's remembered surface along each pixel's ray of ``bounds``: its plane, else
+    its nearest corner's depth."""
+    if memory.plane is not None:
+        return plane_depth_image(memory.plane, k, bounds)
+    return float(np.min(memory.depths_m))
+
+
 def _hidden_in_depth(
     name: str,
     memory: MarkerMemory | None,
@@ -110,22 +143,68 @@ def _hidden_in_depth(
     rows, cols = np.nonzero(region)
     if rows.size == 0:
         return False
-    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
-    # The depth pixel under each colour pixel of the crop (registered images, same rays).
-    uv = np.column_stack([np.arange(c0, c1, dtype=float), np.full(c1 - c0, float(r0))])
-    du = np.rint(to_depth_pixels(uv, k, depth.intrinsics)[:, 0]).astype(int)
-    vv = np.column_stack([np.full(r1 - r0, float(c0)), np.arange(r0, r1, dtype=float)])
-    dv = np.rint(to_depth_pixels(vv, k, depth.intrinsics)[:, 1]).astype(int)
-    h, w = depth.depth_m.shape
-    depth_crop = depth.depth_m[np.clip(dv, 0, h - 1)[:, None], np.clip(du, 0, w - 1)[None, :]]
+    bounds = (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1)
+    r0, r1, c0, c1 = bounds
+    depth_crop = _depth_under(depth, k, bounds)
     colour = colour_mask(rgb[r0:r1, c0:c1], MARKERS[name], cfg)
-    # The marker's surface along each pixel's ray: its plane, else its nearest corner.
-    surface = np.full(depth_crop.shape, float(np.min(memory.depths_m)))
-    if memory.plane is not None:
-        vv, uu = np.mgrid[r0:r1, c0:c1]
-        uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(float)
-        surface = memory.plane.depths_m(pixel_to_normalized(uv, k)).reshape(depth_crop.shape)
+    surface = np.broadcast_to(_surface(memory, k, bounds), depth_crop.shape)
     return hidden_behind(depth_crop, region[r0:r1, c0:c1], surface, colour)
+
+
+def _fit_partial(
+    quad: MarkerQuad,
+    memory: MarkerMemory | None,
+    k: CameraIntrinsics,
+    depth: DepthImage,
+    cfg: VisionConfig,
+    marker_size_m: float,
+    measured: MarkerMeasurement,
+) -> MarkerMeasurement | None:
+    """A partly hidden marker's corners from its visible edges (see
+    :mod:`services.vision.partial`), its known size and remembered plane; None if the fit
+    does not hold."""
+    if memory is None or memory.plane is None or quad.area_px <= 0:
+        return None
+    points = back_project(memory.corners_px, memory.depths_m, k)
+    square = SquareOnPlane.from_corners(points, marker_size_m)
+    rows, cols = np.nonzero(quad.mask)
+    if rows.size == 0:
+        return None
+    pad = 2 * cfg.occlusion_ring_px + 2
+    h, w = quad.mask.shape
+    bounds = (
+        max(rows.min() - pad, 0),
+        min(rows.max() + pad + 1, h),
+        max(cols.min() - pad, 0),
+        min(cols.max() + pad + 1, w),
+    )
+    r0, r1, c0, c1 = bounds
+    depth_crop = _depth_under(depth, k, bounds)
+    valid = np.isfinite(depth_crop) & (depth_crop > 0)
+    closer = valid & (depth_crop < _surface(memory, k, bounds) - CLOSER_MARGIN_M)
+    reach = 2 * cfg.occlusion_ring_px + 1
+    near = cv2.dilate(closer.astype(np.uint8), np.ones((reach, reach), np.uint8)) > 0
+    occluder = closer | (~valid & near)
+    mask = quad.mask[r0:r1, c0:c1]
+    edges = true_edge_points(mask, occluder, (c0, r0))
+    centre = np.array([cols.mean(), rows.mean()])
+    fit = fit_square_to_blob(square, edges, centre, k)
+    if fit is None or stray_fraction(mask, fit.corners_px, (c0, r0)) > MAX_STRAY_FRACTION:
+        return None
+    corners_m = fit.square.corners_m()
+    xy = pixel_to_normalized(fit.corners_px, k)
+    return MarkerMeasurement(
+        "partial",
+        fit.corners_px,
+        memory.plane.depths_m(xy),
+        memory.plane.depth_sigmas_m(xy),
+        corners_m,
+        quad.area_px,
+        measured.reason,
+        occluded=measured.occluded or bool(np.any(closer)),
+        plane=memory.plane,
+        fitted=True,
+    )
 
 
 def _held(
@@ -182,6 +261,8 @@ def observe(
                 and _hidden_in_depth(name, memory, rgb, k, depth, cfg)
             ):
                 m = not_visible(m.reason, m.area_px, occluded=True)
+            if name in FITTED and m.state == "partial":
+                m = _fit_partial(quad, memory, k, depth, cfg, marker_size_m, m) or m
         elif quad.corners_px is None:
             m = not_visible(quad.reason, quad.area_px)
         elif not usable:
@@ -206,9 +287,8 @@ def _next_state(
     previous = dict(state.previous_corners)
     memory = dict(state.memory)
     for name, m in measured.items():
-        if not m.visible:
-            continue
-        previous[name] = m.corners_px
-        if fresh:
+        if m.visible:
+            previous[name] = m.corners_px
+        if m.usable and fresh:  # a fitted view keeps the plane it was fitted on
             memory[name] = MarkerMemory(m.corners_px, m.depths_m, m.depth_sigmas_m, m.plane)
     return TrackerState(previous, memory)
