@@ -18,7 +18,6 @@ Every law is written ``(v, ω) = λ · M · e``; only ``M`` and ``e`` differ.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -27,6 +26,7 @@ from numpy.typing import NDArray
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode
 from common.kinematics import skew
+from common.motion import MarkerMotion
 
 FloatArray = NDArray[np.float64]
 
@@ -178,57 +178,17 @@ def desired_observation(
     return MarkerObservation("visible", project(raised, k), raised[:, 2].copy(), raised)
 
 
-# Target motion: its velocity is the slope of its corners' centroid over the recent full views.
-TARGET_VELOCITY_WINDOW_S = 0.5
-TARGET_VELOCITY_MIN_SPAN_S = 0.2  # fewer views than this span: no estimate (zero)
-TARGET_MAX_SPEED_M_S = 0.3  # a faster estimate is a glitch, not the object
-PREDICTION_HORIZON_S = 1.0  # a hidden target is carried along its velocity this long at most
+STILL_SPEED_M_S = 0.002  # a target believed slower than this counts as still (convergence)
 
 
-@dataclass
-class TargetMotion:
-    """The target's recent full views (sim time, 3-D corners in the camera frame): how fast it
-    moves, and where it is while the hand hides it. Times are passed in (sim time)."""
-
-    views: deque[tuple[float, FloatArray]] = field(default_factory=deque)
-
-    def add(self, t_s: float, points_m: FloatArray) -> None:
-        self.views.append((t_s, np.asarray(points_m, dtype=float)))
-        while self.views and self.views[0][0] < t_s - TARGET_VELOCITY_WINDOW_S:
-            self.views.popleft()
-
-    def velocity_m_s(self, t_s: float) -> FloatArray:
-        """Velocity (m/s, camera frame) believed at ``t_s``: the least-squares slope of the
-        corners' centroid over the window before the latest view, kept for at most
-        :data:`PREDICTION_HORIZON_S` after it (a target hidden longer may have stopped); zero
-        until the views span enough time."""
-        if not self.views or t_s - self.views[-1][0] > PREDICTION_HORIZON_S:
-            return np.zeros(3)
-        if self.views[-1][0] - self.views[0][0] < TARGET_VELOCITY_MIN_SPAN_S:
-            return np.zeros(3)
-        t = np.array([v[0] for v in self.views])
-        centres = np.array([v[1].mean(axis=0) for v in self.views])
-        dt = t - t.mean()
-        velocity = dt @ (centres - centres.mean(axis=0)) / float(dt @ dt)
-        speed = float(np.linalg.norm(velocity))
-        if speed > TARGET_MAX_SPEED_M_S:
-            velocity *= TARGET_MAX_SPEED_M_S / speed
-        return velocity
-
-    def predicted(
-        self, last: MarkerObservation, t_s: float, k: CameraIntrinsics
-    ) -> MarkerObservation:
-        """``last`` (its latest view) carried to ``t_s`` along the velocity believed then."""
-        if not self.views:
-            return last
-        horizon_s = min(max(t_s - self.views[-1][0], 0.0), PREDICTION_HORIZON_S)
-        shift = self.velocity_m_s(t_s) * horizon_s
-        if not np.any(shift):
-            return last
-        points = last.points_m + shift
-        return replace(
-            last, corners_px=project(points, k), depth_m=points[:, 2].copy(), points_m=points
-        )
+def carried(last: MarkerObservation, shift_m: FloatArray, k: CameraIntrinsics) -> MarkerObservation:
+    """``last`` moved by ``shift_m`` (camera frame): where a hidden target is by now."""
+    if not np.any(shift_m):
+        return last
+    points = last.points_m + shift_m
+    return replace(
+        last, corners_px=project(points, k), depth_m=points[:, 2].copy(), points_m=points
+    )
 
 
 def image_feature_rate(xy: FloatArray, depth_m: FloatArray, velocity_m_s: FloatArray) -> FloatArray:
@@ -322,7 +282,7 @@ class IbvsController:
     frames_below: int = 0
     last_target: MarkerObservation | None = None
     pairing: int | None = None  # hand corner i goes to target corner (i + pairing) % 4
-    motion: TargetMotion = field(default_factory=TargetMotion)
+    motion: MarkerMotion = field(default_factory=MarkerMotion)  # the target's
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
 
     def step(
@@ -338,13 +298,11 @@ class IbvsController:
         remembered = False
         if target.usable:
             self.last_target = target
-            self.motion.add(t_s, target.points_m)
-        elif (
-            target.occluded
-            and self.last_target is not None
-            and hand_hides_target(hand, self.last_target)
-        ):
-            target, remembered = self.motion.predicted(self.last_target, t_s, k), True
+            self.motion = self.motion.seen(t_s, target.points_m)
+        elif target.occluded and self.last_target is not None:
+            expected = carried(self.last_target, self.motion.shift_m(t_s), k)
+            if hand_hides_target(hand, expected):
+                target, remembered = expected, True
         if not (hand.visible and target.usable):
             self.frames_below = 0
             which = "hand" if not hand.visible else "target"
@@ -374,7 +332,11 @@ class IbvsController:
         twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
         twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
         err_px = feature_error_px_rms(hand.corners_px, target.corners_px)
-        self.frames_below = self.frames_below + 1 if err_px < self.config.converged_px else 0
+        # On a target believed to move the hand is tracking, not done (and an unseen target
+        # may have stopped: it must be seen again first).
+        still = float(np.linalg.norm(velocity)) < STILL_SPEED_M_S
+        below = err_px < self.config.converged_px and still
+        self.frames_below = self.frames_below + 1 if below else 0
         converged = self.frames_below >= self.config.converged_frames
         return ControlOutput(twist, True, err_px, converged, remembered)
 

@@ -93,6 +93,13 @@ class PlaneFit:
         rays = np.column_stack([np.asarray(xy, dtype=float), np.ones(len(xy))])
         return 1.0 / (rays @ self.coefficients)
 
+    def shifted(self, shift_m: FloatArray) -> PlaneFit:
+        """The same plane translated by ``shift_m`` (camera frame): ``n·P = d`` becomes
+        ``n·P = d + n·shift``, i.e. ``c' = c / (1 + c·shift)``; the covariance is kept."""
+        return PlaneFit(
+            self.coefficients / (1.0 + float(self.coefficients @ shift_m)), self.covariance
+        )
+
     def depth_sigmas_m(self, xy: FloatArray) -> FloatArray:
         """1-σ of the plane's depth along each ray: σ(1/Z)·Z², σ(1/Z)² = φᵀ·C·φ."""
         rays = np.column_stack([np.asarray(xy, dtype=float), np.ones(len(xy))])

@@ -92,6 +92,7 @@ class VisionService:
             self.config,
             self.marker_size_m,
             self.tracker,
+            frame.header.sim_time_s,
         )
         for name, m in measured.items():
             self.states[name], self.reasons[name] = m.state, m.reason

@@ -83,10 +83,11 @@ def hidden_behind(
 
     ``depth_m``, ``region`` (0/255), ``marker_depth_m`` and ``colour`` (0/255: pixels of the
     marker's colour) are crops of the same size. Something is in front where the depth is now
-    clearly closer than the marker's surface was. If
-    (nearly) all of the old place is covered, the marker is hidden; if part of it is
-    uncovered, a marker still lying there would show its colour in that part, so it is hidden
-    only if it does. False when nothing closer is there, or the depth cannot tell.
+    clearly closer than the marker's surface was. Where the old place is uncovered and still at
+    the marker's depth, a marker still lying there would show its colour: if it does not, the
+    marker is gone (taken away, covered up). Where it is uncovered but farther, the object has
+    slid away from there, and since the marker is seen nowhere, it is under what is in front.
+    False when nothing closer is there, or the depth cannot tell.
     """
     inside = (region > 0) & np.isfinite(depth_m) & (depth_m > 0)
     n_valid = int(np.count_nonzero(inside))
@@ -95,9 +96,9 @@ def hidden_behind(
     closer = inside & (depth_m < marker_depth_m - CLOSER_MARGIN_M)
     if np.count_nonzero(closer) <= OCCLUDED_FRACTION * n_valid:
         return False
-    uncovered = inside & ~closer
-    n_uncovered = int(np.count_nonzero(uncovered))
-    if n_uncovered < UNCOVERED_MIN_FRACTION * n_valid:
+    same = inside & ~closer & (depth_m <= marker_depth_m + CLOSER_MARGIN_M)
+    n_same = int(np.count_nonzero(same))
+    if n_same < UNCOVERED_MIN_FRACTION * n_valid:
         return True
-    shows_colour = np.count_nonzero(uncovered & (colour > 0)) / n_uncovered
+    shows_colour = np.count_nonzero(same & (colour > 0)) / n_same
     return shows_colour >= UNCOVERED_COLOUR_FRACTION

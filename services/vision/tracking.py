@@ -10,9 +10,11 @@ depth images the corners still come from colour, and the depths from that memory
   sides then do not come out at the marker's known size is taken as partly hidden;
 - the hand moves, so its corners keep the depths measured last (what the thesis did).
 
-A marker that is not visible is ``occluded`` when something is seen in front of where it was
-last: in the depth image when there is a fresh one, else when the hand's marker is over it
-(in eye-to-hand servoing the hand is what comes between the camera and the target).
+A marker that is not visible is ``occluded`` when something is seen in front of where it must
+be by now (its last view carried along its estimated motion): in the depth image when there is
+a fresh one, else when the hand's marker is over it (in eye-to-hand servoing the hand is what
+comes between the camera and the target). A partly hidden target is fitted from its visible
+edges (:mod:`services.vision.partial`) when they pin its pose down.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
+from common.camera import CameraIntrinsics, back_project, pixel_to_normalized, project
 from common.config import VisionConfig
+from common.motion import MarkerMotion
 from services.vision.features import (
     MARKERS,
     FloatArray,
@@ -74,14 +77,30 @@ class MarkerMemory:
     depth_sigmas_m: FloatArray
     plane: PlaneFit | None
 
+    def carried(self, shift_m: FloatArray, k: CameraIntrinsics) -> MarkerMemory:
+        """Where this view is by now if the marker slid by ``shift_m`` (camera frame)."""
+        if not np.any(shift_m):
+            return self
+        points = back_project(self.corners_px, self.depths_m, k) + shift_m
+        plane = None if self.plane is None else self.plane.shifted(shift_m)
+        return MarkerMemory(project(points, k), points[:, 2].copy(), self.depth_sigmas_m, plane)
+
 
 @dataclass(frozen=True)
 class TrackerState:
     """What one frame leaves for the next: the last visible corners of each marker (to keep
-    their order) and its last view with depth."""
+    their order), its last view with depth, and how it has been moving."""
 
     previous_corners: dict[str, FloatArray] = field(default_factory=dict)
     memory: dict[str, MarkerMemory] = field(default_factory=dict)
+    motion: dict[str, MarkerMotion] = field(default_factory=dict)
+
+    def expected(self, name: str, t_s: float, k: CameraIntrinsics) -> MarkerMemory | None:
+        """The marker's last view with depth, carried along its motion to ``t_s``."""
+        memory = self.memory.get(name)
+        if memory is None:
+            return None
+        return memory.carried(self.motion.get(name, MarkerMotion()).shift_m(t_s), k)
 
 
 def hand_over(hand_corners_px: FloatArray | None, target_corners_px: FloatArray) -> bool:
@@ -243,15 +262,16 @@ def observe(
     cfg: VisionConfig,
     marker_size_m: float,
     state: TrackerState,
+    t_s: float = 0.0,
 ) -> tuple[dict[str, MarkerMeasurement], TrackerState]:
-    """Both markers in one colour frame, with the newest depth image (None: none yet), and
-    the state for the next frame."""
+    """Both markers in one colour frame taken at sim time ``t_s``, with the newest depth image
+    (None: none yet), and the state for the next frame."""
     quads = find_marker_quads(rgb, cfg, state.previous_corners)
     fresh = depth is not None and depth.age_s == 0.0
     usable = depth is not None and depth.age_s <= cfg.max_depth_age_s
     measured: dict[str, MarkerMeasurement] = {}
     for name, quad in quads.items():
-        memory = state.memory.get(name)
+        memory = state.expected(name, t_s, k)
         if fresh:
             assert depth is not None
             m = measure_quad(quad, depth.depth_m, k, cfg, depth.intrinsics)
@@ -271,24 +291,26 @@ def observe(
             m = _held(name, quad, memory, k, marker_size_m)
         measured[name] = m
     if not fresh:  # no depth to tell: the hand over the target's last place is what hides it
-        target, last = measured["target"], state.memory.get("target")
+        target, last = measured["target"], state.expected("target", t_s, k)
         if (
             not target.visible
             and last is not None
             and hand_over(quads["hand"].corners_px, last.corners_px)
         ):
             measured["target"] = not_visible(target.reason, target.area_px, occluded=True)
-    return measured, _next_state(state, measured, fresh)
+    return measured, _next_state(state, measured, fresh, t_s)
 
 
 def _next_state(
-    state: TrackerState, measured: dict[str, MarkerMeasurement], fresh: bool
+    state: TrackerState, measured: dict[str, MarkerMeasurement], fresh: bool, t_s: float
 ) -> TrackerState:
     previous = dict(state.previous_corners)
     memory = dict(state.memory)
+    motion = dict(state.motion)
     for name, m in measured.items():
         if m.visible:
             previous[name] = m.corners_px
-        if m.usable and fresh:  # a fitted view keeps the plane it was fitted on
+        if m.usable and fresh:  # measured with depth (a fitted view keeps its plane)
             memory[name] = MarkerMemory(m.corners_px, m.depths_m, m.depth_sigmas_m, m.plane)
-    return TrackerState(previous, memory)
+            motion[name] = motion.get(name, MarkerMotion()).seen(t_s, m.points_m)
+    return TrackerState(previous, memory, motion)

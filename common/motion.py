@@ -1,0 +1,62 @@
+"""How a marker has been moving: its recent views, its velocity, where it is while unseen.
+
+Pure and immutable (each view gives a new :class:`MarkerMotion`). Vision uses it to look for
+a hidden target where it must be by now; the controller to feed the target's motion forward
+and to follow a target the hand hides.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+VELOCITY_WINDOW_S = 0.5  # the velocity is the slope of the corners' centroid over this window
+MIN_SPAN_S = 0.2  # views spanning less time: no estimate (zero)
+MAX_SPEED_M_S = 0.3  # a faster estimate is a glitch, not the object
+# An unseen marker is carried along its velocity this long at most. The hand follows the
+# prediction; if the object stopped, the hand moves on past it, uncovers it and sees it again.
+PREDICTION_HORIZON_S = 5.0
+
+
+@dataclass(frozen=True)
+class MarkerMotion:
+    """Recent views (sim time in s, the 4 corners' 3-D points in the camera frame in m)."""
+
+    views: tuple[tuple[float, FloatArray], ...] = ()
+
+    def seen(self, t_s: float, points_m: FloatArray) -> MarkerMotion:
+        """With one more view; views older than the window before it are dropped."""
+        kept = tuple(v for v in self.views if v[0] >= t_s - VELOCITY_WINDOW_S and v[0] < t_s)
+        return MarkerMotion((*kept, (t_s, np.asarray(points_m, dtype=float))))
+
+    @property
+    def last_seen_s(self) -> float | None:
+        return self.views[-1][0] if self.views else None
+
+    def velocity_m_s(self, t_s: float) -> FloatArray:
+        """Velocity believed at ``t_s``: the least-squares slope of the corners' centroid over
+        the window before the latest view, kept for at most :data:`PREDICTION_HORIZON_S` after
+        it; zero until the views span :data:`MIN_SPAN_S`."""
+        if not self.views or t_s - self.views[-1][0] > PREDICTION_HORIZON_S:
+            return np.zeros(3)
+        if self.views[-1][0] - self.views[0][0] < MIN_SPAN_S:
+            return np.zeros(3)
+        t = np.array([v[0] for v in self.views])
+        centres = np.array([v[1].mean(axis=0) for v in self.views])
+        dt = t - t.mean()
+        velocity = dt @ (centres - centres.mean(axis=0)) / float(dt @ dt)
+        speed = float(np.linalg.norm(velocity))
+        if speed > MAX_SPEED_M_S:
+            velocity = velocity * (MAX_SPEED_M_S / speed)
+        return velocity
+
+    def shift_m(self, t_s: float) -> FloatArray:
+        """How far the marker has moved since its latest view, if it kept its velocity."""
+        if not self.views:
+            return np.zeros(3)
+        elapsed_s = min(max(t_s - self.views[-1][0], 0.0), PREDICTION_HORIZON_S)
+        return self.velocity_m_s(t_s) * elapsed_s
