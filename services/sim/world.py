@@ -99,9 +99,10 @@ def quaternion_from_rotation(rot: FloatArray) -> list[float]:
 class MarkerView:
     """What the camera sees of a marker (ground truth, for evaluation): the fraction of its
     square showing the marker itself (0 outside the image or hidden, 1 wholly in view), and
-    whether another part of the robot touches its outline (within a few pixels: a depth
-    camera's invalid band along edges and its lateral noise hide whether it overlaps), where a
-    measurement may fairly refuse it."""
+    whether another part of the robot or the image border touches its outline (within a few
+    pixels: a depth camera's invalid band along edges and its lateral noise hide whether it
+    overlaps; a blob at the border may go on beyond it), where a measurement may fairly refuse
+    it."""
 
     fraction: float
     touched: bool
@@ -410,8 +411,9 @@ class World:
         for name, quad in corners.items():
             inside, total = _square_pixels(quad, -1.5, seg.shape)  # its edge pixels aside
             seen = np.count_nonzero(seg[inside] == own[name])
-            around, _ = _square_pixels(quad, touch_px, seg.shape)
+            around, around_total = _square_pixels(quad, touch_px, seg.shape)
             touched = np.count_nonzero(robot[around] & (seg[around] != own[name])) > 0
+            touched |= np.count_nonzero(around) < around_total  # at the image border
             out[name] = MarkerView(seen / total if total else 0.0, bool(touched))
         return out
 
