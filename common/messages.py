@@ -48,6 +48,14 @@ class Header(Message):
         ge=0.0, le=1e11, description="wall-clock time at publication (Unix s)"
     )
     frame_seq: int = Field(-1, ge=-1, description="camera frame this message derives from")
+    recv_time_s: float = Field(
+        0.0,
+        ge=0.0,
+        le=1e11,
+        description="wall-clock time (Unix s) at which the publisher received the input that "
+        "completed this message's inputs (0: none, e.g. a camera frame); with send_time_s it "
+        "splits latency into transport and processing per hop",
+    )
 
 
 class ImageData(Message):
@@ -203,6 +211,33 @@ class SimTruth(Message):
     joint_position_rad: Joints
 
 
+class AppliedCommand(Message):
+    """When the sim received one joint command and when its motors started following it."""
+
+    frame_seq: int = Field(ge=-1, description="the command's header.frame_seq")
+    send_time_s: float = Field(ge=0.0, le=1e11, description="the command's header.send_time_s")
+    recv_time_s: float = Field(ge=0.0, le=1e11, description="wall clock, Unix s")
+    applied_time_s: float = Field(ge=0.0, le=1e11, description="wall clock, Unix s")
+
+
+class SimTiming(Message):
+    """The sim's own timing of camera frame ``header.frame_seq`` (published after the frame),
+    and the joint commands it applied since the previous one: with the other services' headers
+    this gives every stage of the loop, frame captured → command applied (``umay bench``).
+
+    Wall-clock times are Unix seconds. ``capture_time_s``: the images exist (render and sensor
+    model done); ``frame_send_time_s``: the colour frame's ``header.send_time_s``."""
+
+    header: Header
+    render_start_s: float = Field(ge=0.0, le=1e11)
+    capture_time_s: float = Field(ge=0.0, le=1e11)
+    frame_send_time_s: float = Field(ge=0.0, le=1e11)
+    with_depth: bool
+    dropped_frames: int = Field(0, ge=0, description="camera ticks missed so far (realtime)")
+    resends: int = Field(0, ge=0, description="lockstep re-publications so far")
+    applied: Annotated[list[AppliedCommand], Field(max_length=64)] = []
+
+
 class TopicStats(Message):
     """Traffic on one key as seen by one service."""
 
@@ -210,6 +245,7 @@ class TopicStats(Message):
     rate_hz: float = Field(ge=0.0, description="over the last few seconds")
     age_s: float | None = Field(None, description="since the last message; None: never")
     dropped: int = Field(0, ge=0, description="replaced by a newer one before being processed")
+    shm: int = Field(0, ge=0, description="of count, delivered through Zenoh shared memory")
 
 
 class ServiceStatus(Message):

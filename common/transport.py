@@ -32,6 +32,9 @@ M = TypeVar("M", bound=BaseModel)
 
 ENV_CONFIG = "UMAY_ZENOH_CONFIG"  # path of a Zenoh JSON5 config file: used as is
 ENV_CONNECT = "UMAY_ZENOH_CONNECT"  # comma-separated endpoints to connect to
+# "0": no shared memory, so payloads take the network path even between processes on one host
+# (what a peer on another host gets); benchmarks compare both. Applies to config files too.
+ENV_SHM = "UMAY_ZENOH_SHM"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # where `umay up` listens and tools connect
 
 log = logging.getLogger("umay")
@@ -53,7 +56,21 @@ def zenoh_config(
     Peers find each other through gossip over the first connection. With a config file, an
     explicit ``connect`` (argument or environment) replaces the file's endpoints, so one file
     (say a client's credentials) serves wherever the router happens to be.
+
+    Zenoh's shared memory is on by default: between processes on one host, payloads above
+    3 KB (camera frames) go through a shared pool instead of the socket, and a peer that
+    cannot map it (another host) gets them over the network. ``$UMAY_ZENOH_SHM=0`` turns it
+    off.
     """
+    cfg = _base_config(config_path, connect, listen)
+    if os.environ.get(ENV_SHM, "").strip() == "0":
+        cfg.insert_json5("transport/shared_memory/enabled", "false")
+    return cfg
+
+
+def _base_config(
+    config_path: str | None, connect: list[str] | None, listen: list[str] | None
+) -> zenoh.Config:
     if connect is None:
         env = os.environ.get(ENV_CONNECT, "")
         connect = [e for e in env.split(",") if e] or None
@@ -125,7 +142,11 @@ class Node:
         self._started = time.monotonic()
         self._seq = 0
         self._cond = threading.Condition()
-        self._inbox: deque[tuple[str, BaseModel]] = deque()
+        # (key, message, wall-clock receive time): the time goes into the headers of what
+        # handling the message publishes (Header.recv_time_s), for per-hop latency.
+        self._inbox: deque[tuple[str, BaseModel, float]] = deque()
+        self.event_recv_time_s = 0.0  # receive time of the event next_event returned last
+        self._handling_recv_time_s = 0.0  # ... while spin() handles it, else 0
         self._latest_only: set[str] = set()
         self._publishers: dict[str, TypedPublisher[Any]] = {}
         self._subscribers: list[Any] = []
@@ -150,10 +171,16 @@ class Node:
         self._publishers[key] = pub
         return pub
 
-    def header(self, sim_time_s: float, frame_seq: int) -> Header:
-        """A fresh header: per-node sequence number, wall-clock send time."""
+    def header(self, sim_time_s: float, frame_seq: int, recv_time_s: float | None = None) -> Header:
+        """A fresh header: per-node sequence number, wall-clock send time, and the receive time
+        of the event being handled by :meth:`spin` (0 outside one) unless ``recv_time_s``."""
+        recv = self._handling_recv_time_s if recv_time_s is None else recv_time_s
         h = Header(
-            seq=self._seq, sim_time_s=sim_time_s, send_time_s=time.time(), frame_seq=frame_seq
+            seq=self._seq,
+            sim_time_s=sim_time_s,
+            send_time_s=time.time(),
+            frame_seq=frame_seq,
+            recv_time_s=recv,
         )
         self._seq += 1
         return h
@@ -176,20 +203,24 @@ class Node:
             self._latest_only.add(key)
 
         def on_sample(sample: zenoh.Sample) -> None:
+            received = time.time()  # before the copy and decode: those count as processing
+            payload = sample.payload
+            via_shm = payload.as_shm() is not None  # 0.2 µs; diagnostics (status, umay bench)
             try:
-                message = decode(sample.payload.to_bytes(), model, max_bytes)
+                message = decode(payload.to_bytes(), model, max_bytes)
             except MessageError as exc:
                 self._reject(key, str(exc))
                 return
             with self._cond:
                 meter.tick()
+                meter.shm += via_shm
                 if key in self._latest_only:
-                    for i, (k, _) in enumerate(self._inbox):
+                    for i, (k, _, _) in enumerate(self._inbox):
                         if k == key:
                             del self._inbox[i]
                             meter.dropped += 1
                             break
-                self._inbox.append((key, message))
+                self._inbox.append((key, message, received))
                 self._cond.notify()
 
         self._subscribers.append(self.session.declare_subscriber(key, on_sample))
@@ -203,7 +234,10 @@ class Node:
                 if remaining is not None and remaining <= 0:
                     return None
                 self._cond.wait(remaining)
-            return self._inbox.popleft() if self._inbox else None
+            if not self._inbox:
+                return None
+            key, message, self.event_recv_time_s = self._inbox.popleft()
+            return key, message
 
     def _reject(self, key: str, reason: str) -> None:
         with self._cond:
@@ -260,7 +294,11 @@ class Node:
                 event = self.next_event(timeout_s)
                 if event is not None:
                     started = time.perf_counter()
-                    on_event(*event)
+                    self._handling_recv_time_s = self.event_recv_time_s
+                    try:
+                        on_event(*event)
+                    finally:
+                        self._handling_recv_time_s = 0.0
                     self.processing.add(1000.0 * (time.perf_counter() - started))
                 if on_idle is not None:
                     on_idle()

@@ -54,7 +54,8 @@ from deploy.recording import iter_messages, read_metadata, split_data_key, topic
 from deploy.supervisor import Supervisor
 
 JOINT_STATE = "sim/joint_state"
-IGNORED_FIELDS = frozenset({"header.seq", "header.send_time_s"})
+# Wall-clock stamps and counters differ from run to run by nature.
+IGNORED_FIELDS = frozenset({"header.seq", "header.send_time_s", "header.recv_time_s"})
 
 
 @dataclass(frozen=True)

@@ -27,11 +27,13 @@ from common import kinematics as kin
 from common.config import ClockMode
 from common.keys import SERVICES
 from common.messages import (
+    AppliedCommand,
     DepthFrame,
     ImageData,
     JointState,
     JointVelocityCommand,
     RgbFrame,
+    SimTiming,
     SimTruth,
 )
 from common.runtime import ServiceContext
@@ -64,6 +66,9 @@ class SimService:
         self.pub_depth = self.node.publisher(keys.depth)
         self.pub_joints = self.node.publisher(keys.joint_state)
         self.pub_truth = self.node.publisher(keys.truth)
+        self.pub_timing = self.node.publisher(keys.timing)
+        self.applied: list[AppliedCommand] = []  # since the last SimTiming
+        self.resends = 0
         self.node.subscribe(keys.joint_command, JointVelocityCommand)
         self.last_command = np.zeros(kin.N_JOINTS)
         self.last_command_s: float | None = None  # wall clock (monotonic)
@@ -95,9 +100,11 @@ class SimService:
         self.world.update_scene()
         q, qdot = self.world.joint_state()
         with_depth = t + TIME_EPSILON_S >= self.next_depth_s
+        render_start_s = time.time()
         started = time.perf_counter()
         rgb, depth_m = self.world.render(with_depth)
         self.render_ms = 1000.0 * (time.perf_counter() - started)
+        capture_time_s = time.time()
         truth = self.world.truth()
         header = self.node.header(t, seq)
         # Joint state first, so a consumer has it when the frame's features arrive.
@@ -134,11 +141,12 @@ class SimService:
                     ),
                 )
             )
+        rgb_header = self.node.header(t, seq)
         messages.append(
             (
                 self.pub_rgb,
                 RgbFrame(
-                    header=self.node.header(t, seq),
+                    header=rgb_header,
                     intrinsics=self.world.intrinsics,
                     rgb=ImageData.from_array(rgb),
                     depth_frame_seq=self.depth_frame_seq,
@@ -148,14 +156,30 @@ class SimService:
         for publisher, message in messages:
             publisher.put(message)
         self._last_frame = messages
+        # After the frame, off its path: how it was made and the commands applied before it.
+        self.pub_timing.put(
+            SimTiming(
+                header=self.node.header(t, seq),
+                render_start_s=render_start_s,
+                capture_time_s=capture_time_s,
+                frame_send_time_s=rgb_header.send_time_s,
+                with_depth=depth_m is not None,
+                dropped_frames=self.dropped_frames,
+                resends=self.resends,
+                applied=self.applied[-64:],
+            )
+        )
+        self.applied = []
         self.node.processing.add(1000.0 * (time.perf_counter() - started_publish))
 
     def republish_frame(self) -> None:
         """The last frame's messages again, unchanged (a lockstep resend)."""
+        self.resends += 1
         for publisher, message in self._last_frame:
             publisher.put(message)
 
-    def apply(self, command: JointVelocityCommand) -> None:
+    def apply(self, command: JointVelocityCommand, recv_time_s: float) -> None:
+        """``recv_time_s``: when the command arrived (wall clock), for :class:`SimTiming`."""
         # The motors' own limit, whatever the command says.
         limit = kin.JOINT_VELOCITY_LIMIT_RAD_S
         wanted = np.array(command.velocity_rad_s)
@@ -163,6 +187,14 @@ class SimService:
         self.last_command = np.clip(wanted, -limit, limit)
         self.last_command_s = time.monotonic()
         self.world.set_joint_velocities(self.last_command)
+        self.applied.append(
+            AppliedCommand(
+                frame_seq=command.header.frame_seq,
+                send_time_s=command.header.send_time_s,
+                recv_time_s=recv_time_s,
+                applied_time_s=time.time(),
+            )
+        )
 
     def check_watchdog(self) -> None:
         """Second line of defence behind the actuation deadman: no command, no motion."""
@@ -197,7 +229,7 @@ class SimService:
             while not self.ctx.stop.is_set():
                 event = self.node.next_event(0.05)
                 if event is not None and event[1].header.frame_seq == self.frame_seq:
-                    self.apply(event[1])
+                    self.apply(event[1], self.node.event_recv_time_s)
                     break
                 if time.monotonic() - sent > resend_s:
                     log.info("no command for frame %d yet; publishing it again", self.frame_seq)
@@ -214,7 +246,7 @@ class SimService:
         while not self.ctx.stop.is_set():
             event = self.node.next_event(0.0)
             while event is not None:  # apply the newest command
-                self.apply(event[1])
+                self.apply(event[1], self.node.event_recv_time_s)
                 event = self.node.next_event(0.0)
             self.check_watchdog()
             wall_s = time.monotonic() - started
