@@ -58,26 +58,60 @@ class Header(Message):
     )
 
 
-class ImageData(Message):
-    """A raw image: C-contiguous ``data`` of ``shape`` and ``dtype``."""
+class ImageSpec(Message):
+    """Shape and dtype of a raw C-contiguous image (what a frame's header says of its pixels)."""
 
     shape: Annotated[list[int], Field(min_length=2, max_length=3)]
     dtype: Literal["uint8", "float32"]
+
+    @model_validator(mode="after")
+    def _shape_in_range(self) -> ImageSpec:
+        if any(d <= 0 or d > 8192 for d in self.shape):
+            raise ValueError(f"image shape {self.shape} out of range (1..8192 per axis)")
+        return self
+
+    @property
+    def nbytes(self) -> int:
+        return int(np.prod(self.shape)) * np.dtype(self.dtype).itemsize
+
+
+class ImageData(ImageSpec):
+    """A raw image: C-contiguous ``data`` of ``shape`` and ``dtype``.
+
+    ``data`` is ``bytes`` when validated from a payload by pydantic, or a read-only
+    ``memoryview`` (no copy) when made by :meth:`view_of` or decoded by :mod:`common.codec`
+    from the frame layout (a view into the received payload)."""
+
     data: bytes
 
     @model_validator(mode="after")
     def _size_matches_shape(self) -> ImageData:
-        if any(d <= 0 or d > 8192 for d in self.shape):
-            raise ValueError(f"image shape {self.shape} out of range (1..8192 per axis)")
-        expected = int(np.prod(self.shape)) * np.dtype(self.dtype).itemsize
-        if len(self.data) != expected:
-            raise ValueError(f"image data has {len(self.data)} bytes, shape needs {expected}")
+        if len(self.data) != self.nbytes:
+            raise ValueError(f"image data has {len(self.data)} bytes, shape needs {self.nbytes}")
         return self
 
     @classmethod
     def from_array(cls, array: np.ndarray) -> ImageData:
+        """A copy of ``array``'s pixels (validated like a received image)."""
         a = np.ascontiguousarray(array)
         return cls(shape=list(a.shape), dtype=str(a.dtype), data=a.tobytes())
+
+    @classmethod
+    def view_of(cls, array: np.ndarray) -> ImageData:
+        """``array``'s pixels without a copy (checked as :meth:`from_array` would check
+        them): ``array`` must not change while the message is in use."""
+        a = np.ascontiguousarray(array)
+        spec = ImageSpec(shape=list(a.shape), dtype=str(a.dtype))  # type: ignore[arg-type]
+        view = memoryview(a).cast("B").toreadonly()
+        return cls.from_view(spec, view)
+
+    @classmethod
+    def from_view(cls, spec: ImageSpec, data: memoryview) -> ImageData:
+        """An image of a validated ``spec`` over ``data`` (no copy); raises ValueError when the
+        sizes differ."""
+        if len(data) != spec.nbytes:
+            raise ValueError(f"image data has {len(data)} bytes, shape needs {spec.nbytes}")
+        return cls.model_construct(shape=list(spec.shape), dtype=spec.dtype, data=data)
 
     def to_array(self) -> np.ndarray:
         """Read-only view on the bytes (no copy)."""

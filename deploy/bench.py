@@ -574,15 +574,13 @@ def run_inprocess(
                         DepthFrame(
                             header=header,
                             intrinsics=world.depth_intrinsics,
-                            depth_m=ImageData.from_array(depth_m),
+                            depth_m=ImageData.view_of(depth_m),
                         )
                     )
                 )
             frame_payloads.append(
                 encode(
-                    RgbFrame(
-                        header=header, intrinsics=world.intrinsics, rgb=ImageData.from_array(rgb)
-                    )
+                    RgbFrame(header=header, intrinsics=world.intrinsics, rgb=ImageData.view_of(rgb))
                 )
             )
             decoded_rgb = decode(frame_payloads[-1], RgbFrame, FRAME_MAX_BYTES)
@@ -670,7 +668,7 @@ def frame_messages(
                     DepthFrame(
                         header=header,
                         intrinsics=cam.depth_intrinsics(),
-                        depth_m=ImageData.from_array(frame.depth_m),
+                        depth_m=ImageData.view_of(frame.depth_m),
                     )
                 ),
                 header,
@@ -680,7 +678,7 @@ def frame_messages(
     rgb = RgbFrame(
         header=header,
         intrinsics=cam.intrinsics(),
-        rgb=ImageData.from_array(frame.rgb),
+        rgb=ImageData.view_of(frame.rgb),
         depth_frame_seq=depth_seq,
     )
     out.append(("rgb", encode(rgb), header))

@@ -46,6 +46,7 @@ import msgpack
 import zenoh
 from pydantic import BaseModel
 
+from common.codec import unpack
 from common.config import DEFAULT_SCENARIO, ScenarioError, load_scenario
 from common.keys import Keys
 from common.runtime import parse_overrides
@@ -130,7 +131,7 @@ class Recorded:
 
 def frame_seq_of(payload: bytes) -> int | None:
     try:
-        return int(msgpack.unpackb(payload, raw=False)["header"]["frame_seq"])
+        return int(unpack(payload)["header"]["frame_seq"])  # type: ignore[index]
     except Exception:  # not a message with a header
         return None
 

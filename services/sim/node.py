@@ -105,26 +105,15 @@ class SimService:
         rgb, depth_m = self.world.render(with_depth)
         self.render_ms = 1000.0 * (time.perf_counter() - started)
         capture_time_s = time.time()
-        truth = self.world.truth()
         header = self.node.header(t, seq)
-        # Joint state first, so a consumer has it when the frame's features arrive.
+        # Joint state first, so a consumer has it when the frame's features arrive; then the
+        # images, without copying their pixels before the codec's one copy (ImageData.view_of:
+        # render() gives fresh arrays every frame, never changed afterwards).
         messages: list[tuple[TypedPublisher, object]] = [
             (
                 self.pub_joints,
                 JointState(header=header, position_rad=q.tolist(), velocity_rad_s=qdot.tolist()),
-            ),
-            (
-                self.pub_truth,
-                SimTruth(
-                    header=header,
-                    hand_marker_pose=truth.hand_marker_pose.reshape(-1).tolist(),
-                    target_marker_pose=truth.target_marker_pose.reshape(-1).tolist(),
-                    hand_corners_px=truth.hand_corners_px.tolist(),
-                    target_corners_px=truth.target_corners_px.tolist(),
-                    ee_position_m=truth.ee_position_m.tolist(),
-                    joint_position_rad=q.tolist(),
-                ),
-            ),
+            )
         ]
         if depth_m is not None:
             while self.next_depth_s <= t + TIME_EPSILON_S:  # keep the schedule, do not drift
@@ -137,24 +126,34 @@ class SimService:
                     DepthFrame(
                         header=self.node.header(t, seq),
                         intrinsics=self.world.depth_intrinsics,
-                        depth_m=ImageData.from_array(depth_m),
+                        depth_m=ImageData.view_of(depth_m),
                     ),
                 )
             )
-        rgb_header = self.node.header(t, seq)
-        messages.append(
-            (
-                self.pub_rgb,
-                RgbFrame(
-                    header=rgb_header,
-                    intrinsics=self.world.intrinsics,
-                    rgb=ImageData.from_array(rgb),
-                    depth_frame_seq=self.depth_frame_seq,
-                ),
-            )
-        )
         for publisher, message in messages:
             publisher.put(message)
+        rgb_header = self.node.header(t, seq)
+        rgb_message = RgbFrame(
+            header=rgb_header,
+            intrinsics=self.world.intrinsics,
+            rgb=ImageData.view_of(rgb),
+            depth_frame_seq=self.depth_frame_seq,
+        )
+        self.pub_rgb.put(rgb_message)
+        messages.append((self.pub_rgb, rgb_message))
+        # Ground truth (evaluation only) after the frame, off the loop's critical path.
+        truth = self.world.truth()
+        truth_message = SimTruth(
+            header=header,
+            hand_marker_pose=truth.hand_marker_pose.reshape(-1).tolist(),
+            target_marker_pose=truth.target_marker_pose.reshape(-1).tolist(),
+            hand_corners_px=truth.hand_corners_px.tolist(),
+            target_corners_px=truth.target_corners_px.tolist(),
+            ee_position_m=truth.ee_position_m.tolist(),
+            joint_position_rad=q.tolist(),
+        )
+        self.pub_truth.put(truth_message)
+        messages.append((self.pub_truth, truth_message))
         self._last_frame = messages
         # After the frame, off its path: how it was made and the commands applied before it.
         self.pub_timing.put(
