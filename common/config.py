@@ -252,6 +252,15 @@ class SimConfig(_Strict):
     lockstep_resend_s: float = Field(
         1.0, gt=0.0, description="re-publish a frame whose command has not come back (wall s)"
     )
+    realtime_command_wait_s: float = Field(
+        0.1,
+        ge=0.0,
+        le=1.0,
+        description="realtime: after a frame, physics runs on but the next render waits this "
+        "long at most (wall s) for that frame's joint command; a render holds the interpreter, "
+        "so a command arriving during one would be applied only after it (0: render back to "
+        "back)",
+    )
 
 
 class RestartPolicy(StrEnum):
