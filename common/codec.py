@@ -58,22 +58,24 @@ def _aligned(n: int) -> int:
 
 
 def encode(message: BaseModel) -> bytes:
-    field = image_field(type(message))
-    if field is None:
+    if image_field(type(message)) is None:
         return msgpack.packb(message.model_dump(mode="python"), use_bin_type=True)
     # One copy of the pixels (the join); ImageData.view_of means none before it.
+    return b"".join(frame_parts(message))
+
+
+def frame_parts(message: BaseModel) -> tuple[bytes, memoryview]:
+    """A camera frame's payload in two pieces, to be written one after the other: prefix,
+    header map and padding; then the pixels (a view, not a copy)."""
+    field = image_field(type(message))
+    if field is None:
+        raise TypeError(f"{type(message).__name__} is not a camera frame")
     head = msgpack.packb(
         message.model_dump(mode="python", exclude={field: {"data"}}), use_bin_type=True
     )
     used = FRAME_PREFIX.size + len(head)
-    return b"".join(
-        (
-            FRAME_PREFIX.pack(FRAME_MAGIC, FRAME_VERSION, len(head)),
-            head,
-            bytes(_aligned(used) - used),
-            getattr(message, field).data,
-        )
-    )
+    prefix = FRAME_PREFIX.pack(FRAME_MAGIC, FRAME_VERSION, len(head))
+    return prefix + head + bytes(_aligned(used) - used), memoryview(getattr(message, field).data)
 
 
 def _validation_error(model: type[BaseModel], exc: ValidationError, prefix: str = "") -> str:

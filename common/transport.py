@@ -23,7 +23,14 @@ from typing import Any, Generic, TypeVar
 import zenoh
 from pydantic import BaseModel
 
-from common.codec import DEFAULT_MAX_BYTES, MessageError, decode, encode
+from common.codec import (
+    DEFAULT_MAX_BYTES,
+    MessageError,
+    decode,
+    encode,
+    frame_parts,
+    image_field,
+)
 from common.keys import Keys
 from common.messages import Header, ServiceStatus
 from common.metrics import DurationMeter, TopicMeter
@@ -63,7 +70,7 @@ def zenoh_config(
     off.
     """
     cfg = _base_config(config_path, connect, listen)
-    if os.environ.get(ENV_SHM, "").strip() == "0":
+    if not shm_enabled():
         cfg.insert_json5("transport/shared_memory/enabled", "false")
     return cfg
 
@@ -107,14 +114,65 @@ def free_tcp_endpoint() -> str:
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
+class ShmFrameWriter:
+    """Writes camera frames straight into a Zenoh shared-memory pool of this publisher's own.
+
+    Handing Zenoh ``bytes`` costs two fresh buffers of the frame's size per put (the encoded
+    payload, then Zenoh's own copy, before its shared-memory copy): at 640×480, 0.66 ms per
+    image against 0.07 ms here, where the frame is assembled in a buffer kept from frame to
+    frame and copied once into a pool chunk. Zenoh sends the chunk by reference to peers on
+    this host that map the pool, and its bytes over the network to the others (another host,
+    shared memory disabled); when the pool is full (subscribers still hold old frames) the
+    frame goes as an ordinary put. The pool holds :data:`POOL_FRAMES` frames of the first
+    frame's size (4 to 64 MiB)."""
+
+    POOL_FRAMES = 8
+
+    def __init__(self) -> None:
+        self._provider: Any = None
+        self._scratch = bytearray()
+        self.fallbacks = 0  # frames put without the pool (exhausted, or too large for it)
+
+    def payload(self, parts: tuple[bytes, memoryview]) -> Any:
+        """The frame as a pool chunk to put (or as a bytearray when the pool cannot take it)."""
+        import zenoh.shm as zshm
+
+        size = sum(len(p) for p in parts)
+        if len(self._scratch) != size:  # reallocated only when the frame size changes
+            self._scratch = bytearray(size)
+        view, offset = memoryview(self._scratch), 0
+        for part in parts:
+            view[offset : offset + len(part)] = part
+            offset += len(part)
+        if self._provider is None:
+            pool = min(max(self.POOL_FRAMES * size, 4 << 20), 64 << 20)
+            self._provider = zshm.ShmProvider.default_backend(pool)
+        try:
+            chunk = self._provider.alloc(size, policy=zshm.GarbageCollect())  # never blocks
+        except zenoh.ZError:
+            self.fallbacks += 1
+            return self._scratch
+        chunk[:] = self._scratch  # this wheel's chunks take only bytes/bytearray
+        return chunk
+
+
+def shm_enabled() -> bool:
+    """False when ``$UMAY_ZENOH_SHM=0`` turns Zenoh's shared memory off."""
+    return os.environ.get(ENV_SHM, "").strip() != "0"
+
+
 @dataclass
 class TypedPublisher(Generic[M]):
     key: str
     publisher: Any
     meter: TopicMeter = field(default_factory=TopicMeter)
+    frames: ShmFrameWriter | None = None  # camera frames through a pool of their own
 
     def put(self, message: M) -> None:
-        self.publisher.put(encode(message))
+        if self.frames is not None and image_field(type(message)) is not None:
+            self.publisher.put(self.frames.payload(frame_parts(message)))
+        else:
+            self.publisher.put(encode(message))
         self.meter.tick()
 
 
@@ -164,10 +222,15 @@ class Node:
         self._token = self.session.liveliness().declare_token(self.keys.alive(self.service))
 
     # --- publishing -------------------------------------------------------------------
-    def publisher(self, key: str, block: bool = True) -> TypedPublisher[Any]:
-        """``block``: back-pressure instead of dropping when the network is congested."""
+    def publisher(self, key: str, block: bool = True, frames: bool = False) -> TypedPublisher[Any]:
+        """``block``: back-pressure instead of dropping when the network is congested.
+        ``frames``: camera frames, written into a shared-memory pool (:class:`ShmFrameWriter`)
+        unless shared memory is off."""
         cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
-        pub = TypedPublisher(key, self.session.declare_publisher(key, congestion_control=cc))
+        writer = ShmFrameWriter() if frames and shm_enabled() else None
+        pub = TypedPublisher(
+            key, self.session.declare_publisher(key, congestion_control=cc), frames=writer
+        )
         self._publishers[key] = pub
         return pub
 

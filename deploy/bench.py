@@ -84,6 +84,8 @@ from common.messages import (
 )
 from common.transport import (
     ENV_SHM,
+    ShmFrameWriter,
+    TypedPublisher,
     alive_services,
     free_tcp_endpoint,
     open_session,
@@ -641,48 +643,43 @@ def run_inprocess(
 
 
 # --- the synthetic 30 Hz source ------------------------------------------------------------
-def frame_messages(
-    frame: SourceFrame, seq: int, scenario: Scenario, depth_seq: int
-) -> list[tuple[str, bytes, Header]]:
-    """The sim's messages for one frame, in its order: joint state, depth (if any), colour."""
+def publish_source_frame(
+    publishers: dict[str, TypedPublisher[Any]],
+    frame: SourceFrame,
+    seq: int,
+    scenario: Scenario,
+    depth_seq: int,
+) -> float:
+    """Publish one frame as the sim does (joint state, depth if any, colour; the images through
+    the same shared-memory writer); returns the colour frame's send time."""
     cam = scenario.camera
-    header = Header(seq=seq, sim_time_s=frame.sim_time_s, send_time_s=time.time(), frame_seq=seq)
-    out = [
-        (
-            "joint_state",
-            encode(
-                JointState(
-                    header=header,
-                    position_rad=frame.q_rad.tolist(),
-                    velocity_rad_s=frame.qdot_rad_s.tolist(),
-                )
-            ),
-            header,
+
+    def header() -> Header:
+        return Header(seq=seq, sim_time_s=frame.sim_time_s, send_time_s=time.time(), frame_seq=seq)
+
+    publishers["joint_state"].put(
+        JointState(
+            header=header(),
+            position_rad=frame.q_rad.tolist(),
+            velocity_rad_s=frame.qdot_rad_s.tolist(),
         )
-    ]
+    )
     if frame.depth_m is not None:
-        out.append(
-            (
-                "depth",
-                encode(
-                    DepthFrame(
-                        header=header,
-                        intrinsics=cam.depth_intrinsics(),
-                        depth_m=ImageData.view_of(frame.depth_m),
-                    )
-                ),
-                header,
+        publishers["depth"].put(
+            DepthFrame(
+                header=header(),
+                intrinsics=cam.depth_intrinsics(),
+                depth_m=ImageData.view_of(frame.depth_m),
             )
         )
-    header = header.model_copy(update={"send_time_s": time.time()})
     rgb = RgbFrame(
-        header=header,
+        header=header(),
         intrinsics=cam.intrinsics(),
         rgb=ImageData.view_of(frame.rgb),
         depth_frame_seq=depth_seq,
     )
-    out.append(("rgb", encode(rgb), header))
-    return out
+    publishers["rgb"].put(rgb)
+    return rgb.header.send_time_s
 
 
 def run_synthetic(
@@ -711,11 +708,17 @@ def run_synthetic(
         session.declare_subscriber(keys.twist, trace.on_twist),
         session.declare_subscriber(keys.joint_command, trace.on_command),
     ]
-    publishers = {
-        name: session.declare_publisher(
-            f"{keys.prefix}/sim/{name}", congestion_control=zenoh.CongestionControl.BLOCK
+    publishers: dict[str, TypedPublisher[Any]] = {
+        name: TypedPublisher(
+            key,
+            session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK),
+            frames=ShmFrameWriter() if shm and name != "joint_state" else None,
         )
-        for name in ("joint_state", "depth", "rgb")
+        for name, key in (
+            ("joint_state", keys.joint_state),
+            ("depth", keys.depth),
+            ("rgb", keys.rgb),
+        )
     }
     sup = Supervisor(
         scenario_path,
@@ -748,10 +751,7 @@ def run_synthetic(
             frame = source[seq % len(source)]
             if frame.depth_m is not None:
                 depth_seq = seq
-            for name, payload, header in frame_messages(frame, seq, scenario, depth_seq):
-                publishers[name].put(payload)
-                if name == "rgb":
-                    rgb_sent[seq] = header.send_time_s
+            rgb_sent[seq] = publish_source_frame(publishers, frame, seq, scenario, depth_seq)
         wall_s = time.monotonic() - started
         deadline = time.monotonic() + 3.0
         while time.monotonic() < deadline:
@@ -767,7 +767,7 @@ def run_synthetic(
         for s in subs:
             s.undeclare()
         for p in publishers.values():
-            p.undeclare()
+            p.publisher.undeclare()
         session.close()
         if not shm:
             os.environ.pop(ENV_SHM, None)

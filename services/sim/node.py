@@ -63,8 +63,8 @@ class SimService:
         self.started_s = time.monotonic()
         self.node = Node("sim", ctx.keys, ctx.session, self.status_fields)
         keys = ctx.keys
-        self.pub_rgb = self.node.publisher(keys.rgb)
-        self.pub_depth = self.node.publisher(keys.depth)
+        self.pub_rgb = self.node.publisher(keys.rgb, frames=True)
+        self.pub_depth = self.node.publisher(keys.depth, frames=True)
         self.pub_joints = self.node.publisher(keys.joint_state)
         self.pub_truth = self.node.publisher(keys.truth)
         self.pub_timing = self.node.publisher(keys.timing)
