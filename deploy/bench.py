@@ -883,7 +883,7 @@ def run_bench(
             "rgb_hz": cam.rgb_hz,
             "depth_hz": cam.depth_rate_hz,
             "clock": scenario.run.clock.value,
-            "renderer": getattr(scenario.sim, "renderer", "tiny"),
+            "renderer": scenario.sim.renderer,
             "transport": "shm" if shm else "tcp",
             "frames": frames,
             "warmup": warmup,
