@@ -901,6 +901,33 @@ def run_bench(
     }
 
 
+def median_of_runs(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """One result whose every number is the median of that number over ``runs`` (same
+    structure; anything else is taken from the first run), plus ``runs`` (how many) and, since
+    one drop matters, ``dropped_max``: the largest count per stage over the runs."""
+
+    def merge(values: list[Any]) -> Any:
+        first = values[0]
+        if isinstance(first, bool) or first is None:
+            return first
+        if isinstance(first, int | float):
+            numbers = [v for v in values if isinstance(v, int | float)]
+            m = float(np.median(numbers))
+            return round(m, 4) if isinstance(first, float) or m != int(m) else int(m)
+        if isinstance(first, dict):
+            return {k: merge([v.get(k) for v in values if isinstance(v, dict)]) for k in first}
+        return first
+
+    out = merge(runs)
+    out["runs"] = len(runs)
+    out["dropped_max"] = {
+        part: {k: max(r[part]["dropped"][k] for r in runs) for k in runs[0][part]["dropped"]}
+        for part in ("distributed", "synthetic")
+        if runs[0].get(part)
+    }
+    return out
+
+
 def _zenoh_version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -961,6 +988,15 @@ def format_report(r: dict[str, Any]) -> str:
         lines.append(
             f"{name:<11} {_f(u['window_cpu_s'], '.2f'):>7} {_f(u['cpu_ms_per_frame'], '.1f'):>13}"
             f" {_f(u['peak_rss_mb'], '.1f'):>13}"
+        )
+    if r.get("runs", 1) > 1:
+        lines[0] += f"; medians of {r['runs']} runs"
+        lines.append(
+            "largest drops in any run: "
+            + "; ".join(
+                f"{part}: " + ", ".join(f"{k} {v}" for k, v in d.items())
+                for part, d in r["dropped_max"].items()
+            )
         )
     s = r.get("synthetic")
     if s:

@@ -354,7 +354,7 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from deploy.bench import BenchError, format_report, run_bench, write_json
+    from deploy.bench import BenchError, format_report, median_of_runs, run_bench, write_json
     from deploy.run import prepare
 
     size = args.size.lower().split("x")
@@ -364,8 +364,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.mode not in {c.value for c in ClockMode}:
         print(f"umay bench: --mode {args.mode!r}: lockstep or realtime", file=sys.stderr)
         return EXIT_BAD_INPUT
-    if args.frames < 2 or args.warmup < 0 or (args.synthetic_frames or 0) < 0:
-        print("umay bench: --frames >= 2, --warmup and --synthetic-frames >= 0", file=sys.stderr)
+    if args.frames < 2 or args.warmup < 0 or (args.synthetic_frames or 0) < 0 or args.repeat < 1:
+        print(
+            "umay bench: --frames >= 2, --repeat >= 1, --warmup and --synthetic-frames >= 0",
+            file=sys.stderr,
+        )
         return EXIT_BAD_INPUT
     overrides = [
         f"camera.width_px={size[0]}",
@@ -378,21 +381,27 @@ def cmd_bench(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         print(f"umay bench: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    try:
-        result = run_bench(
-            args.scenario,
-            scenario,
-            overrides,
-            args.frames,
-            args.warmup,
-            Path(args.log_dir),
-            shm=not args.no_shm,
-            synthetic_frames=args.synthetic_frames,
-            command=" ".join(["umay", *sys.argv[1:]]),
-        )
-    except BenchError as exc:
-        print(f"umay bench: {exc}", file=sys.stderr)
-        return 1
+    runs = []
+    for i in range(args.repeat):
+        try:
+            result = run_bench(
+                args.scenario,
+                scenario,
+                overrides,
+                args.frames,
+                args.warmup,
+                Path(args.log_dir),
+                shm=not args.no_shm,
+                synthetic_frames=args.synthetic_frames,
+                command=" ".join(["umay", *sys.argv[1:]]),
+            )
+        except BenchError as exc:
+            print(f"umay bench: {exc}", file=sys.stderr)
+            return 1
+        runs.append(result)
+        if args.repeat > 1:
+            print(f"--- run {i + 1} of {args.repeat}\n{format_report(result)}\n", flush=True)
+    result = runs[0] if len(runs) == 1 else {**median_of_runs(runs), "each_run": runs}
     print(format_report(result))
     if args.json:
         write_json(result, args.json)
@@ -436,6 +445,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", default="640x480", help="colour image WxH (default 640x480)")
     p.add_argument("--mode", default="lockstep", help="clock: lockstep|realtime")
     p.add_argument("--no-shm", action="store_true", help="Zenoh shared memory off everywhere")
+    p.add_argument("--repeat", type=int, default=1, help="runs; the table shows their medians")
     p.add_argument(
         "--synthetic-frames",
         type=int,

@@ -138,7 +138,7 @@ def test_bench_json_is_complete_and_sane(bench: dict) -> None:
 
 
 def test_bench_refuses_bad_options_with_exit_2(tmp_path: Path) -> None:
-    for args in (["--size", "640by480"], ["--mode", "fast"], ["--frames", "1"]):
+    for args in (["--size", "640by480"], ["--mode", "fast"], ["--frames", "1"], ["--repeat", "0"]):
         proc = subprocess.run(
             [sys.executable, "-m", "deploy", "bench", *args, "--log-dir", str(tmp_path)],
             capture_output=True,
