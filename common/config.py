@@ -251,11 +251,27 @@ class ActuationConfig(_Strict):
 
 class SimConfig(_Strict):
     physics_hz: float = Field(240.0, ge=30.0, le=2000.0)
+    renderer: Literal["tiny", "egl"] = Field(
+        "tiny",
+        description="tiny: pybullet's TinyRenderer (CPU, deterministic, what the vision "
+        "thresholds and the reference recording were made with); egl: pybullet's EGL plugin "
+        "(headless OpenGL: a GPU, or Mesa's llvmpipe on CPU), faster at 640×480 but shaded "
+        "differently and about 470 MiB resident (see README, Performance)",
+    )
     command_watchdog_s: float = Field(
         0.3, gt=0.0, le=5.0, description="realtime: motors stop when commands stop this long"
     )
     lockstep_resend_s: float = Field(
         1.0, gt=0.0, description="re-publish a frame whose command has not come back (wall s)"
+    )
+    realtime_command_wait_s: float = Field(
+        0.1,
+        ge=0.0,
+        le=1.0,
+        description="realtime: after a frame, physics runs on but the next render waits this "
+        "long at most (wall s) for that frame's joint command; a render holds the interpreter, "
+        "so a command arriving during one would be applied only after it (0: render back to "
+        "back)",
     )
 
 

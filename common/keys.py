@@ -17,6 +17,7 @@ RGB = "sim/rgb"
 DEPTH = "sim/depth"
 JOINT_STATE = "sim/joint_state"
 TRUTH = "sim/truth"
+TIMING = "sim/timing"
 FEATURES = "vision/features"
 TWIST = "controller/twist"
 JOINT_COMMAND = "actuation/joint_command"
@@ -54,6 +55,11 @@ class Keys:
     def truth(self) -> str:
         """Ground truth for evaluation only (supervisor, tests); never for perception/control."""
         return f"{self.prefix}/{TRUTH}"
+
+    @property
+    def timing(self) -> str:
+        """The sim's per-frame timing (render, publication, commands applied): benchmarks."""
+        return f"{self.prefix}/{TIMING}"
 
     # vision → controller → actuation → sim
     @property

@@ -48,28 +48,70 @@ class Header(Message):
         ge=0.0, le=1e11, description="wall-clock time at publication (Unix s)"
     )
     frame_seq: int = Field(-1, ge=-1, description="camera frame this message derives from")
+    recv_time_s: float = Field(
+        0.0,
+        ge=0.0,
+        le=1e11,
+        description="wall-clock time (Unix s) at which the publisher received the input that "
+        "completed this message's inputs (0: none, e.g. a camera frame); with send_time_s it "
+        "splits latency into transport and processing per hop",
+    )
 
 
-class ImageData(Message):
-    """A raw image: C-contiguous ``data`` of ``shape`` and ``dtype``."""
+class ImageSpec(Message):
+    """Shape and dtype of a raw C-contiguous image (what a frame's header says of its pixels)."""
 
     shape: Annotated[list[int], Field(min_length=2, max_length=3)]
     dtype: Literal["uint8", "float32"]
+
+    @model_validator(mode="after")
+    def _shape_in_range(self) -> ImageSpec:
+        if any(d <= 0 or d > 8192 for d in self.shape):
+            raise ValueError(f"image shape {self.shape} out of range (1..8192 per axis)")
+        return self
+
+    @property
+    def nbytes(self) -> int:
+        return int(np.prod(self.shape)) * np.dtype(self.dtype).itemsize
+
+
+class ImageData(ImageSpec):
+    """A raw image: C-contiguous ``data`` of ``shape`` and ``dtype``.
+
+    ``data`` is ``bytes`` when validated from a payload by pydantic, or a read-only
+    ``memoryview`` (no copy) when made by :meth:`view_of` or decoded by :mod:`common.codec`
+    from the frame layout (a view into the received payload)."""
+
     data: bytes
 
     @model_validator(mode="after")
     def _size_matches_shape(self) -> ImageData:
-        if any(d <= 0 or d > 8192 for d in self.shape):
-            raise ValueError(f"image shape {self.shape} out of range (1..8192 per axis)")
-        expected = int(np.prod(self.shape)) * np.dtype(self.dtype).itemsize
-        if len(self.data) != expected:
-            raise ValueError(f"image data has {len(self.data)} bytes, shape needs {expected}")
+        if len(self.data) != self.nbytes:
+            raise ValueError(f"image data has {len(self.data)} bytes, shape needs {self.nbytes}")
         return self
 
     @classmethod
     def from_array(cls, array: np.ndarray) -> ImageData:
+        """A copy of ``array``'s pixels (validated like a received image)."""
         a = np.ascontiguousarray(array)
         return cls(shape=list(a.shape), dtype=str(a.dtype), data=a.tobytes())
+
+    @classmethod
+    def view_of(cls, array: np.ndarray) -> ImageData:
+        """``array``'s pixels without a copy (checked as :meth:`from_array` would check
+        them): ``array`` must not change while the message is in use."""
+        a = np.ascontiguousarray(array)
+        spec = ImageSpec(shape=list(a.shape), dtype=str(a.dtype))  # type: ignore[arg-type]
+        view = memoryview(a).cast("B").toreadonly()
+        return cls.from_view(spec, view)
+
+    @classmethod
+    def from_view(cls, spec: ImageSpec, data: memoryview) -> ImageData:
+        """An image of a validated ``spec`` over ``data`` (no copy); raises ValueError when the
+        sizes differ."""
+        if len(data) != spec.nbytes:
+            raise ValueError(f"image data has {len(data)} bytes, shape needs {spec.nbytes}")
+        return cls.model_construct(shape=list(spec.shape), dtype=spec.dtype, data=data)
 
     def to_array(self) -> np.ndarray:
         """Read-only view on the bytes (no copy)."""
@@ -210,6 +252,33 @@ class SimTruth(Message):
     joint_position_rad: Joints
 
 
+class AppliedCommand(Message):
+    """When the sim received one joint command and when its motors started following it."""
+
+    frame_seq: int = Field(ge=-1, description="the command's header.frame_seq")
+    send_time_s: float = Field(ge=0.0, le=1e11, description="the command's header.send_time_s")
+    recv_time_s: float = Field(ge=0.0, le=1e11, description="wall clock, Unix s")
+    applied_time_s: float = Field(ge=0.0, le=1e11, description="wall clock, Unix s")
+
+
+class SimTiming(Message):
+    """The sim's own timing of camera frame ``header.frame_seq`` (published after the frame),
+    and the joint commands it applied since the previous one: with the other services' headers
+    this gives every stage of the loop, frame captured → command applied (``umay bench``).
+
+    Wall-clock times are Unix seconds. ``capture_time_s``: the images exist (render and sensor
+    model done); ``frame_send_time_s``: the colour frame's ``header.send_time_s``."""
+
+    header: Header
+    render_start_s: float = Field(ge=0.0, le=1e11)
+    capture_time_s: float = Field(ge=0.0, le=1e11)
+    frame_send_time_s: float = Field(ge=0.0, le=1e11)
+    with_depth: bool
+    dropped_frames: int = Field(0, ge=0, description="camera ticks missed so far (realtime)")
+    resends: int = Field(0, ge=0, description="lockstep re-publications so far")
+    applied: Annotated[list[AppliedCommand], Field(max_length=64)] = []
+
+
 class TopicStats(Message):
     """Traffic on one key as seen by one service."""
 
@@ -217,6 +286,7 @@ class TopicStats(Message):
     rate_hz: float = Field(ge=0.0, description="over the last few seconds")
     age_s: float | None = Field(None, description="since the last message; None: never")
     dropped: int = Field(0, ge=0, description="replaced by a newer one before being processed")
+    shm: int = Field(0, ge=0, description="of count, delivered through Zenoh shared memory")
 
 
 class ServiceStatus(Message):

@@ -20,6 +20,7 @@ class TopicMeter:
         self.window_s = window_s
         self.count = 0
         self.dropped = 0
+        self.shm = 0  # delivered through shared memory (subscribers only)
         self._times: deque[float] = deque()
         self._lock = threading.Lock()
 
@@ -45,6 +46,7 @@ class TopicMeter:
             rate_hz=rate if times else 0.0,
             age_s=None if last is None else now - last,
             dropped=self.dropped,
+            shm=self.shm,
         )
 
 

@@ -1,7 +1,8 @@
 """Record the system's traffic to MCAP and read it back.
 
-One MCAP channel per key (topic = the Zenoh key), message encoding ``msgpack`` (the payload
-bytes exactly as they travelled), the pydantic JSON schema of the key's model as the channel
+One MCAP channel per key (topic = the Zenoh key), the payload bytes exactly as they travelled
+(message encoding ``msgpack``; camera frames ``umay-frame``: a msgpack header and the raw
+pixels, see :mod:`common.codec`), the pydantic JSON schema of the key's model as the channel
 schema (encoding ``jsonschema``), receive time as ``log_time`` and the header's
 ``send_time_s`` as ``publish_time``; zstd-compressed chunks with a summary and indexes, so
 Foxglove Studio, the ``mcap`` CLI and :mod:`deploy.replay` can all read it.
@@ -21,12 +22,12 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
-import msgpack
 import zenoh
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel
 
+from common import codec
 from common import keys as data_keys
 from common.config import DEFAULT_SCENARIO
 from common.keys import Keys
@@ -42,6 +43,8 @@ from common.messages import (
 
 METADATA_NAME = "umay"
 MESSAGE_ENCODING = "msgpack"
+# Camera frames: a msgpack header, then the raw pixels (common.codec's frame layout).
+FRAME_MESSAGE_ENCODING = "umay-frame"
 SCHEMA_ENCODING = "jsonschema"
 PROFILE = "umay"
 
@@ -94,9 +97,8 @@ def run_metadata(
 def _send_time_ns(payload: bytes) -> int | None:
     """The header's ``send_time_s`` in ns, or None if the payload has no readable header."""
     try:
-        data = msgpack.unpackb(payload, raw=False)
-        return round(float(data["header"]["send_time_s"]) * 1e9)
-    except Exception:  # not msgpack, no header: recorded anyway, the wire is what it is
+        return round(float(codec.unpack(payload)["header"]["send_time_s"]) * 1e9)  # type: ignore[index]
+    except Exception:  # not a message, no header: recorded anyway, the wire is what it is
         return None
 
 
@@ -158,8 +160,9 @@ class Recorder:
                     data=json.dumps(model.model_json_schema()).encode(),
                 )
                 self._schemas[model] = schema
+            encoding = FRAME_MESSAGE_ENCODING if codec.image_field(model) else MESSAGE_ENCODING
             channel = self._writer.register_channel(
-                topic=key, message_encoding=MESSAGE_ENCODING, schema_id=schema
+                topic=key, message_encoding=encoding, schema_id=schema
             )
             self._channels[key] = channel
             self.counts[key] = 0
@@ -338,5 +341,8 @@ def topics(path: str | Path) -> list[str]:
 
 
 def unpack(payload: bytes) -> dict[str, Any]:
-    """A recorded payload as plain data (no validation)."""
-    return msgpack.unpackb(payload, raw=False)
+    """A recorded payload as plain data (no validation; a camera frame without its pixels)."""
+    data = codec.unpack(payload)
+    if data is None:
+        raise ValueError("not a message payload")
+    return data

@@ -46,6 +46,7 @@ import msgpack
 import zenoh
 from pydantic import BaseModel
 
+from common.codec import unpack
 from common.config import DEFAULT_SCENARIO, ScenarioError, load_scenario
 from common.keys import Keys
 from common.runtime import parse_overrides
@@ -54,7 +55,8 @@ from deploy.recording import iter_messages, read_metadata, split_data_key, topic
 from deploy.supervisor import Supervisor
 
 JOINT_STATE = "sim/joint_state"
-IGNORED_FIELDS = frozenset({"header.seq", "header.send_time_s"})
+# Wall-clock stamps and counters differ from run to run by nature.
+IGNORED_FIELDS = frozenset({"header.seq", "header.send_time_s", "header.recv_time_s"})
 
 
 @dataclass(frozen=True)
@@ -129,7 +131,7 @@ class Recorded:
 
 def frame_seq_of(payload: bytes) -> int | None:
     try:
-        return int(msgpack.unpackb(payload, raw=False)["header"]["frame_seq"])
+        return int(unpack(payload)["header"]["frame_seq"])  # type: ignore[index]
     except Exception:  # not a message with a header
         return None
 

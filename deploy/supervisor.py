@@ -63,8 +63,11 @@ class Supervisor:
         services: tuple[str, ...] = SERVICES,
         zenoh_config: str | None = None,
         config: SupervisorConfig | None = None,
+        env: dict[str, str] | None = None,
     ) -> None:
+        """``env``: extra environment variables for the children (e.g. ``UMAY_ZENOH_SHM``)."""
         self.endpoint = endpoint
+        self.extra_env = dict(env or {})
         self.zenoh_config = zenoh_config
         self.config = config or SupervisorConfig()
         self.log_dir = log_dir
@@ -89,6 +92,7 @@ class Supervisor:
         if self.zenoh_config:
             env[ENV_CONFIG] = self.zenoh_config
         env.setdefault("PYTHONUNBUFFERED", "1")
+        env.update(self.extra_env)
         return env
 
     def start_child(self, child: Child) -> None:

@@ -2,7 +2,9 @@
 
 10,000+ random and mutated payloads: random bytes, truncated messages, wrong types, NaN, huge
 arrays, images whose size does not match their shape, and valid-looking messages with values
-out of range. Every one must be rejected and counted; no service may exit; the run converges.
+out of range; camera frames both as plain msgpack and in the codec's raw frame layout (bad
+prefix, version or header length, cut pixels, wrong image descriptions, bad header fields).
+Every one must be rejected and counted; no service may exit; the run converges.
 """
 
 from __future__ import annotations
@@ -19,7 +21,16 @@ import numpy as np
 from zenoh import CongestionControl
 
 from common.camera import CameraIntrinsics
-from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decode
+from common.codec import (
+    DEFAULT_MAX_BYTES,
+    FRAME_ALIGN,
+    FRAME_MAGIC,
+    FRAME_MAX_BYTES,
+    FRAME_PREFIX,
+    FRAME_VERSION,
+    MessageError,
+    decode,
+)
 from common.config import load_scenario
 from common.keys import SERVICES, Keys
 from common.messages import (
@@ -81,8 +92,48 @@ def _floats(d: object) -> list[tuple[object, object]]:
     return out
 
 
+def frame_layout(data: dict, version: int = FRAME_VERSION, head_len: int | None = None) -> bytes:
+    """``data`` (a frame as plain data) in the codec's frame layout: header map, then pixels."""
+    image = next(k for k in ("rgb", "depth_m") if k in data)
+    pixels = data[image].get("data", b"") if isinstance(data[image], dict) else b""
+    head_map = dict(data)
+    if isinstance(data[image], dict):
+        head_map[image] = {k: v for k, v in data[image].items() if k != "data"}
+    head = msgpack.packb(head_map, use_bin_type=True)
+    used = FRAME_PREFIX.size + len(head)
+    pad = bytes(-(-used // FRAME_ALIGN) * FRAME_ALIGN - used)
+    n = len(head) if head_len is None else head_len
+    return FRAME_PREFIX.pack(FRAME_MAGIC, version, n) + head + pad + bytes(pixels)
+
+
+def mutate_frame_layout(template: dict, rng: np.random.Generator) -> bytes:
+    """One invalid payload in the raw frame layout (what the sim sends)."""
+    kind = int(rng.integers(0, 6))
+    valid = frame_layout(template)
+    if kind == 0:  # the magic, then garbage
+        return FRAME_MAGIC + rng.bytes(int(rng.integers(0, 200)))
+    if kind == 1:  # cut anywhere, pixels included
+        return valid[: int(rng.integers(0, len(valid) - 1))]
+    if kind == 2:  # a layout version that does not exist, or a header length that lies
+        if rng.random() < 0.5:
+            return frame_layout(template, version=int(rng.integers(2, 1 << 16)))
+        return frame_layout(template, head_len=int(rng.integers(1 << 14, 1 << 32)))
+    if kind == 3:  # pixels that do not match shape and dtype
+        return valid[:-1] if rng.random() < 0.5 else valid + b"\x00"
+    data = msgpack.unpackb(msgpack.packb(template, use_bin_type=True), raw=False)
+    image = next(k for k in ("rgb", "depth_m") if k in data)
+    if kind == 4:  # a wrong image description
+        # Each entry is wrong and one of the three is left out: never a valid description.
+        data[image] = {"shape": [0, 0], "dtype": "float64", "strides": [1], "data": b""}
+        del data[image][str(rng.choice(["shape", "dtype", "strides"]))]
+        return frame_layout(data)
+    return frame_layout(one_field_mutated(data, rng))
+
+
 def mutate(template: dict, rng: np.random.Generator) -> bytes:
     """One invalid payload derived from a valid message."""
+    if any(k in template for k in ("rgb", "depth_m")) and rng.random() < 0.5:
+        return mutate_frame_layout(template, rng)
     # Huge arrays are few (2 %): each is about a megabyte on the wire.
     kind = 6 if rng.random() < 0.02 else int(rng.choice([0, 1, 2, 3, 4, 5, 7]))
     valid = msgpack.packb(template, use_bin_type=True)
@@ -91,6 +142,15 @@ def mutate(template: dict, rng: np.random.Generator) -> bytes:
     if kind == 1:
         return valid[: int(rng.integers(0, len(valid) - 1))]
     data = msgpack.unpackb(valid, raw=False)
+    return msgpack.packb(field_mutated(data, rng, kind), use_bin_type=True)
+
+
+def one_field_mutated(data: dict, rng: np.random.Generator) -> dict:
+    """``data`` with one field made invalid (a float, the sequence number, an extra field)."""
+    return field_mutated(data, rng, int(rng.choice([2, 3, 4, 5, 7])))
+
+
+def field_mutated(data: dict, rng: np.random.Generator, kind: int) -> dict:
     floats = _floats(data)
     container, index = floats[int(rng.integers(len(floats)))]
     if kind == 2:
@@ -109,7 +169,7 @@ def mutate(template: dict, rng: np.random.Generator) -> bytes:
     for image in ("rgb", "depth_m"):
         if image in data and rng.random() < 0.5:
             data[image]["data"] = data[image]["data"][:-1]  # image size ≠ shape
-    return msgpack.packb(data, use_bin_type=True)
+    return data
 
 
 def invalid_payload(name: str, template: dict, rng: np.random.Generator) -> bytes:

@@ -81,7 +81,8 @@ def test_run_record_writes_an_indexed_zstd_mcap_with_every_data_key(
         counts = summary.statistics.channel_message_counts
         for key in data_keys:
             ch = channels[key]
-            assert ch.message_encoding == "msgpack"
+            is_frame = key in (keys.rgb, keys.depth)  # a msgpack header, then raw pixels
+            assert ch.message_encoding == ("umay-frame" if is_frame else "msgpack")
             schema = summary.schemas[ch.schema_id]
             model = model_for_key(keys, key)
             assert model is not None and schema.name == model.__name__

@@ -12,7 +12,8 @@ Clock modes:
   command does not come back within ``sim.lockstep_resend_s`` is published again (the same
   messages, not a new render).
 - realtime: physics follows the wall clock; a frame is rendered at each camera tick, and ticks
-  missed while rendering are counted as dropped.
+  missed while rendering are counted as dropped. The next render waits (bounded) for the last
+  frame's command, because a render blocks the whole process (see :meth:`run_realtime`).
 """
 
 from __future__ import annotations
@@ -27,11 +28,13 @@ from common import kinematics as kin
 from common.config import ClockMode
 from common.keys import SERVICES
 from common.messages import (
+    AppliedCommand,
     DepthFrame,
     ImageData,
     JointState,
     JointVelocityCommand,
     RgbFrame,
+    SimTiming,
     SimTruth,
 )
 from common.runtime import ServiceContext
@@ -60,10 +63,13 @@ class SimService:
         self.started_s = time.monotonic()
         self.node = Node("sim", ctx.keys, ctx.session, self.status_fields)
         keys = ctx.keys
-        self.pub_rgb = self.node.publisher(keys.rgb)
-        self.pub_depth = self.node.publisher(keys.depth)
+        self.pub_rgb = self.node.publisher(keys.rgb, frames=True)
+        self.pub_depth = self.node.publisher(keys.depth, frames=True)
         self.pub_joints = self.node.publisher(keys.joint_state)
         self.pub_truth = self.node.publisher(keys.truth)
+        self.pub_timing = self.node.publisher(keys.timing)
+        self.applied: list[AppliedCommand] = []  # since the last SimTiming
+        self.resends = 0
         self.node.subscribe(keys.joint_command, JointVelocityCommand)
         self.last_command = np.zeros(kin.N_JOINTS)
         self.last_command_s: float | None = None  # wall clock (monotonic)
@@ -95,29 +101,20 @@ class SimService:
         self.world.update_scene()
         q, qdot = self.world.joint_state()
         with_depth = t + TIME_EPSILON_S >= self.next_depth_s
+        render_start_s = time.time()
         started = time.perf_counter()
         rgb, depth_m = self.world.render(with_depth)
         self.render_ms = 1000.0 * (time.perf_counter() - started)
-        truth = self.world.truth()
+        capture_time_s = time.time()
         header = self.node.header(t, seq)
-        # Joint state first, so a consumer has it when the frame's features arrive.
+        # Joint state first, so a consumer has it when the frame's features arrive; then the
+        # images, without copying their pixels before the codec's one copy (ImageData.view_of:
+        # render() gives fresh arrays every frame, never changed afterwards).
         messages: list[tuple[TypedPublisher, object]] = [
             (
                 self.pub_joints,
                 JointState(header=header, position_rad=q.tolist(), velocity_rad_s=qdot.tolist()),
-            ),
-            (
-                self.pub_truth,
-                SimTruth(
-                    header=header,
-                    hand_marker_pose=truth.hand_marker_pose.reshape(-1).tolist(),
-                    target_marker_pose=truth.target_marker_pose.reshape(-1).tolist(),
-                    hand_corners_px=truth.hand_corners_px.tolist(),
-                    target_corners_px=truth.target_corners_px.tolist(),
-                    ee_position_m=truth.ee_position_m.tolist(),
-                    joint_position_rad=q.tolist(),
-                ),
-            ),
+            )
         ]
         if depth_m is not None:
             while self.next_depth_s <= t + TIME_EPSILON_S:  # keep the schedule, do not drift
@@ -130,32 +127,59 @@ class SimService:
                     DepthFrame(
                         header=self.node.header(t, seq),
                         intrinsics=self.world.depth_intrinsics,
-                        depth_m=ImageData.from_array(depth_m),
+                        depth_m=ImageData.view_of(depth_m),
                     ),
                 )
             )
-        messages.append(
-            (
-                self.pub_rgb,
-                RgbFrame(
-                    header=self.node.header(t, seq),
-                    intrinsics=self.world.intrinsics,
-                    rgb=ImageData.from_array(rgb),
-                    depth_frame_seq=self.depth_frame_seq,
-                ),
-            )
-        )
         for publisher, message in messages:
             publisher.put(message)
+        rgb_header = self.node.header(t, seq)
+        rgb_message = RgbFrame(
+            header=rgb_header,
+            intrinsics=self.world.intrinsics,
+            rgb=ImageData.view_of(rgb),
+            depth_frame_seq=self.depth_frame_seq,
+        )
+        self.pub_rgb.put(rgb_message)
+        messages.append((self.pub_rgb, rgb_message))
+        # Ground truth (evaluation only) after the frame, off the loop's critical path.
+        truth = self.world.truth()
+        truth_message = SimTruth(
+            header=header,
+            hand_marker_pose=truth.hand_marker_pose.reshape(-1).tolist(),
+            target_marker_pose=truth.target_marker_pose.reshape(-1).tolist(),
+            hand_corners_px=truth.hand_corners_px.tolist(),
+            target_corners_px=truth.target_corners_px.tolist(),
+            ee_position_m=truth.ee_position_m.tolist(),
+            joint_position_rad=q.tolist(),
+        )
+        self.pub_truth.put(truth_message)
+        messages.append((self.pub_truth, truth_message))
         self._last_frame = messages
+        # After the frame, off its path: how it was made and the commands applied before it.
+        self.pub_timing.put(
+            SimTiming(
+                header=self.node.header(t, seq),
+                render_start_s=render_start_s,
+                capture_time_s=capture_time_s,
+                frame_send_time_s=rgb_header.send_time_s,
+                with_depth=depth_m is not None,
+                dropped_frames=self.dropped_frames,
+                resends=self.resends,
+                applied=self.applied[-64:],
+            )
+        )
+        self.applied = []
         self.node.processing.add(1000.0 * (time.perf_counter() - started_publish))
 
     def republish_frame(self) -> None:
         """The last frame's messages again, unchanged (a lockstep resend)."""
+        self.resends += 1
         for publisher, message in self._last_frame:
             publisher.put(message)
 
-    def apply(self, command: JointVelocityCommand) -> None:
+    def apply(self, command: JointVelocityCommand, recv_time_s: float) -> None:
+        """``recv_time_s``: when the command arrived (wall clock), for :class:`SimTiming`."""
         # The motors' own limit, whatever the command says.
         limit = kin.JOINT_VELOCITY_LIMIT_RAD_S
         wanted = np.array(command.velocity_rad_s)
@@ -163,6 +187,14 @@ class SimService:
         self.last_command = np.clip(wanted, -limit, limit)
         self.last_command_s = time.monotonic()
         self.world.set_joint_velocities(self.last_command)
+        self.applied.append(
+            AppliedCommand(
+                frame_seq=command.header.frame_seq,
+                send_time_s=command.header.send_time_s,
+                recv_time_s=recv_time_s,
+                applied_time_s=time.time(),
+            )
+        )
 
     def check_watchdog(self) -> None:
         """Second line of defence behind the actuation deadman: no command, no motion."""
@@ -197,7 +229,7 @@ class SimService:
             while not self.ctx.stop.is_set():
                 event = self.node.next_event(0.05)
                 if event is not None and event[1].header.frame_seq == self.frame_seq:
-                    self.apply(event[1])
+                    self.apply(event[1], self.node.event_recv_time_s)
                     break
                 if time.monotonic() - sent > resend_s:
                     log.info("no command for frame %d yet; publishing it again", self.frame_seq)
@@ -209,27 +241,42 @@ class SimService:
             self.frame_seq += 1
 
     def run_realtime(self) -> None:
+        """Physics follows the wall clock; a frame is rendered at each camera tick, except that
+        after a frame the next render waits (physics running) up to
+        ``sim.realtime_command_wait_s`` for that frame's joint command. pybullet keeps the
+        interpreter lock while it renders, so a command arriving during a render could not even
+        be received before the render ends: without the wait every command would reach the
+        motors one render late (``umay bench``, 320×240: 84 ms p50 frame → command applied
+        without the wait, 23 ms with it)."""
         started = time.monotonic()
         next_frame_s = 0.0
+        wait_s = self.scenario.sim.realtime_command_wait_s
+        awaited: int | None = None  # the frame whose command the next render waits for
+        awaited_since = 0.0
+        timeout_s = 0.0
         while not self.ctx.stop.is_set():
-            event = self.node.next_event(0.0)
-            while event is not None:  # apply the newest command
-                self.apply(event[1])
+            event = self.node.next_event(timeout_s)  # a command wakes the loop at once
+            while event is not None:  # apply every command in order: the newest one stays
+                self.apply(event[1], self.node.event_recv_time_s)
+                if awaited is not None and event[1].header.frame_seq >= awaited:
+                    awaited = None
                 event = self.node.next_event(0.0)
             self.check_watchdog()
             wall_s = time.monotonic() - started
             behind = int((wall_s - self.world.sim_time_s) / self.world.physics_dt_s)
             if behind > 0:
                 self.world.step(behind)
-            if self.world.sim_time_s >= next_frame_s:
+            waiting = awaited is not None and time.monotonic() - awaited_since < wait_s
+            if self.world.sim_time_s >= next_frame_s and not waiting:
                 missed = math.floor((self.world.sim_time_s - next_frame_s) / self.period_s)
                 self.dropped_frames += missed
                 self.publish_frame()
+                awaited, awaited_since = self.frame_seq, time.monotonic()
                 self.frame_seq += 1
                 next_frame_s += (missed + 1) * self.period_s
-            # Sleep until the next physics step is due (rendering may already have overrun it).
+            # Until the next physics step is due (rendering may already have overrun it).
             elapsed_s = time.monotonic() - started - wall_s
-            self.ctx.stop.wait(max(0.0, self.world.physics_dt_s - elapsed_s))
+            timeout_s = max(0.0, self.world.physics_dt_s - elapsed_s)
 
     def run(self) -> None:
         self.node.ready()

@@ -46,20 +46,30 @@ def opengl_view_matrix(t_base_cam: FloatArray) -> list[float]:
     return view.flatten(order="F").tolist()
 
 
-def opengl_projection_matrix(k: CameraIntrinsics, near_m: float, far_m: float) -> list[float]:
+# Where each renderer samples pixel (row i, column j) in the frustum it is given, as the shift
+# (du, dv) of the principal point that lines its pixels up with the pinhole model. Measured
+# against projected truth: TinyRenderer samples (j - 0.5, i + 0.5); the EGL plugin samples
+# pixel centres the OpenGL way, half a pixel off TinyRenderer in each axis (with these shifts
+# their depth images agree to 0.02 mm median, 0.2 mm p99).
+PIXEL_SHIFT_PX: dict[str, tuple[float, float]] = {"tiny": (0.0, 1.0), "egl": (0.5, 0.5)}
+
+
+def opengl_projection_matrix(
+    k: CameraIntrinsics, near_m: float, far_m: float, renderer: str = "tiny"
+) -> list[float]:
     """Column-major OpenGL projection whose pixel centres match ``u = fx·x + cx`` exactly.
 
     The off-centre terms place the principal point so that rendered pixels line up with the
-    pinhole model of :mod:`common.camera` (pixel centres at integer coordinates).
+    pinhole model of :mod:`common.camera` (pixel centres at integer coordinates), for the
+    sampling of ``renderer`` (:data:`PIXEL_SHIFT_PX`).
     """
     w, h = k.width_px, k.height_px
+    du, dv = PIXEL_SHIFT_PX[renderer]
     p = np.zeros((4, 4))
     p[0, 0] = 2.0 * k.fx_px / w
     p[1, 1] = 2.0 * k.fy_px / h
-    # TinyRenderer samples pixel (row i, column j) at (u, v) = (j - 0.5, i + 0.5) of the
-    # frustum it is given (measured against projected truth), hence the half-pixel terms.
-    p[0, 2] = -(2.0 * k.cx_px / w - 1.0)  # image x right; OpenGL looks down -z
-    p[1, 2] = 2.0 * (k.cy_px + 1.0) / h - 1.0  # image y down vs OpenGL y up
+    p[0, 2] = -(2.0 * (k.cx_px + du) / w - 1.0)  # image x right; OpenGL looks down -z
+    p[1, 2] = 2.0 * (k.cy_px + dv) / h - 1.0  # image y down vs OpenGL y up
     p[2, 2] = -(far_m + near_m) / (far_m - near_m)
     p[2, 3] = -2.0 * far_m * near_m / (far_m - near_m)
     p[3, 2] = -1.0
@@ -70,11 +80,35 @@ def depth_buffer_to_metres(buffer: FloatArray, near_m: float, far_m: float) -> F
     """OpenGL depth buffer (0..1, non-linear) to Z along the optical axis (m), float32.
 
     Pixels at the far plane (nothing rendered) become 0, the "invalid" value of a Kinect.
+    Computed in float32, the buffer's own type: 14× faster than through float64 at 640×480
+    (0.3 against 4.5 ms), within 5e-5 m of it up to 5 m (1e-5 relative), far below a depth
+    camera's millimetres.
     """
-    b = np.asarray(buffer, dtype=np.float64)
-    z = far_m * near_m / (far_m - (far_m - near_m) * b)
+    b = np.asarray(buffer, dtype=np.float32)
+    far, near = np.float32(far_m), np.float32(near_m)
+    z = (far * near) / (far - (far - near) * b)
     z[b >= 1.0] = 0.0
-    return z.astype(np.float32)
+    return z
+
+
+class RendererError(RuntimeError):
+    """The renderer the scenario asks for cannot be used on this machine."""
+
+
+def load_egl_plugin(client: BulletClient) -> int:
+    """Load pybullet's EGL renderer plugin into ``client``; it then serves every
+    ``getCameraImage`` of that client. Needs libEGL and an OpenGL driver (Debian:
+    ``libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1``; Mesa's llvmpipe renders on the CPU)."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("eglRenderer")  # shipped with pybullet
+    origin = None if spec is None else spec.origin
+    plugin = -1 if origin is None else client.loadPlugin(origin, "_eglRendererPlugin")
+    if plugin < 0:
+        raise RendererError(
+            "sim.renderer = 'egl': pybullet's EGL plugin did not load (is libEGL installed?)"
+        )
+    return plugin
 
 
 def quaternion_from_rotation(rot: FloatArray) -> list[float]:
@@ -158,6 +192,12 @@ class World:
         self.physics_dt_s = 1.0 / scenario.sim.physics_hz
         self.sim_time_s = 0.0
         self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        self.renderer = scenario.sim.renderer
+        self._renderer_flag = pybullet.ER_TINY_RENDERER
+        self._egl_plugin: int | None = None
+        if self.renderer == "egl":  # before any body: bodies created earlier are not drawn
+            self._egl_plugin = load_egl_plugin(self.client)
+            self._renderer_flag = pybullet.ER_BULLET_HARDWARE_OPENGL
         self.client.setGravity(*(-9.81 * kin.BASE_UP))
         self.client.setTimeStep(self.physics_dt_s)
         self.robot = self._load_robot()
@@ -330,7 +370,7 @@ class World:
     def _projection(self, k: CameraIntrinsics) -> list[float]:
         if k not in self._projections:
             cam = self.scenario.camera
-            self._projections[k] = opengl_projection_matrix(k, cam.near_m, cam.far_m)
+            self._projections[k] = opengl_projection_matrix(k, cam.near_m, cam.far_m, self.renderer)
         return self._projections[k]
 
     def render_perfect(self, k: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -341,12 +381,16 @@ class World:
             k.height_px,
             viewMatrix=self._view,
             projectionMatrix=self._projection(k),
-            renderer=pybullet.ER_TINY_RENDERER,
+            renderer=self._renderer_flag,
             shadow=0,
             lightDirection=[0.4, -0.3, 1.0],
             flags=pybullet.ER_NO_SEGMENTATION_MASK,
         )
-        rgb = np.asarray(rgba, dtype=np.uint8).reshape(k.height_px, k.width_px, 4)[:, :, :3]
+        # One contiguous copy without alpha: 25× faster than slicing + ascontiguousarray.
+        rgb = cv2.cvtColor(
+            np.asarray(rgba, dtype=np.uint8).reshape(k.height_px, k.width_px, 4),
+            cv2.COLOR_RGBA2RGB,
+        )
         depth_m = depth_buffer_to_metres(
             np.asarray(depth).reshape(k.height_px, k.width_px),
             self.scenario.camera.near_m,
@@ -398,7 +442,7 @@ class World:
             k.height_px,
             viewMatrix=self._view,
             projectionMatrix=self._projection(k),
-            renderer=pybullet.ER_TINY_RENDERER,
+            renderer=self._renderer_flag,
             shadow=0,
             flags=pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
         )
@@ -418,4 +462,6 @@ class World:
         return out
 
     def close(self) -> None:
+        if self._egl_plugin is not None:
+            self.client.unloadPlugin(self._egl_plugin)
         self.client.disconnect()

@@ -1,0 +1,1017 @@
+"""``umay bench``: the loop's latency and throughput, stage by stage, distributed and in-process.
+
+Three measurements in one command, on the same scenario and image size:
+
+1. **Distributed**: the real four services as separate OS processes (the :class:`Supervisor`
+   of ``umay run``) under a unique key prefix, multicast off. Every message header carries its
+   send time and the time its publisher received the input it answers
+   (``Header.recv_time_s``), and the sim publishes per frame a :class:`SimTiming` (render
+   start, capture, frame send time, and when it received and applied each joint command), so
+   camera frame k splits exactly into consecutive stages whose sum is the end-to-end latency
+   from *frame captured* (images ready) to *command applied* (motors set), render excluded:
+
+   ======================= ==========================================================
+   stage                    from → to (wall clock)
+   ======================= ==========================================================
+   render                   render start → images ready (not in the latency)
+   publish                  images ready → colour frame header stamped (sim)
+   frame_transport          colour frame header → vision receives its inputs
+   vision                   vision receives → features header stamped
+   features_transport       features header → controller has features and joints
+   controller               → twist header stamped
+   twist_transport          twist header → actuation has twist and joints
+   actuation                → joint command header stamped
+   command_transport        command header → the sim receives it
+   apply                    the sim receives it → the motors follow it
+   ======================= ==========================================================
+
+   A "transport" stage holds the sender's message construction and encoding, Zenoh, and the
+   wait for the partner message (pairing); a service stage holds the receive copy, decoding,
+   queueing and the work. Frames dropped per stage are counted by ``frame_seq``; CPU time and
+   peak RSS per service come from ``/proc/<pid>`` of the supervisor's children.
+
+2. **In-process baseline**: the same pure stage functions, one after another in this process,
+   on the same frames (a lockstep run renders the same images: the loop is deterministic),
+   timed from images ready to command applied: vision ``tracking.observe``, forward
+   kinematics + ``IbvsController.step``, ``inverse.twist_to_joint_velocities``, and setting
+   the motors. What is fair: a single-process program needs no messages, so the headline
+   baseline (``inprocess.per_frame_ms``) is the functions alone, and the ratio
+   distributed / in-process charges distribution with everything it adds, serialization
+   included. The same loop also times the codec work the distributed path does per frame
+   (building, encoding and decoding each message once); ``ratio.vs_with_codec`` divides by
+   functions + codec, i.e. what is left is transport, process boundaries and scheduling. In
+   lockstep the in-process commands are compared with the distributed ones (they must agree).
+
+3. **Synthetic 30 Hz source**: frames of the in-process run replayed at the camera's 30 Hz
+   (as a recording replayed with ``--speed 1`` would be) into vision → controller → actuation
+   running as processes, to check that none of them drops a frame at the real camera rate,
+   which TinyRenderer cannot reach.
+
+Times come from ``time.time()`` in every process, so all processes must be on one host.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import platform
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+from pydantic import BaseModel
+
+from common import kinematics as kin
+from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decode, encode
+from common.config import ClockMode, Scenario
+from common.keys import SERVICES, Keys
+from common.messages import (
+    DepthFrame,
+    EndEffectorTwist,
+    Features,
+    Header,
+    ImageData,
+    JointState,
+    JointVelocityCommand,
+    RgbFrame,
+    SimTiming,
+)
+from common.transport import (
+    ENV_SHM,
+    ShmFrameWriter,
+    TypedPublisher,
+    alive_services,
+    free_tcp_endpoint,
+    open_session,
+    query_status,
+)
+from deploy.supervisor import Supervisor
+
+STAGES: tuple[str, ...] = (
+    "render",
+    "publish",
+    "frame_transport",
+    "vision",
+    "features_transport",
+    "controller",
+    "twist_transport",
+    "actuation",
+    "command_transport",
+    "apply",
+)
+LATENCY_STAGES = STAGES[1:]  # they add up to frame captured → command applied
+SYNTHETIC_STAGES = STAGES[2:8]  # frame published → command published (no sim)
+INPROCESS_STAGES: tuple[str, ...] = ("vision", "controller", "actuation", "apply")
+CODEC_STAGES: tuple[str, ...] = ("frame_codec", "features_codec", "twist_codec", "command_codec")
+PIPELINE: tuple[str, ...] = ("vision", "controller", "actuation")
+SYNTHETIC_HZ = 30.0
+MAX_SOURCE_FRAMES = 60  # distinct frames kept for the synthetic source (cycled beyond)
+JSON_VERSION = 1
+
+
+class BenchError(RuntimeError):
+    """The benchmark could not run (a service died or did not come up, no frames...)."""
+
+
+# --- statistics --------------------------------------------------------------------------
+def summary_ms(values_s: list[float] | np.ndarray) -> dict[str, float | int | None]:
+    """n, p50, p99, max and mean in milliseconds of durations given in seconds."""
+    v = 1000.0 * np.asarray(values_s, dtype=float)
+    if v.size == 0:
+        return {"n": 0, "p50": None, "p99": None, "max": None, "mean": None}
+    p50, p99 = np.percentile(v, [50, 99])
+    return {
+        "n": int(v.size),
+        "p50": round(float(p50), 4),
+        "p99": round(float(p99), 4),
+        "max": round(float(v.max()), 4),
+        "mean": round(float(v.mean()), 4),
+    }
+
+
+def machine_load() -> list[float]:
+    """1, 5 and 15 minute load averages (what ``uptime`` shows)."""
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+# --- /proc -------------------------------------------------------------------------------
+CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
+
+
+def process_cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of a process (all its threads) so far."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_PER_S  # utime, stime
+
+
+def process_memory_mb(pid: int) -> dict[str, float]:
+    """``VmHWM`` (peak resident set), ``VmRSS`` and ``RssShmem`` (shared memory pages, e.g.
+    Zenoh's pool, counted in the RSS) in MiB."""
+    out: dict[str, float] = {}
+    try:
+        lines = Path(f"/proc/{pid}/status").read_text().splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        name, _, value = line.partition(":")
+        if name in ("VmHWM", "VmRSS", "RssShmem"):
+            out[name] = round(int(value.split()[0]) / 1024.0, 1)
+    return out
+
+
+# --- the distributed run -----------------------------------------------------------------
+@dataclass
+class Trace:
+    """What the bench hears, first message per frame (Zenoh callback threads write)."""
+
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    timings: dict[int, SimTiming] = field(default_factory=dict)
+    applied: dict[int, Any] = field(default_factory=dict)  # frame_seq → AppliedCommand
+    features: dict[int, Header] = field(default_factory=dict)
+    twists: dict[int, Header] = field(default_factory=dict)
+    commands: dict[int, Header] = field(default_factory=dict)
+    velocities: dict[int, list[float]] = field(default_factory=dict)
+    rejected: int = 0
+    new_timing: threading.Condition = field(default_factory=threading.Condition)
+
+    def _decode(self, sample: zenoh.Sample, model: type[BaseModel]) -> Any:
+        try:
+            return decode(sample.payload.to_bytes(), model, DEFAULT_MAX_BYTES)
+        except MessageError:
+            with self.lock:
+                self.rejected += 1
+            return None
+
+    def on_timing(self, sample: zenoh.Sample) -> None:
+        t = self._decode(sample, SimTiming)
+        if t is None:
+            return
+        with self.lock:
+            self.timings.setdefault(t.header.frame_seq, t)
+            for a in t.applied:
+                if a.frame_seq >= 0:
+                    self.applied.setdefault(a.frame_seq, a)
+        with self.new_timing:
+            self.new_timing.notify_all()
+
+    def _keep(self, store: dict[int, Header], header: Header) -> None:
+        with self.lock:
+            if header.frame_seq >= 0:
+                store.setdefault(header.frame_seq, header)
+
+    def on_features(self, sample: zenoh.Sample) -> None:
+        m = self._decode(sample, Features)
+        if m is not None:
+            self._keep(self.features, m.header)
+
+    def on_twist(self, sample: zenoh.Sample) -> None:
+        m = self._decode(sample, EndEffectorTwist)
+        if m is not None:
+            self._keep(self.twists, m.header)
+
+    def on_command(self, sample: zenoh.Sample) -> None:
+        m = self._decode(sample, JointVelocityCommand)
+        if m is not None and m.header.frame_seq >= 0:
+            self._keep(self.commands, m.header)
+            with self.lock:
+                self.velocities.setdefault(m.header.frame_seq, m.velocity_rad_s)
+
+    def wait_for_frame(self, seq: int, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        with self.new_timing:
+            while True:
+                with self.lock:
+                    if any(k >= seq for k in self.timings):
+                        return True
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self.new_timing.wait(min(remaining, 0.2))
+
+
+def frame_stages(
+    timing: SimTiming | None,
+    features: Header | None,
+    twist: Header | None,
+    command: Header | None,
+    applied: Any,
+) -> dict[str, float]:
+    """The stage durations (s) of one frame that its records allow (see the module doc); a
+    receive time of 0 (unknown) leaves its two stages out."""
+    t: dict[str, float | None] = {
+        "render_start": timing.render_start_s if timing else None,
+        "capture": timing.capture_time_s if timing else None,
+        "frame_send": timing.frame_send_time_s if timing else None,
+        "vision_recv": features.recv_time_s if features else None,
+        "vision_send": features.send_time_s if features else None,
+        "controller_recv": twist.recv_time_s if twist else None,
+        "controller_send": twist.send_time_s if twist else None,
+        "actuation_recv": command.recv_time_s if command else None,
+        "actuation_send": command.send_time_s if command else None,
+        "sim_recv": applied.recv_time_s if applied else None,
+        "applied": applied.applied_time_s if applied else None,
+    }
+    order = list(t)
+    out: dict[str, float] = {}
+    for stage, (a, b) in zip(STAGES, itertools.pairwise(order), strict=True):
+        ta, tb = t[a], t[b]
+        if ta is not None and tb is not None and ta > 0 and tb > 0:
+            out[stage] = tb - ta
+    return out
+
+
+def analyse_trace(trace: Trace, window: list[int]) -> dict[str, Any]:
+    """Per-stage statistics, end-to-end latency excluding render, drops per stage."""
+    per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
+    latency: list[float] = []
+    with trace.lock:
+        timings = {k: trace.timings.get(k) for k in window}
+        rows = [
+            (
+                timings[k],
+                trace.features.get(k),
+                trace.twists.get(k),
+                trace.commands.get(k),
+                trace.applied.get(k),
+            )
+            for k in window
+        ]
+    for row in rows:
+        stages = frame_stages(*row)
+        for s, v in stages.items():
+            per_stage[s].append(v)
+        if all(s in stages for s in LATENCY_STAGES):
+            latency.append(row[4].applied_time_s - row[0].capture_time_s)
+    rendered = [k for k in window if timings[k] is not None]
+    with trace.lock:
+        have_features = [k for k in rendered if k in trace.features]
+        have_twist = [k for k in have_features if k in trace.twists]
+        have_command = [k for k in have_twist if k in trace.commands]
+        have_applied = [k for k in have_command if k in trace.applied]
+    first, last = (timings[rendered[0]], timings[rendered[-1]]) if rendered else (None, None)
+    wall_s = (last.render_start_s - first.render_start_s) if first and last else 0.0
+    sim_s = (last.header.sim_time_s - first.header.sim_time_s) if first and last else 0.0
+    return {
+        "frames": len(window),
+        "frames_complete": len(latency),
+        "stages_ms": {s: summary_ms(v) for s, v in per_stage.items()},
+        "latency_ms": summary_ms(latency),
+        "loop_rate_hz": round((len(rendered) - 1) / wall_s, 3) if wall_s > 0 else None,
+        "real_time_factor": round(sim_s / wall_s, 4) if wall_s > 0 else None,
+        "wall_s": round(wall_s, 3),
+        "dropped": {
+            # camera ticks the sim could not render in time (realtime), during the window
+            "camera": (last.dropped_frames - first.dropped_frames) if first and last else 0,
+            "sim_missing": len(window) - len(rendered),  # never heard of (should be 0)
+            "vision": len(rendered) - len(have_features),
+            "controller": len(have_features) - len(have_twist),
+            "actuation": len(have_twist) - len(have_command),
+            "apply": len(have_command) - len(have_applied),
+        },
+        "resends": (last.resends - first.resends) if first and last else 0,
+    }
+
+
+def _wait_for_services(
+    session: zenoh.Session, keys: Keys, sup: Supervisor, names: tuple[str, ...], timeout_s: float
+) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        dead = sup.exited()
+        if dead:
+            c = dead[0]
+            raise BenchError(f"{c.name} exited ({c.exit_codes[-1]}); see {c.log_path}")
+        if set(names) <= alive_services(session, keys, 0.5):
+            return
+        time.sleep(0.05)
+    raise BenchError(f"services did not come up within {timeout_s:.0f} s: {names}")
+
+
+def _service_usage(
+    pids: dict[str, int | None], cpu_start: dict[str, float | None], frames: int
+) -> dict[str, dict[str, float | None]]:
+    out: dict[str, dict[str, float | None]] = {}
+    for name, pid in pids.items():
+        if pid is None:
+            continue
+        cpu = process_cpu_s(pid)
+        start = cpu_start.get(name)
+        window_cpu = None if cpu is None or start is None else cpu - start
+        mem = process_memory_mb(pid)
+        out[name] = {
+            "pid": pid,
+            "cpu_s": None if cpu is None else round(cpu, 3),
+            "window_cpu_s": None if window_cpu is None else round(window_cpu, 3),
+            "cpu_ms_per_frame": (
+                None if window_cpu is None or frames <= 0 else round(1000 * window_cpu / frames, 2)
+            ),
+            "peak_rss_mb": mem.get("VmHWM"),
+            "rss_mb": mem.get("VmRSS"),
+            "rss_shmem_mb": mem.get("RssShmem"),
+        }
+    return out
+
+
+def _status_counters(session: zenoh.Session, keys: Keys) -> dict[str, dict[str, Any]]:
+    """Each service's own counters: messages received/dropped/via shared memory, rejected."""
+    out: dict[str, dict[str, Any]] = {}
+    for st in query_status(session, keys, 2.0):
+        out[st.service] = {
+            "received": {
+                k.rsplit("/", 2)[-2] + "/" + k.rsplit("/", 1)[-1]: {
+                    "count": v.count,
+                    "dropped": v.dropped,
+                    "shm": v.shm,
+                }
+                for k, v in st.received.items()
+            },
+            "rejected": st.rejected,
+            "processing_ms_p50": st.processing_ms_p50,
+            "processing_ms_p99": st.processing_ms_p99,
+        }
+    return out
+
+
+def run_distributed(
+    scenario_path: str | None,
+    scenario: Scenario,
+    overrides: list[str],
+    frames: int,
+    warmup: int,
+    log_dir: Path,
+    shm: bool,
+    startup_timeout_s: float = 60.0,
+) -> dict[str, Any]:
+    """Launch the four services, measure ``frames`` frames after ``warmup``, stop them."""
+    keys = Keys(f"bench/{uuid.uuid4().hex[:12]}")
+    endpoint = free_tcp_endpoint()
+    env = {} if shm else {ENV_SHM: "0"}
+    if not shm:
+        os.environ[ENV_SHM] = "0"  # this process's session too, so nobody uses the pool
+    session = open_session(connect=[], listen=[endpoint])
+    trace = Trace()
+    subs = [
+        session.declare_subscriber(keys.timing, trace.on_timing),
+        session.declare_subscriber(keys.features, trace.on_features),
+        session.declare_subscriber(keys.twist, trace.on_twist),
+        session.declare_subscriber(keys.joint_command, trace.on_command),
+    ]
+    sup = Supervisor(scenario_path, keys.prefix, endpoint, log_dir, overrides, env=env)
+    realtime = scenario.run.clock is ClockMode.REALTIME
+    load_before = machine_load()
+    bench_cpu0 = time.process_time()
+    try:
+        sup.start()
+        _wait_for_services(session, keys, sup, SERVICES, startup_timeout_s)
+        ready_s = time.time()
+        # The window starts after every service is up (a realtime sim renders from the start).
+        while True:
+            with trace.lock:
+                after = [k for k, t in trace.timings.items() if t.render_start_s >= ready_s]
+            if after:
+                break
+            if not trace.wait_for_frame(max(trace.timings, default=-1) + 1, 30.0):
+                raise BenchError(f"no frame from the sim; see {log_dir}")
+        start = min(after) + warmup
+        window = list(range(start, start + frames))
+        if not trace.wait_for_frame(start, 30.0 + 5.0 * warmup):
+            raise BenchError(f"the sim stopped before frame {start}; see {log_dir}")
+        pids = sup.pids()
+        cpu_start = {n: process_cpu_s(p) for n, p in pids.items() if p is not None}
+        # Frame start+frames+1 reports the command of the last window frame as applied.
+        per_frame_limit_s = 10.0 + (2.0 if realtime else 5.0)
+        end = start + frames + 1
+        last_seen, last_progress = -1, time.monotonic()
+        while not trace.wait_for_frame(end, 0.5):
+            dead = sup.exited()
+            if dead:
+                c = dead[0]
+                raise BenchError(f"{c.name} exited ({c.exit_codes[-1]}); see {c.log_path}")
+            newest = max(trace.timings, default=-1)
+            if newest != last_seen:
+                last_seen, last_progress = newest, time.monotonic()
+            elif time.monotonic() - last_progress > per_frame_limit_s:
+                raise BenchError(f"the loop stalled at frame {newest}; see {log_dir}")
+        if realtime:
+            time.sleep(0.3)  # let the last window frame's answers land
+        usage = _service_usage(pids, cpu_start, frames)
+        counters = _status_counters(session, keys)
+    finally:
+        sup.stop()
+        for s in subs:
+            s.undeclare()
+        session.close()
+        if not shm:
+            os.environ.pop(ENV_SHM, None)
+    result = analyse_trace(trace, window)
+    vision_rgb = counters.get("vision", {}).get("received", {}).get("sim/rgb", {})
+    result.update(
+        {
+            "prefix": keys.prefix,
+            "window": [window[0], window[-1]],
+            "services": usage,
+            "status": counters,
+            "bench_cpu_s": round(time.process_time() - bench_cpu0, 3),
+            "bench_rejected": trace.rejected,
+            "frames_via_shm": vision_rgb.get("shm"),
+            "frames_received_by_vision": vision_rgb.get("count"),
+            "load_before": load_before,
+            "load_after": machine_load(),
+        }
+    )
+    result["_velocities"] = {k: trace.velocities.get(k) for k in window}
+    return result
+
+
+# --- the in-process baseline ---------------------------------------------------------------
+@dataclass
+class SourceFrame:
+    """One rendered frame kept for the synthetic source."""
+
+    rgb: np.ndarray
+    depth_m: np.ndarray | None
+    q_rad: np.ndarray
+    qdot_rad_s: np.ndarray
+    sim_time_s: float
+
+
+def run_inprocess(
+    scenario: Scenario, frames: int, warmup: int, keep: int
+) -> tuple[dict[str, Any], list[SourceFrame]]:
+    """The pure stage functions in one process on the lockstep frames (see the module doc);
+    returns the statistics and the first ``keep`` frames (for the synthetic source)."""
+    from services.actuation.inverse import twist_to_joint_velocities
+    from services.controller.ibvs import IbvsController, MarkerObservation
+    from services.controller.node import observation
+    from services.sim.events import TIME_EPSILON_S
+    from services.sim.world import World
+    from services.vision.node import to_message
+    from services.vision.tracking import DepthImage, TrackerState, observe
+
+    world = World(scenario)
+    cam, act = scenario.camera, scenario.actuation
+    controller = IbvsController(
+        scenario.controller, cam.assumed_pose(), scenario.target.approach_height_m
+    )
+    tracker = TrackerState()
+    substeps = max(1, round(1.0 / cam.rgb_hz / world.physics_dt_s))
+    depth_period_s = 1.0 / cam.depth_rate_hz
+    next_depth_s = 0.0
+    depth: tuple[np.ndarray, float] | None = None
+    previous_rad_s, previous_sim_s = np.zeros(kin.N_JOINTS), None
+    limit = kin.JOINT_VELOCITY_LIMIT_RAD_S
+    times: dict[str, list[float]] = {s: [] for s in ("render", *INPROCESS_STAGES, *CODEC_STAGES)}
+    per_frame: list[float] = []
+    with_codec: list[float] = []
+    velocities: dict[int, list[float]] = {}
+    kept: list[SourceFrame] = []
+    load_before = machine_load()
+    clock = time.perf_counter
+    try:
+        for seq in range(warmup + frames):
+            world.update_scene()
+            t = world.sim_time_s
+            q, qdot = world.joint_state()
+            with_depth = t + TIME_EPSILON_S >= next_depth_s
+            r0 = clock()
+            rgb, depth_m = world.render(with_depth)
+            t0 = clock()  # images ready
+            if depth_m is not None:
+                while next_depth_s <= t + TIME_EPSILON_S:
+                    next_depth_s += depth_period_s
+                depth = (depth_m, t)
+            if len(kept) < keep:
+                kept.append(SourceFrame(rgb, depth_m, q, qdot, t))
+            # vision
+            image = None
+            if depth is not None:
+                image = DepthImage(depth[0], world.depth_intrinsics, max(0.0, t - depth[1]))
+            measured, tracker = observe(
+                rgb, world.intrinsics, image, scenario.vision, scenario.marker.size_m, tracker
+            )
+            t1 = clock()
+            # controller
+            hand, target = (
+                MarkerObservation(m.state, m.corners_px, m.depths_m, m.points_m, m.occluded)
+                for m in (measured["hand"], measured["target"])
+            )
+            p_ee = kin.forward_kinematics(q)[:3, 3]
+            out = controller.step(hand, target, world.intrinsics, p_ee)
+            t2 = clock()
+            # actuation (as ActuationService.on_pair)
+            if out.valid:
+                cmd = twist_to_joint_velocities(
+                    out.twist_base_ee,
+                    q,
+                    act.damping,
+                    act.manipulability_threshold,
+                    previous_rad_s=previous_rad_s,
+                    max_accel_rad_s2=act.max_joint_acceleration_rad_s2,
+                    dt_s=0.0 if previous_sim_s is None else max(0.0, t - previous_sim_s),
+                ).velocity_rad_s
+            else:
+                cmd = np.zeros(kin.N_JOINTS)
+            previous_rad_s, previous_sim_s = cmd, t
+            t3 = clock()
+            world.set_joint_velocities(np.clip(cmd, -limit, limit))
+            t4 = clock()
+            # The codec work the distributed path does for this frame, timed apart.
+            header = Header(seq=seq, sim_time_s=t, send_time_s=time.time(), frame_seq=seq)
+            c0 = clock()
+            frame_payloads = [
+                encode(JointState(header=header, position_rad=q.tolist(), velocity_rad_s=qdot))
+            ]
+            if depth_m is not None:
+                frame_payloads.append(
+                    encode(
+                        DepthFrame(
+                            header=header,
+                            intrinsics=world.depth_intrinsics,
+                            depth_m=ImageData.view_of(depth_m),
+                        )
+                    )
+                )
+            frame_payloads.append(
+                encode(
+                    RgbFrame(header=header, intrinsics=world.intrinsics, rgb=ImageData.view_of(rgb))
+                )
+            )
+            decoded_rgb = decode(frame_payloads[-1], RgbFrame, FRAME_MAX_BYTES)
+            decoded_rgb.rgb.to_array()
+            if depth_m is not None:
+                decode(frame_payloads[1], DepthFrame, FRAME_MAX_BYTES).depth_m.to_array()
+            for _ in PIPELINE[1:]:  # the controller and actuation both decode the joint state
+                decode(frame_payloads[0], JointState, DEFAULT_MAX_BYTES)
+            c1 = clock()
+            features = Features(
+                header=header,
+                intrinsics=world.intrinsics,
+                hand=to_message(measured["hand"]),
+                target=to_message(measured["target"]),
+                depth_age_s=None if image is None else image.age_s,
+            )
+            observation(decode(encode(features), Features, DEFAULT_MAX_BYTES).hand)
+            c2 = clock()
+            twist = EndEffectorTwist(
+                header=header,
+                linear_m_s=out.twist_base_ee[:3].tolist(),
+                angular_rad_s=out.twist_base_ee[3:].tolist(),
+                valid=out.valid,
+                hold_reason=out.hold_reason,
+                mode=controller.config.mode.value,
+                error_px_rms=out.error_px_rms,
+                converged=out.converged,
+            )
+            decode(encode(twist), EndEffectorTwist, DEFAULT_MAX_BYTES)
+            c3 = clock()
+            command = JointVelocityCommand(header=header, velocity_rad_s=cmd.tolist())
+            decode(encode(command), JointVelocityCommand, DEFAULT_MAX_BYTES)
+            c4 = clock()
+            world.step(substeps)
+            if seq < warmup:
+                continue
+            velocities[seq] = cmd.tolist()
+            for name, d in zip(
+                ("render", *INPROCESS_STAGES, *CODEC_STAGES),
+                (t0 - r0, t1 - t0, t2 - t1, t3 - t2, t4 - t3, c1 - c0, c2 - c1, c3 - c2, c4 - c3),
+                strict=True,
+            ):
+                times[name].append(d)
+            per_frame.append(t4 - t0)
+            with_codec.append(t4 - t0 + c4 - c0)
+    finally:
+        world.close()
+    return {
+        "frames": frames,
+        "stages_ms": {s: summary_ms(v) for s, v in times.items()},
+        "per_frame_ms": summary_ms(per_frame),
+        "per_frame_with_codec_ms": summary_ms(with_codec),
+        "render_fps": round(1.0 / float(np.median(times["render"])), 3) if frames else None,
+        "load_before": load_before,
+        "load_after": machine_load(),
+        "_velocities": velocities,
+    }, kept
+
+
+# --- the synthetic 30 Hz source ------------------------------------------------------------
+def publish_source_frame(
+    publishers: dict[str, TypedPublisher[Any]],
+    frame: SourceFrame,
+    seq: int,
+    scenario: Scenario,
+    depth_seq: int,
+) -> float:
+    """Publish one frame as the sim does (joint state, depth if any, colour; the images through
+    the same shared-memory writer); returns the colour frame's send time."""
+    cam = scenario.camera
+
+    def header() -> Header:
+        return Header(seq=seq, sim_time_s=frame.sim_time_s, send_time_s=time.time(), frame_seq=seq)
+
+    publishers["joint_state"].put(
+        JointState(
+            header=header(),
+            position_rad=frame.q_rad.tolist(),
+            velocity_rad_s=frame.qdot_rad_s.tolist(),
+        )
+    )
+    if frame.depth_m is not None:
+        publishers["depth"].put(
+            DepthFrame(
+                header=header(),
+                intrinsics=cam.depth_intrinsics(),
+                depth_m=ImageData.view_of(frame.depth_m),
+            )
+        )
+    rgb = RgbFrame(
+        header=header(),
+        intrinsics=cam.intrinsics(),
+        rgb=ImageData.view_of(frame.rgb),
+        depth_frame_seq=depth_seq,
+    )
+    publishers["rgb"].put(rgb)
+    return rgb.header.send_time_s
+
+
+def run_synthetic(
+    scenario_path: str | None,
+    scenario: Scenario,
+    overrides: list[str],
+    source: list[SourceFrame],
+    frames: int,
+    rate_hz: float,
+    log_dir: Path,
+    shm: bool,
+    startup_timeout_s: float = 60.0,
+) -> dict[str, Any]:
+    """Frames at ``rate_hz`` into vision → controller → actuation (separate processes)."""
+    if not source:
+        raise BenchError("no frames to replay")
+    keys = Keys(f"bench/{uuid.uuid4().hex[:12]}")
+    endpoint = free_tcp_endpoint()
+    env = {} if shm else {ENV_SHM: "0"}
+    if not shm:
+        os.environ[ENV_SHM] = "0"
+    session = open_session(connect=[], listen=[endpoint])
+    trace = Trace()
+    subs = [
+        session.declare_subscriber(keys.features, trace.on_features),
+        session.declare_subscriber(keys.twist, trace.on_twist),
+        session.declare_subscriber(keys.joint_command, trace.on_command),
+    ]
+    publishers: dict[str, TypedPublisher[Any]] = {
+        name: TypedPublisher(
+            key,
+            session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK),
+            frames=ShmFrameWriter() if shm and name != "joint_state" else None,
+        )
+        for name, key in (
+            ("joint_state", keys.joint_state),
+            ("depth", keys.depth),
+            ("rgb", keys.rgb),
+        )
+    }
+    sup = Supervisor(
+        scenario_path,
+        keys.prefix,
+        endpoint,
+        log_dir,
+        [*overrides, "run.clock='realtime'"],
+        services=PIPELINE,
+        env=env,
+    )
+    rgb_sent: dict[int, float] = {}
+    late = 0
+    load_before = machine_load()
+    try:
+        sup.start()
+        _wait_for_services(session, keys, sup, PIPELINE, startup_timeout_s)
+        time.sleep(0.3)  # let their subscriptions reach this session
+        pids = sup.pids()
+        cpu_start = {n: process_cpu_s(p) for n, p in pids.items() if p is not None}
+        period = 1.0 / rate_hz
+        started = time.monotonic()
+        depth_seq = -1
+        for seq in range(frames):
+            due = started + seq * period
+            delay = due - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -period / 2:
+                late += 1  # this process could not keep the rate (counted, reported)
+            frame = source[seq % len(source)]
+            if frame.depth_m is not None:
+                depth_seq = seq
+            rgb_sent[seq] = publish_source_frame(publishers, frame, seq, scenario, depth_seq)
+        wall_s = time.monotonic() - started
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            with trace.lock:
+                if frames - 1 in trace.commands:
+                    break
+            time.sleep(0.05)
+        time.sleep(0.2)
+        usage = _service_usage(pids, cpu_start, frames)
+        counters = _status_counters(session, keys)
+    finally:
+        sup.stop()
+        for s in subs:
+            s.undeclare()
+        for p in publishers.values():
+            p.publisher.undeclare()
+        session.close()
+        if not shm:
+            os.environ.pop(ENV_SHM, None)
+    per_stage: dict[str, list[float]] = {s: [] for s in SYNTHETIC_STAGES}
+    latency: list[float] = []
+    with trace.lock:
+        for seq in range(frames):
+            f, tw, c = trace.features.get(seq), trace.twists.get(seq), trace.commands.get(seq)
+            fake = SimTiming(
+                header=Header(seq=0, sim_time_s=0.0, send_time_s=1.0, frame_seq=seq),
+                render_start_s=1.0,
+                capture_time_s=1.0,
+                frame_send_time_s=rgb_sent.get(seq, 0.0),
+                with_depth=True,
+            )
+            stages = frame_stages(fake, f, tw, c, None)
+            for s in SYNTHETIC_STAGES:
+                if s in stages:
+                    per_stage[s].append(stages[s])
+            if c is not None and all(s in stages for s in SYNTHETIC_STAGES):
+                latency.append(c.send_time_s - rgb_sent[seq])
+        have_f = [k for k in range(frames) if k in trace.features]
+        have_t = [k for k in have_f if k in trace.twists]
+        have_c = [k for k in have_t if k in trace.commands]
+    return {
+        "rate_hz": rate_hz,
+        "frames": frames,
+        "distinct_frames": min(len(source), frames),
+        "achieved_rate_hz": round((frames - 1) / wall_s, 3) if wall_s > 0 else None,
+        "late_publications": late,
+        "stages_ms": {s: summary_ms(v) for s, v in per_stage.items()},
+        "latency_ms": summary_ms(latency),
+        "dropped": {
+            "vision": frames - len(have_f),
+            "controller": len(have_f) - len(have_t),
+            "actuation": len(have_t) - len(have_c),
+        },
+        "services": usage,
+        "status": counters,
+        "load_before": load_before,
+        "load_after": machine_load(),
+    }
+
+
+# --- the whole benchmark ---------------------------------------------------------------------
+def run_bench(
+    scenario_path: str | None,
+    scenario: Scenario,
+    overrides: list[str],
+    frames: int,
+    warmup: int,
+    log_dir: Path,
+    shm: bool = True,
+    synthetic_frames: int | None = None,
+    command: str = "",
+) -> dict[str, Any]:
+    """Distributed run, in-process baseline, synthetic 30 Hz source; one JSON-ready dict."""
+    cam = scenario.camera
+    synthetic_frames = frames if synthetic_frames is None else synthetic_frames
+    distributed = run_distributed(
+        scenario_path, scenario, overrides, frames, warmup, log_dir / "distributed", shm
+    )
+    keep = min(MAX_SOURCE_FRAMES, warmup + max(synthetic_frames, 0))
+    inprocess, source = run_inprocess(scenario, frames, warmup, keep)
+    synthetic = None
+    if synthetic_frames > 0:
+        synthetic = run_synthetic(
+            scenario_path,
+            scenario,
+            overrides,
+            source[warmup:] or source,
+            synthetic_frames,
+            SYNTHETIC_HZ,
+            log_dir / "synthetic",
+            shm,
+        )
+    # The same frames must have given the same commands (lockstep only: realtime frames
+    # are taken at other instants).
+    dv, iv = distributed.pop("_velocities"), inprocess.pop("_velocities")
+    same = None
+    if scenario.run.clock is ClockMode.LOCKSTEP:
+        diffs = [
+            float(np.max(np.abs(np.subtract(dv[k], iv[k]))))
+            for k in dv
+            if dv.get(k) is not None and k in iv
+        ]
+        same = max(diffs) if diffs else None
+    inprocess["same_commands_max_abs_diff_rad_s"] = same
+    d50, d99 = distributed["latency_ms"]["p50"], distributed["latency_ms"]["p99"]
+    i50, i99 = inprocess["per_frame_ms"]["p50"], inprocess["per_frame_ms"]["p99"]
+    c50 = inprocess["per_frame_with_codec_ms"]["p50"]
+
+    def ratio(a: float | None, b: float | None) -> float | None:
+        return round(a / b, 4) if a is not None and b else None
+
+    return {
+        "version": JSON_VERSION,
+        "command": command,
+        "machine": {
+            "host": platform.node(),
+            "cpus": os.cpu_count(),
+            "processor": platform.processor() or platform.machine(),
+            "python": platform.python_version(),
+            "zenoh": _zenoh_version(),
+            "load_start": distributed["load_before"],
+            "load_end": machine_load(),
+        },
+        "config": {
+            "width_px": cam.width_px,
+            "height_px": cam.height_px,
+            "depth_width_px": cam.depth_intrinsics().width_px,
+            "depth_height_px": cam.depth_intrinsics().height_px,
+            "rgb_hz": cam.rgb_hz,
+            "depth_hz": cam.depth_rate_hz,
+            "clock": scenario.run.clock.value,
+            "renderer": scenario.sim.renderer,
+            "transport": "shm" if shm else "tcp",
+            "frames": frames,
+            "warmup": warmup,
+            "controller_mode": scenario.controller.mode.value,
+            "overrides": overrides,
+        },
+        "distributed": distributed,
+        "inprocess": inprocess,
+        "ratio": {
+            "p50": ratio(d50, i50),
+            "p99": ratio(d99, i99),
+            "vs_with_codec_p50": ratio(d50, c50),
+        },
+        "synthetic": synthetic,
+    }
+
+
+def median_of_runs(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """One result whose every number is the median of that number over ``runs`` (same
+    structure; anything else is taken from the first run), plus ``runs`` (how many) and, since
+    one drop matters, ``dropped_max``: the largest count per stage over the runs."""
+
+    def merge(values: list[Any]) -> Any:
+        first = values[0]
+        if isinstance(first, bool) or first is None:
+            return first
+        if isinstance(first, int | float):
+            numbers = [v for v in values if isinstance(v, int | float)]
+            m = float(np.median(numbers))
+            return round(m, 4) if isinstance(first, float) or m != int(m) else int(m)
+        if isinstance(first, dict):
+            return {k: merge([v.get(k) for v in values if isinstance(v, dict)]) for k in first}
+        return first
+
+    out = merge(runs)
+    out["runs"] = len(runs)
+    out["dropped_max"] = {
+        part: {k: max(r[part]["dropped"][k] for r in runs) for k in runs[0][part]["dropped"]}
+        for part in ("distributed", "synthetic")
+        if runs[0].get(part)
+    }
+    return out
+
+
+def _zenoh_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("eclipse-zenoh")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+# --- output ------------------------------------------------------------------------------
+def _f(v: float | int | None, fmt: str = ".2f") -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def format_report(r: dict[str, Any]) -> str:
+    """The readable table: per stage p50 / p99 / max (ms), then the summary figures."""
+    c, d, i = r["config"], r["distributed"], r["inprocess"]
+    m = r["machine"]
+    lines = [
+        f"umay bench: {c['width_px']}x{c['height_px']} {c['clock']}, renderer {c['renderer']}, "
+        f"transport {c['transport']}, {c['frames']} frames after {c['warmup']} warm-up; "
+        f"load {m['load_start']} → {m['load_end']} on {m['cpus']} CPUs",
+        "",
+        f"{'stage':<20} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8}   in-process p50 ms",
+    ]
+    inproc = {
+        "vision": i["stages_ms"]["vision"],
+        "controller": i["stages_ms"]["controller"],
+        "actuation": i["stages_ms"]["actuation"],
+        "apply": i["stages_ms"]["apply"],
+        "render": i["stages_ms"]["render"],
+    }
+    for s in STAGES:
+        st = d["stages_ms"][s]
+        extra = _f(inproc[s]["p50"]) if s in inproc else ""
+        lines.append(f"{s:<20} {_f(st['p50']):>8} {_f(st['p99']):>8} {_f(st['max']):>8}   {extra}")
+    lat = d["latency_ms"]
+    lines += [
+        f"{'latency excl. render':<20} {_f(lat['p50']):>8} {_f(lat['p99']):>8} "
+        f"{_f(lat['max']):>8}   {_f(i['per_frame_ms']['p50'])}"
+        f" (with codec {_f(i['per_frame_with_codec_ms']['p50'])})",
+        "",
+        f"ratio distributed / in-process (p50): {_f(r['ratio']['p50'], '.3f')}"
+        f"   (p99 {_f(r['ratio']['p99'], '.3f')}; vs in-process with codec "
+        f"{_f(r['ratio']['vs_with_codec_p50'], '.3f')})",
+        f"loop rate {_f(d['loop_rate_hz'])} frames/s, real-time factor "
+        f"{_f(d['real_time_factor'], '.3f')}; frames via shared memory "
+        f"{d['frames_via_shm']}/{d['frames_received_by_vision']}",
+        "dropped: " + ", ".join(f"{k} {v}" for k, v in d["dropped"].items()),
+    ]
+    if i.get("same_commands_max_abs_diff_rad_s") is not None:
+        lines.append(
+            "in-process commands vs distributed: max |Δ| "
+            f"{i['same_commands_max_abs_diff_rad_s']:.3g} rad/s"
+        )
+    lines += ["", f"{'service':<11} {'CPU s':>7} {'CPU ms/frame':>13} {'peak RSS MiB':>13}"]
+    for name, u in d["services"].items():
+        lines.append(
+            f"{name:<11} {_f(u['window_cpu_s'], '.2f'):>7} {_f(u['cpu_ms_per_frame'], '.1f'):>13}"
+            f" {_f(u['peak_rss_mb'], '.1f'):>13}"
+        )
+    if r.get("runs", 1) > 1:
+        lines[0] += f"; medians of {r['runs']} runs"
+        lines.append(
+            "largest drops in any run: "
+            + "; ".join(
+                f"{part}: " + ", ".join(f"{k} {v}" for k, v in d.items())
+                for part, d in r["dropped_max"].items()
+            )
+        )
+    s = r.get("synthetic")
+    if s:
+        lat = s["latency_ms"]
+        lines += [
+            "",
+            f"synthetic source at {s['rate_hz']:.0f} Hz ({s['frames']} frames, achieved "
+            f"{_f(s['achieved_rate_hz'])} Hz): frame published → command published p50 "
+            f"{_f(lat['p50'])} p99 {_f(lat['p99'])} max {_f(lat['max'])} ms",
+            "  dropped: " + ", ".join(f"{k} {v}" for k, v in s["dropped"].items()),
+        ]
+    return "\n".join(lines)
+
+
+def write_json(result: dict[str, Any], path: str | Path) -> None:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(json.dumps(result, indent=2) + "\n")

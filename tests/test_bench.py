@@ -1,0 +1,149 @@
+"""``umay bench``: the JSON is complete and sane. No thresholds on time: CI machines vary, and a
+benchmark prints its numbers, it does not assert them."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from common.messages import AppliedCommand, Header, SimTiming
+from deploy.bench import LATENCY_STAGES, PIPELINE, STAGES, SYNTHETIC_STAGES, Trace, analyse_trace
+
+FRAMES = 20
+
+
+def header(seq: int, send: float, recv: float = 0.0) -> Header:
+    return Header(seq=seq, sim_time_s=seq / 30, send_time_s=send, frame_seq=seq, recv_time_s=recv)
+
+
+def test_stages_add_up_to_the_latency_and_missing_answers_count_as_drops() -> None:
+    trace = Trace()
+    for k in range(4):
+        t0 = 1000.0 + k
+        applied = []
+        if k > 0:  # frame k reports the command of frame k-1 as applied
+            applied = [
+                AppliedCommand(
+                    frame_seq=k - 1,
+                    send_time_s=t0 - 1 + 0.120,
+                    recv_time_s=t0 - 1 + 0.121,
+                    applied_time_s=t0 - 1 + 0.122,
+                )
+            ]
+        trace.timings[k] = SimTiming(
+            header=header(k, t0 + 0.2),
+            render_start_s=t0,
+            capture_time_s=t0 + 0.1,
+            frame_send_time_s=t0 + 0.101,
+            with_depth=True,
+            applied=applied,
+        )
+        for a in applied:
+            trace.applied[a.frame_seq] = a
+        if k == 2:
+            continue  # vision never answered frame 2
+        trace.features[k] = header(k, t0 + 0.110, t0 + 0.102)
+        trace.twists[k] = header(k, t0 + 0.115, t0 + 0.111)
+        trace.commands[k] = header(k, t0 + 0.120, t0 + 0.116)
+    r = analyse_trace(trace, [0, 1, 2])
+    assert r["frames"] == 3 and r["frames_complete"] == 2
+    assert r["dropped"]["vision"] == 1
+    assert r["dropped"]["controller"] == r["dropped"]["actuation"] == r["dropped"]["apply"] == 0
+    assert r["stages_ms"]["render"]["p50"] == pytest.approx(100.0)
+    assert r["stages_ms"]["vision"]["p50"] == pytest.approx(8.0)
+    assert r["latency_ms"]["p50"] == pytest.approx(22.0)
+    total = sum(r["stages_ms"][s]["mean"] for s in LATENCY_STAGES)
+    assert total == pytest.approx(r["latency_ms"]["mean"], abs=1e-3)
+
+
+def check_summary(s: dict, n: int | None = None) -> None:
+    assert set(s) == {"n", "p50", "p99", "max", "mean"}
+    if n is not None:
+        assert s["n"] == n
+    assert s["n"] > 0
+    assert 0.0 <= s["p50"] <= s["p99"] <= s["max"]
+    assert 0.0 <= s["mean"] <= s["max"]
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    tmp = tmp_path_factory.mktemp("bench")
+    out = tmp / "bench.json"
+    argv = [sys.executable, "-m", "deploy", "bench", "--frames", str(FRAMES)]
+    argv += ["--size", "320x240", "--mode", "lockstep", "--warmup", "2"]
+    argv += ["--json", str(out), "--log-dir", str(tmp / "logs")]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
+    assert "latency excl. render" in proc.stdout and "ratio distributed / in-process" in proc.stdout
+    return json.loads(out.read_text())
+
+
+def test_bench_json_is_complete_and_sane(bench: dict) -> None:
+    r = bench
+    assert r["config"]["width_px"] == 320 and r["config"]["height_px"] == 240
+    assert r["config"]["clock"] == "lockstep" and r["config"]["transport"] == "shm"
+    assert r["config"]["renderer"] in ("tiny", "egl") and r["config"]["frames"] == FRAMES
+    assert len(r["machine"]["load_start"]) == 3 and r["machine"]["cpus"] >= 1
+
+    d = r["distributed"]
+    assert d["frames"] == FRAMES
+    # Lockstep: every frame goes all the way round, none is dropped anywhere.
+    assert d["frames_complete"] == FRAMES
+    assert all(v == 0 for v in d["dropped"].values()), d["dropped"]
+    assert set(d["stages_ms"]) == set(STAGES)
+    for stage in STAGES:
+        check_summary(d["stages_ms"][stage], FRAMES)
+    check_summary(d["latency_ms"], FRAMES)
+    # The stages after the render add up to the latency, frame by frame, hence in the mean.
+    total = sum(d["stages_ms"][s]["mean"] for s in LATENCY_STAGES)
+    assert total == pytest.approx(d["latency_ms"]["mean"], rel=1e-3, abs=0.01)
+    assert d["loop_rate_hz"] > 0 and d["real_time_factor"] > 0
+    assert d["frames_received_by_vision"] >= FRAMES
+    assert 0 <= d["frames_via_shm"] <= d["frames_received_by_vision"]
+    assert set(d["services"]) == {"sim", "vision", "controller", "actuation"}
+    for name, u in d["services"].items():
+        assert u["peak_rss_mb"] > 10 and u["rss_mb"] <= u["peak_rss_mb"], name
+        assert u["cpu_s"] >= u["window_cpu_s"] >= 0 and u["cpu_ms_per_frame"] >= 0, name
+    assert d["status"]["vision"]["rejected"] == 0
+
+    i = r["inprocess"]
+    assert i["frames"] == FRAMES
+    check_summary(i["per_frame_ms"], FRAMES)
+    check_summary(i["per_frame_with_codec_ms"], FRAMES)
+    assert i["per_frame_with_codec_ms"]["mean"] >= i["per_frame_ms"]["mean"]
+    # Same frames, same functions: the in-process loop computes the distributed commands.
+    assert i["same_commands_max_abs_diff_rad_s"] is not None
+    assert i["same_commands_max_abs_diff_rad_s"] <= 1e-9
+
+    assert r["ratio"]["p50"] > 0 and r["ratio"]["p99"] > 0 and r["ratio"]["vs_with_codec_p50"] > 0
+    assert r["ratio"]["p50"] == pytest.approx(
+        d["latency_ms"]["p50"] / i["per_frame_ms"]["p50"], rel=1e-3
+    )
+
+    s = r["synthetic"]
+    assert s["rate_hz"] == 30.0 and s["frames"] == FRAMES
+    assert set(s["dropped"]) == set(PIPELINE)
+    assert all(v >= 0 for v in s["dropped"].values())
+    assert sum(s["dropped"].values()) <= FRAMES
+    answered = FRAMES - sum(s["dropped"].values())
+    if answered:
+        check_summary(s["latency_ms"])
+        for stage in SYNTHETIC_STAGES:
+            check_summary(s["stages_ms"][stage])
+    assert set(s["services"]) == set(PIPELINE)
+
+
+def test_bench_refuses_bad_options_with_exit_2(tmp_path: Path) -> None:
+    for args in (["--size", "640by480"], ["--mode", "fast"], ["--frames", "1"], ["--repeat", "0"]):
+        proc = subprocess.run(
+            [sys.executable, "-m", "deploy", "bench", *args, "--log-dir", str(tmp_path)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert "umay bench" in proc.stderr
