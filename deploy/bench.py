@@ -536,16 +536,18 @@ def run_inprocess(
             if depth is not None:
                 image = DepthImage(depth[0], world.depth_intrinsics, max(0.0, t - depth[1]))
             measured, tracker = observe(
-                rgb, world.intrinsics, image, scenario.vision, scenario.marker.size_m, tracker
+                rgb, world.intrinsics, image, scenario.vision, scenario.marker.size_m, tracker, t
             )
             t1 = clock()
             # controller
             hand, target = (
-                MarkerObservation(m.state, m.corners_px, m.depths_m, m.points_m, m.occluded)
+                MarkerObservation(
+                    m.state, m.corners_px, m.depths_m, m.points_m, m.occluded, m.fitted
+                )
                 for m in (measured["hand"], measured["target"])
             )
             p_ee = kin.forward_kinematics(q)[:3, 3]
-            out = controller.step(hand, target, world.intrinsics, p_ee)
+            out = controller.step(hand, target, world.intrinsics, p_ee, t)
             t2 = clock()
             # actuation (as ActuationService.on_pair)
             if out.valid:
