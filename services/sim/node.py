@@ -254,18 +254,30 @@ class SimService:
         awaited: int | None = None  # the frame whose command the next render waits for
         awaited_since = 0.0
         timeout_s = 0.0
-        while not self.ctx.stop.is_set():
+
+        def apply_commands(timeout_s: float) -> None:
+            nonlocal awaited
             event = self.node.next_event(timeout_s)  # a command wakes the loop at once
             while event is not None:  # apply every command in order: the newest one stays
                 self.apply(event[1], self.node.event_recv_time_s)
-                if awaited is not None and event[1].header.frame_seq >= awaited:
-                    awaited = None
+                answered = event[1].header.frame_seq
+                if awaited is not None and (answered >= awaited or answered < 0):
+                    awaited = None  # answered, or a stop that answers no frame: render on
                 event = self.node.next_event(0.0)
+
+        while not self.ctx.stop.is_set():
+            apply_commands(timeout_s)
             self.check_watchdog()
             wall_s = time.monotonic() - started
             behind = int((wall_s - self.world.sim_time_s) / self.world.physics_dt_s)
-            if behind > 0:
-                self.world.step(behind)
+            # Catch up a camera period at a time, taking in commands between (one that came
+            # during a long render must not wait for all of the catch-up).
+            while behind > 0 and not self.ctx.stop.is_set():
+                chunk = min(behind, self.substeps)
+                self.world.step(chunk)
+                behind -= chunk
+                if behind > 0:
+                    apply_commands(0.0)
             waiting = awaited is not None and time.monotonic() - awaited_since < wait_s
             if self.world.sim_time_s >= next_frame_s and not waiting:
                 missed = math.floor((self.world.sim_time_s - next_frame_s) / self.period_s)

@@ -36,12 +36,12 @@ def occluder_fraction(
     left out (too close, too far, shiny: nothing is known there); a closer object near the
     marker but not touching it leaves valid background in the ring and does not count.
     """
-    ys, xs = np.nonzero(mask)
-    if ys.size == 0:
+    x, y, w, h = cv2.boundingRect((mask > 0).astype(np.uint8))
+    if w == 0 or h == 0:
         return 0.0
     pad = max(ring_px, reach_px) + 2
-    y0, y1 = max(0, ys.min() - pad), min(mask.shape[0], ys.max() + pad + 1)
-    x0, x1 = max(0, xs.min() - pad), min(mask.shape[1], xs.max() + pad + 1)
+    y0, y1 = max(0, y - pad), min(mask.shape[0], y + h + pad)
+    x0, x1 = max(0, x - pad), min(mask.shape[1], x + w + pad)
     roi = (mask[y0:y1, x0:x1] > 0).astype(np.uint8)
     outer = cv2.dilate(roi, np.ones((2 * ring_px + 3, 2 * ring_px + 3), np.uint8))
     inner = cv2.dilate(roi, np.ones((3, 3), np.uint8))

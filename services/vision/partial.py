@@ -95,43 +95,45 @@ def true_edge_points(
     return points[keep].astype(float) + np.asarray(offset_px, dtype=float)
 
 
-def _inward_offsets_px(corners_px: FloatArray) -> FloatArray:
-    """Per side, where its outline pixels lie on average relative to the true edge, as a
-    signed distance along that side's normal (see :func:`_signed_distances`): half a lattice
-    step inside (the largest component of the unit normal, halved), towards the centre."""
-    a = corners_px
-    d = np.roll(corners_px, -1, axis=0) - a
-    normal = np.column_stack([-d[:, 1], d[:, 0]]) / np.linalg.norm(d, axis=1)[:, None]
-    towards_centre = np.sign(np.einsum("kc,kc->k", corners_px.mean(axis=0) - a, normal))
-    return towards_centre * 0.5 * np.max(np.abs(normal), axis=1)
+@dataclass(frozen=True)
+class _Sides:
+    """The four side lines of a projected square, ``normals[k]·p = offsets[k]`` (unit normals;
+    the offsets already moved by where outline pixels sit, half a lattice step inside the true
+    edge, towards the centre), with each side's start corner, direction and length (px)."""
+
+    normals: FloatArray  # (4, 2)
+    offsets: FloatArray  # (4,)
+    starts: FloatArray  # (4, 2)
+    directions: FloatArray  # (4, 2), start → end
+    lengths: FloatArray  # (4,)
 
 
-def _signed_distances(corners_px: FloatArray, points_px: FloatArray) -> tuple[FloatArray, ...]:
-    """(distance of every point to every side's line (N, 4), position along each side as a
-    fraction of it (N, 4), side lengths (4,))."""
-    a = corners_px
-    d = np.roll(corners_px, -1, axis=0) - a
-    length = np.linalg.norm(d, axis=1)
-    rel = points_px[:, None, :] - a[None]
-    t = np.einsum("nkc,kc->nk", rel, d) / length**2
-    normal = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
-    return np.einsum("nkc,kc->nk", rel, normal), t, length
+def _sides(corners_px: FloatArray) -> _Sides:
+    starts = corners_px
+    directions = corners_px[[1, 2, 3, 0]] - starts
+    lengths = np.sqrt(np.sum(directions**2, axis=1))
+    normals = np.stack([-directions[:, 1], directions[:, 0]], axis=1) / lengths[:, None]
+    along_normal = np.sum(normals * starts, axis=1)
+    towards_centre = np.sign(normals @ corners_px.mean(axis=0) - along_normal)
+    inset = towards_centre * 0.5 * np.max(np.abs(normals), axis=1)
+    return _Sides(normals, along_normal + inset, starts, directions, lengths)
 
 
-def _side_residuals(corners_px: FloatArray, points_px: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Residual of each point against the side of the quadrilateral it lies along (the nearest
-    side whose extent it falls in), the outline's half-pixel inset removed, and the index of
-    that side; -1 for points near a corner, which are left out (corners are rounded)."""
-    dist, t, length = _signed_distances(corners_px, points_px)
-    dist = dist - _inward_offsets_px(corners_px)[None, :]
+def _assign(sides: _Sides, points_px: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Each point's residual against the side it lies along (the nearest side whose extent it
+    falls in), and that side's index; -1 (residual 0) for points near a corner, left out
+    (corners are rounded)."""
+    dist = points_px @ sides.normals.T - sides.offsets  # (N, 4)
+    t = (points_px @ sides.directions.T - np.sum(sides.starts * sides.directions, axis=1)) / (
+        sides.lengths**2
+    )
     within = (t > -0.25) & (t < 1.25)  # a side's neighbourhood, corners included
     side = np.argmin(np.where(within, np.abs(dist), np.inf), axis=1)
     rows = np.arange(len(points_px))
-    margin = CORNER_CLEARANCE_PX / length[side]
+    margin = CORNER_CLEARANCE_PX / sides.lengths[side]
     t_side = t[rows, side]
     keep = within[rows, side] & (t_side > margin) & (t_side < 1.0 - margin)
-    side = np.where(keep, side, -1)
-    return np.where(keep, dist[rows, side], 0.0), side
+    return np.where(keep, dist[rows, side], 0.0), np.where(keep, side, -1)
 
 
 @dataclass(frozen=True)
@@ -157,11 +159,11 @@ def fit_square_to_blob(
     blob_centre_px: FloatArray,
     k: CameraIntrinsics,
 ) -> SquareFit | None:
-    """:func:`fit_square` from the remembered pose and from that pose slid under the blob's
-    centre (the object may have moved while hidden); the tighter fit of the two."""
-    fits = [fit_square(s, edge_points_px, k) for s in (square, slid_to(square, blob_centre_px, k))]
-    good = [f for f in fits if f is not None]
-    return min(good, key=lambda f: f.rms_px) if good else None
+    """:func:`fit_square` from the remembered pose, else from that pose slid under the blob's
+    centre (the object may have moved while hidden)."""
+    return fit_square(square, edge_points_px, k) or fit_square(
+        slid_to(square, blob_centre_px, k), edge_points_px, k
+    )
 
 
 def fit_square(
@@ -176,57 +178,53 @@ def fit_square(
     params = np.zeros(3)
     steps = np.array([STEP_M, STEP_M, STEP_RAD])
 
-    def residuals(p: FloatArray, sides: FloatArray | None = None):
-        corners = project(square.moved(*p).corners_m(), k)
-        r, s = _side_residuals(corners, edge_points_px)
-        if sides is not None:  # keep the assignment fixed while differentiating
-            r = _residuals_for(corners, edge_points_px, sides)
-        return r, s, corners
+    def sides_at(p: FloatArray) -> _Sides:
+        return _sides(project(square.moved(*p).corners_m(), k))
 
-    def jacobian(p: FloatArray, r: FloatArray, sides: FloatArray, used: FloatArray):
-        jac = np.empty((np.count_nonzero(used), 3))
+    def jacobian(p: FloatArray, sides: _Sides, side: FloatArray) -> FloatArray:
+        """d(residual)/d(params) of the used points: the lines differentiated numerically
+        (three projections of four corners), the points' residuals follow linearly."""
+        used = side >= 0
+        points, k_side = edge_points_px[used], side[used]
+        jac = np.empty((len(points), 3))
         for j in range(3):
             bumped = p.copy()
             bumped[j] += steps[j]
-            jac[:, j] = (residuals(bumped, sides)[0][used] - r[used]) / steps[j]
+            moved = sides_at(bumped)
+            d_normals = (moved.normals - sides.normals) / steps[j]
+            d_offsets = (moved.offsets - sides.offsets) / steps[j]
+            jac[:, j] = np.sum(points * d_normals[k_side], axis=1) - d_offsets[k_side]
         return jac
 
     for _ in range(ITERATIONS):
-        r, sides, _ = residuals(params)
-        used = sides >= 0
-        if np.count_nonzero(used) < MIN_POINTS:
+        sides = sides_at(params)
+        r, side = _assign(sides, edge_points_px)
+        if np.count_nonzero(side >= 0) < MIN_POINTS:
             return None
-        delta, *_ = np.linalg.lstsq(jacobian(params, r, sides, used), -r[used], rcond=None)
+        delta, *_ = np.linalg.lstsq(jacobian(params, sides, side), -r[side >= 0], rcond=None)
         params += delta
         if abs(delta[0]) + abs(delta[1]) < 1e-6 and abs(delta[2]) < 1e-5:
             break
     # A square turned by 90° is the same square: keep the turn within ±45°, so that the
     # corners keep the labels they had (the corner set does not change).
     params[2] = math.remainder(params[2], math.pi / 2.0)
-    r, sides, corners = residuals(params)
-    used = sides >= 0
+    sides = sides_at(params)
+    r, side = _assign(sides, edge_points_px)
+    used = side >= 0
     if np.count_nonzero(used) < MIN_POINTS:
         return None
     rms = float(np.sqrt(np.mean(r[used] ** 2)))
     if rms > MAX_RMS_PX or abs(params[2]) > MAX_TURN_RAD:
         return None
-    jac = jacobian(params, r, sides, used)
+    jac = jacobian(params, sides, side)
     information = jac.T @ jac
     if np.linalg.cond(information) > 1e12:
         return None
     sigma = np.sqrt(np.diag(np.linalg.inv(information))) * max(rms, 0.1)
     if max(sigma[0], sigma[1]) > MAX_SLIDE_SIGMA_M or sigma[2] > MAX_TURN_SIGMA_RAD:
         return None
-    counts = tuple(int(np.count_nonzero(sides == i)) for i in range(4))
-    return SquareFit(square.moved(*params), corners, rms, counts)  # type: ignore[arg-type]
-
-
-def _residuals_for(corners_px: FloatArray, points_px: FloatArray, sides: FloatArray) -> FloatArray:
-    """Residuals (as in :func:`_side_residuals`) against the given sides (0 where -1)."""
-    dist, _, _ = _signed_distances(corners_px, points_px)
-    dist = dist - _inward_offsets_px(corners_px)[None, :]
-    rows = np.arange(len(points_px))
-    return np.where(sides >= 0, dist[rows, np.maximum(sides, 0)], 0.0)
+    counts = tuple(int(np.count_nonzero(side == i)) for i in range(4))
+    return SquareFit(square.moved(*params), sides.starts, rms, counts)  # type: ignore[arg-type]
 
 
 def stray_fraction(mask: np.ndarray, corners_px: FloatArray, offset_px: tuple[int, int]) -> float:

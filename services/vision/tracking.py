@@ -35,6 +35,7 @@ from services.vision.features import (
     PlaneFit,
     colour_mask,
     find_marker_quads,
+    mask_bounds,
     measure_quad,
     not_visible,
     plane_depth_image,
@@ -159,10 +160,9 @@ def _hidden_in_depth(
     if memory is None:
         return False
     region = _region_mask(memory.corners_px, rgb.shape)
-    rows, cols = np.nonzero(region)
-    if rows.size == 0:
+    bounds = mask_bounds(region, 0)
+    if bounds is None:
         return False
-    bounds = (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1)
     r0, r1, c0, c1 = bounds
     depth_crop = _depth_under(depth, k, bounds)
     colour = colour_mask(rgb[r0:r1, c0:c1], MARKERS[name], cfg)
@@ -186,17 +186,9 @@ def _fit_partial(
         return None
     points = back_project(memory.corners_px, memory.depths_m, k)
     square = SquareOnPlane.from_corners(points, marker_size_m)
-    rows, cols = np.nonzero(quad.mask)
-    if rows.size == 0:
+    bounds = mask_bounds(quad.mask, 2 * cfg.occlusion_ring_px + 2)
+    if bounds is None:
         return None
-    pad = 2 * cfg.occlusion_ring_px + 2
-    h, w = quad.mask.shape
-    bounds = (
-        max(rows.min() - pad, 0),
-        min(rows.max() + pad + 1, h),
-        max(cols.min() - pad, 0),
-        min(cols.max() + pad + 1, w),
-    )
     r0, r1, c0, c1 = bounds
     depth_crop = _depth_under(depth, k, bounds)
     valid = np.isfinite(depth_crop) & (depth_crop > 0)
@@ -206,7 +198,8 @@ def _fit_partial(
     occluder = closer | (~valid & near)
     mask = quad.mask[r0:r1, c0:c1]
     edges = true_edge_points(mask, occluder, (c0, r0))
-    centre = np.array([cols.mean(), rows.mean()])
+    moments = cv2.moments(mask, binaryImage=True)
+    centre = np.array([moments["m10"], moments["m01"]]) / moments["m00"] + (c0, r0)
     fit = fit_square_to_blob(square, edges, centre, k)
     if fit is None or stray_fraction(mask, fit.corners_px, (c0, r0)) > MAX_STRAY_FRACTION:
         return None
