@@ -47,9 +47,18 @@ class CompareError(ValueError):
     """Bad input to ``umay compare``; the message names what and why. Nothing was launched."""
 
 
-class CompareRow(RunResult):
-    """One run of the comparison: the run's result and where its scenario came from."""
+# A run that converged in the image but ended further than this from its goal (ground truth)
+# converged on something else than the target: the tolerance of the integration tests.
+ON_GOAL_M = 0.005
 
+
+class CompareRow(RunResult):
+    """One run of the comparison: the run's result and where its scenario came from.
+
+    ``converged`` is the controller's claim (image error below the threshold); ``on_goal`` is
+    the judgement: converged and the green marker within :data:`ON_GOAL_M` of its goal."""
+
+    on_goal: bool
     scenario_file: str
     moving_target: bool  # the scenario moves the target: it judges tracking
 
@@ -59,6 +68,7 @@ CSV_COLUMNS: tuple[str, ...] = (
     "scenario",
     "mode",
     "converged",
+    "on_goal",
     "reason",
     "frames",
     "sim_time_s",
@@ -195,9 +205,15 @@ def plan(
 
 
 # --- rows: CSV and JSON ----------------------------------------------------------------------
+def is_on_goal(result: RunResult) -> bool:
+    error = result.final_position_error_m
+    return result.converged and error is not None and error <= ON_GOAL_M
+
+
 def make_row(job: Job, result: RunResult) -> CompareRow:
     return CompareRow(
         **result.model_dump(),
+        on_goal=is_on_goal(result),
         scenario_file=str(job.scenario_path),
         moving_target=moves_target(job.scenario),
     )
@@ -266,8 +282,9 @@ class StrategySummary(BaseModel):
 
     mode: str
     runs: int
-    converged: int
-    success_rate: float
+    converged: int  # the controller said so
+    on_goal: int  # ... and the hand was within ON_GOAL_M of its goal (ground truth)
+    success_rate: float  # on_goal / runs
     static_runs: int  # scenarios without a moving target
     static_converged: int
     median_frames: float | None
@@ -318,7 +335,8 @@ def summarize_mode(rows: Sequence[CompareRow], mode: str) -> StrategySummary:
         mode=mode,
         runs=len(mine),
         converged=sum(r.converged for r in mine),
-        success_rate=sum(r.converged for r in mine) / len(mine) if mine else 0.0,
+        on_goal=sum(r.on_goal for r in mine),
+        success_rate=sum(r.on_goal for r in mine) / len(mine) if mine else 0.0,
         static_runs=len(static),
         static_converged=len(ok),
         median_frames=med("frames"),
@@ -394,10 +412,10 @@ def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], right_from: in
 
 
 def strategy_table(summaries: Sequence[StrategySummary]) -> str:
-    headers = ["strategy", "converged", *[h for _, h, _, _, _ in METRICS]]
+    headers = ["strategy", "converged", "on goal", *[h for _, h, _, _, _ in METRICS]]
     body = []
     for s in summaries:
-        cells = [s.mode, f"{s.converged}/{s.runs}"]
+        cells = [s.mode, f"{s.converged}/{s.runs}", f"{s.on_goal}/{s.runs}"]
         for field, _, scale, fmt, _ in METRICS:
             unit = "%" if field == "success_rate" else ""
             cells.append(format_cell(getattr(s, field), scale, fmt) + unit)
@@ -422,6 +440,12 @@ def best_table(bests: Sequence[Best]) -> str:
     return _table(["metric (median)", "", "best strategy", "value"], body, right_from=3)
 
 
+def converged_cell(r: CompareRow) -> str:
+    if not r.converged:
+        return f"**no** ({r.reason})"
+    return "yes" if r.on_goal else "yes, **off goal**"
+
+
 def runs_table(rows: Sequence[CompareRow]) -> str:
     headers = [
         "scenario",
@@ -440,7 +464,7 @@ def runs_table(rows: Sequence[CompareRow]) -> str:
         [
             r.scenario,
             r.mode,
-            "yes" if r.converged else f"**no** ({r.reason})",
+            converged_cell(r),
             str(r.frames),
             format_cell(r.final_pixel_rms, 1.0, ".3f"),
             format_cell(r.final_position_error_m, 1000.0, ".2f"),
@@ -467,7 +491,7 @@ def summary_markdown(
     summaries = summarize_modes(rows, modes)
     common, ratios = paired_medians(rows, modes, "path_ratio")
     _, frames = paired_medians(rows, modes, "frames")
-    failed = [r for r in rows if not r.converged]
+    failed = [r for r in rows if not r.on_goal]
     parts = [
         "# Jacobian strategies compared",
         "",
@@ -475,7 +499,10 @@ def summary_markdown(
         "(lockstep clock; `umay compare`). Medians are over the static scenarios each strategy "
         "converged on (tracking: over the moving-target runs); the position error is the green "
         "marker's distance from its goal (ground truth), the path ratio the hand's path over "
-        "the straight line from its start to its end." + (f"\n\n{note}" if note else ""),
+        "the straight line from its start to its end. *Converged*: the controller's image "
+        f"error stayed below its threshold; *on goal*: converged and the hand within "
+        f"{1000 * ON_GOAL_M:g} mm of its goal (success counts these)."
+        + (f"\n\n{note}" if note else ""),
         "",
         "## Per strategy",
         "",
@@ -494,12 +521,14 @@ def summary_markdown(
         "",
         "Scenarios: " + (", ".join(common) if common else "none") + ".",
         "",
-        "## Runs that did not converge",
+        "## Runs that did not end on their goal",
         "",
     ]
     if failed:
         parts += [
-            f"- {r.scenario} · {r.mode}: {r.reason} after {r.frames} frames "
+            f"- {r.scenario} · {r.mode}: "
+            + ("converged in the image but off goal" if r.converged else r.reason)
+            + f" after {r.frames} frames "
             f"({r.sim_time_s:.1f} s simulated), pixel RMS {format_cell(r.final_pixel_rms)} px, "
             f"{format_cell(r.final_position_error_m, 1000.0, '.1f')} mm from the goal"
             + (f"; {r.detail}" if r.detail else "")

@@ -132,12 +132,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
         def on_done(job: Job, row: CompareRow) -> None:
             running.discard(job_label(job))
-            mark = "[green]converged[/]" if row.converged else f"[red]{row.reason}[/]"
+            outcome = f"{row.reason:>9s}"  # padded before colouring: markup has no width
+            colour = "green" if row.converged else "red"
             bar.console.print(
-                f"{job_label(job):40s} {mark:>24s}  {row.frames:5d} frames  "
-                f"{format_cell(row.final_pixel_rms)} px  "
-                f"{format_cell(row.final_position_error_m, 1000.0, '.2f')} mm  "
-                f"ratio {format_cell(row.path_ratio)}  {row.wall_time_s:5.1f} s"
+                f"{job_label(job):34s} [{colour}]{outcome}[/] {row.frames:4d} frames "
+                f"{format_cell(row.final_pixel_rms):>6s} px "
+                f"{format_cell(row.final_position_error_m, 1000.0, '.2f'):>6s} mm "
+                f"ratio {format_cell(row.path_ratio)} {row.wall_time_s:5.1f} s"
             )
             bar.update(task, advance=1, description=", ".join(sorted(running)) or "done")
 

@@ -83,7 +83,7 @@ def _image_panel(ax: Axes, series: Mapping[str, RunSeries]) -> None:
         lo, hi = everything.min(axis=0) - MARGIN_PX, everything.max(axis=0) + MARGIN_PX
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(hi[1], lo[1])  # v points down
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")  # keep the zoom: the box takes its shape
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
     size = f" of {first.image_size_px[0]}×{first.image_size_px[1]}" if first.image_size_px else ""
