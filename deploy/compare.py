@@ -40,7 +40,9 @@ from common.runtime import parse_overrides
 from deploy.evaluate import RunResult
 
 ALL_MODES = tuple(m.value for m in JacobianMode)
-WALL_TIME_FIELD = "wall_time_s"  # the one field two lockstep comparisons may disagree on
+# What two lockstep comparisons of the same scenarios may disagree on: the wall time, and
+# where the scenario files were (a subset copied elsewhere is checked against the suite).
+NOT_RESULTS = frozenset({"wall_time_s", "scenario_file"})
 
 
 class CompareError(ValueError):
@@ -210,11 +212,20 @@ def is_on_goal(result: RunResult) -> bool:
     return result.converged and error is not None and error <= ON_GOAL_M
 
 
+def display_path(path: Path) -> str:
+    """Relative to the working directory when under it (the suite's rows then read
+    ``deploy/scenarios/suite/...`` wherever the checkout is), else absolute."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path.resolve())
+
+
 def make_row(job: Job, result: RunResult) -> CompareRow:
     return CompareRow(
         **result.model_dump(),
         on_goal=is_on_goal(result),
-        scenario_file=str(job.scenario_path),
+        scenario_file=display_path(job.scenario_path),
         moving_target=moves_target(job.scenario),
     )
 
@@ -260,8 +271,8 @@ def differences(
     a: Sequence[CompareRow], b: Sequence[CompareRow], ignore: frozenset[str] = frozenset()
 ) -> list[str]:
     """What differs between two comparisons, run by run and field by field (exact: lockstep
-    runs repeat bit for bit); the wall time is always ignored."""
-    skip = ignore | {WALL_TIME_FIELD}
+    runs repeat bit for bit); the wall time and the scenario file's path are ignored."""
+    skip = ignore | NOT_RESULTS
     key = lambda r: (r.scenario, r.mode)  # noqa: E731
     left, right = {key(r): r for r in a}, {key(r): r for r in b}
     out = [f"{s} · {m}: only in the first" for s, m in left.keys() - right.keys()]
@@ -272,6 +283,13 @@ def differences(
             if field not in skip and x[field] != y[field]:
                 out.append(f"{k[0]} · {k[1]}: {field} {x[field]!r} != {y[field]!r}")
     return sorted(out)
+
+
+def same_runs(reference: Sequence[CompareRow], rows: Sequence[CompareRow]) -> list[CompareRow]:
+    """The reference's rows for the (scenario, mode) pairs of ``rows``: a subset of a suite can
+    be checked against the whole suite's results."""
+    wanted = {(r.scenario, r.mode) for r in rows}
+    return [r for r in reference if (r.scenario, r.mode) in wanted]
 
 
 # --- summary ---------------------------------------------------------------------------------

@@ -49,7 +49,8 @@ def add_compare_parser(sub: argparse._SubParsersAction) -> None:
         "--reference",
         default=None,
         metavar="RESULTS.json",
-        help="a previous comparison's results.json: exit 1 if any number differs (wall time aside)",
+        help="a previous comparison's results.json: exit 1 if a number of any run of this "
+        "comparison differs from it (wall time aside; its other runs are ignored)",
     )
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_compare)
@@ -83,6 +84,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         plan,
         rows_from_json,
         run_all,
+        same_runs,
         write_outputs,
     )
 
@@ -164,7 +166,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     converged = sum(r.converged for r in rows)
     console.print(f"{converged}/{len(rows)} runs converged in {wall_s / 60:.1f} min")
     if reference is not None:
-        diffs = differences(reference, rows)
+        diffs = differences(same_runs(reference, rows), rows)
         if diffs:
             console.print(f"[red]{len(diffs)} difference(s) from {args.reference}[/]:")
             for d in diffs:

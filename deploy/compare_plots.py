@@ -1,9 +1,11 @@
 """One figure of every strategy's run on the same scenario (``umay compare``'s overlay.png).
 
-Three panels from the recordings (:func:`deploy.plots.load_series`): the hand marker's centre
+Four panels from the recordings (:func:`deploy.plots.load_series`): the hand marker's centre
 in the image (the thesis's Figs. 5.10-5.17 put one strategy per figure; here they share one,
 over the green start square and the red target square), the feature error over time (log
-scale, with the convergence threshold) and the commanded end-effector speed over time.
+scale, with the convergence threshold), the commanded end-effector speed over time, and how
+far the hand strays from the straight line between its start and its end in 3-D (ground
+truth): what the path ratio sums up, and what the image alone does not show.
 
 Colours are Okabe-Ito (distinguishable with the common colour-vision deficiencies), kept away
 from the markers' green and red, and every strategy also has its own line style and marker,
@@ -22,7 +24,7 @@ from matplotlib.figure import Figure
 
 from deploy.plots import HAND_GREEN, TARGET_RED, RunSeries, load_series
 
-OVERLAY_DPI = 110
+OVERLAY_DPI = 100
 MARGIN_PX = 25.0  # around the trails in the zoomed image panel
 # mode → (colour, line style, marker); unknown modes cycle through FALLBACK.
 STRATEGY_STYLES: dict[str, tuple[str, str, str]] = {
@@ -132,6 +134,35 @@ def _speed_panel(ax: Axes, series: Mapping[str, RunSeries]) -> None:
     ax.legend(loc="upper right", fontsize=7, framealpha=0.9)
 
 
+def path_deviation_mm(ee_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(progress along the start-end line in %, distance from that line in mm) of a 3-D path
+    (N×3, metres); empty arrays for a path too short to have a line."""
+    if len(ee_m) < 2:
+        return np.empty(0), np.empty(0)
+    chord = ee_m[-1] - ee_m[0]
+    length = float(np.linalg.norm(chord))
+    if length < 1e-6:
+        return np.empty(0), np.empty(0)
+    axis = chord / length
+    rel = ee_m - ee_m[0]
+    along = rel @ axis
+    off = np.linalg.norm(rel - np.outer(along, axis), axis=1)
+    return 100.0 * along / length, 1000.0 * off
+
+
+def _path_panel(ax: Axes, series: Mapping[str, RunSeries]) -> None:
+    for i, (mode, s) in enumerate(series.items()):
+        colour, line, _ = strategy_style(mode, i)
+        progress, off = path_deviation_mm(s.truth_ee_m)
+        ax.plot(progress, off, color=colour, linestyle=line, linewidth=1.5, label=mode)
+    ax.set_xlabel("progress along the straight start-end line (%)")
+    ax.set_ylabel("distance from that line (mm)")
+    ax.set_title("hand path in 3-D (ground truth, DH-6 origin)", fontsize=10)
+    ax.set_ylim(bottom=0.0)
+    _style(ax)
+    ax.legend(loc="upper right", fontsize=7, framealpha=0.9)
+
+
 def overlay_figure(
     series: Mapping[str, RunSeries], converged_px: float | None = None, title: str = ""
 ) -> Figure | None:
@@ -139,11 +170,12 @@ def overlay_figure(
     drawable = {m: s for m, s in series.items() if s.hand_visible.any() or s.twist_t_s.size}
     if not drawable:
         return None
-    fig = Figure(figsize=(13.5, 4.4), dpi=OVERLAY_DPI, layout="constrained")
+    fig = Figure(figsize=(11.0, 8.2), dpi=OVERLAY_DPI, layout="constrained")
     FigureCanvasAgg(fig)
-    ax_image, ax_error, ax_speed = fig.subplots(1, 3, width_ratios=(1.1, 1.0, 1.0))
+    (ax_image, ax_error), (ax_path, ax_speed) = fig.subplots(2, 2)
     _image_panel(ax_image, drawable)
     _error_panel(ax_error, drawable, converged_px)
+    _path_panel(ax_path, drawable)
     _speed_panel(ax_speed, drawable)
     if title:
         fig.suptitle(title)

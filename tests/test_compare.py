@@ -28,6 +28,7 @@ from deploy.compare import (
     rows_from_csv,
     rows_from_json,
     rows_json,
+    same_runs,
     summarize_modes,
     summary_markdown,
 )
@@ -133,12 +134,16 @@ def test_summary_markdown_counts_match_the_rows() -> None:
     assert text.count("\n| a | ") == 3  # one line per run in the table of every run
 
 
-def test_differences_ignore_only_the_wall_time() -> None:
+def test_differences_ignore_only_the_wall_time_and_the_file_path() -> None:
     rows = synthetic_rows()
-    again = [r.model_copy(update={"wall_time_s": r.wall_time_s + 7.0}) for r in rows]
+    again = [
+        r.model_copy(update={"wall_time_s": r.wall_time_s + 7.0, "scenario_file": "copy.toml"})
+        for r in rows
+    ]
     assert differences(rows, again) == []
     again[1] = again[1].model_copy(update={"frames": 161})
     assert differences(rows, again) == ["a · dynamic: frames 160 != 161"]
+    assert differences(same_runs(rows, again[:3]), again[:3]) == ["a · dynamic: frames 160 != 161"]
     assert differences(rows, again[:-1]) == [
         "a · dynamic: frames 160 != 161",
         "m · points3d: only in the first",
