@@ -458,6 +458,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_bench)
 
+    from deploy.compare_cli import add_compare_parser
+
+    add_compare_parser(sub)  # umay compare: every strategy on every scenario of a suite
+
     p = sub.add_parser("router", help="run a Zenoh router (multi-host setups)")
     p.add_argument(
         "--listen",

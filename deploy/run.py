@@ -109,10 +109,13 @@ def run_once(
     wall_timeout_s: float | None = None,
     quiet: bool = False,
     record: Path | None = None,
+    stop: threading.Event | None = None,
 ) -> RunResult:
     """Launch the four services, servo until converged or timeout, stop them, judge the run.
 
     ``record``: write every data message of the run to this MCAP file (see deploy.recording).
+    ``stop``: set from another thread to end the run early (reason "error", detail
+    "interrupted"); the services are stopped as after any run.
     """
     endpoint = listen or default_listen_endpoint()
     keys = Keys(prefix)
@@ -142,6 +145,9 @@ def run_once(
         while True:
             if monitor.decided.wait(0.2):
                 reason = "converged" if monitor.converged_frame is not None else "timeout"
+                break
+            if stop is not None and stop.is_set():
+                detail = "interrupted"
                 break
             dead = sup.exited()
             if dead:

@@ -1,0 +1,176 @@
+"""``umay compare`` on the command line: parse, validate (exit 2, nothing launched), run with a
+progress bar, write the outputs. Kept apart from :mod:`deploy.compare` so that building the
+``umay`` parser imports nothing heavy."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from common.config import JacobianMode
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+DEFAULT_SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios" / "suite"
+ALL_MODES = tuple(m.value for m in JacobianMode)
+
+
+# --- command line --------------------------------------------------------------------------
+def add_compare_parser(sub: argparse._SubParsersAction) -> None:
+    """The ``compare`` subcommand, for :func:`deploy.cli.build_parser`."""
+    p = sub.add_parser(
+        "compare", help="every strategy on every scenario of a suite: results, summary, figures"
+    )
+    p.add_argument(
+        "--scenarios",
+        default=str(DEFAULT_SCENARIO_DIR),
+        metavar="DIR",
+        help="folder of scenario TOML files (default: deploy/scenarios/suite)",
+    )
+    p.add_argument(
+        "--modes",
+        nargs="+",
+        default=None,
+        metavar="MODE",
+        help=f"strategies (default: all: {' '.join(ALL_MODES)})",
+    )
+    p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
+    p.add_argument("--out", default="out/compare", metavar="DIR", help="output folder")
+    p.add_argument(
+        "--figures-scenario",
+        default=None,
+        metavar="NAME",
+        help="scenario whose runs are recorded and plotted (default: the first)",
+    )
+    p.add_argument(
+        "--reference",
+        default=None,
+        metavar="RESULTS.json",
+        help="a previous comparison's results.json: exit 1 if a number of any run of this "
+        "comparison differs from it (wall time aside; its other runs are ignored)",
+    )
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_compare)
+
+
+def _interrupt(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    from common.config import ScenarioError
+    from deploy.compare import (
+        CompareError,
+        CompareRow,
+        Job,
+        differences,
+        format_cell,
+        job_label,
+        make_figures,
+        parse_modes,
+        plan,
+        rows_from_json,
+        run_all,
+        same_runs,
+        write_outputs,
+    )
+
+    console = Console(stderr=True)
+
+    def bad(message: str) -> int:
+        print(f"umay compare: {message}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+    try:
+        modes = parse_modes(args.modes)
+        if args.jobs < 1:
+            raise CompareError(f"--jobs: must be at least 1, not {args.jobs}")
+        reference = None
+        if args.reference:
+            try:
+                reference = rows_from_json(Path(args.reference).read_text())
+            except (OSError, ValueError) as exc:
+                raise CompareError(f"--reference: {args.reference}: {exc}") from exc
+        the_plan = plan(Path(args.scenarios), modes, args.set, args.figures_scenario)
+    except (CompareError, ScenarioError) as exc:
+        return bad(str(exc))
+
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stop = threading.Event()
+    # SIGTERM behaves as Ctrl-C: the running pipelines are stopped, nothing is left behind.
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    started = time.monotonic()
+    columns = (
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+    )
+    interrupted = False
+    rows: list[CompareRow] = []
+    running: set[str] = set()
+    with Progress(*columns, console=console, transient=False) as bar:
+        task = bar.add_task("compare", total=len(the_plan.jobs))
+
+        def on_start(job: Job) -> None:
+            running.add(job_label(job))
+            bar.update(task, description=", ".join(sorted(running)))
+
+        def on_done(job: Job, row: CompareRow) -> None:
+            running.discard(job_label(job))
+            outcome = f"{row.reason:>9s}"  # padded before colouring: markup has no width
+            colour = "green" if row.converged else "red"
+            bar.console.print(
+                f"{job_label(job):34s} [{colour}]{outcome}[/] {row.frames:4d} frames "
+                f"{format_cell(row.final_pixel_rms):>6s} px "
+                f"{format_cell(row.final_position_error_m, 1000.0, '.2f'):>6s} mm "
+                f"ratio {format_cell(row.path_ratio)} {row.wall_time_s:5.1f} s"
+            )
+            bar.update(task, advance=1, description=", ".join(sorted(running)) or "done")
+
+        try:
+            rows = run_all(the_plan.jobs, args.jobs, out_dir, stop, on_start, on_done)
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+    wall_s = time.monotonic() - started
+    if interrupted:
+        console.print(
+            f"[red]interrupted[/]: every pipeline stopped; {out_dir} left as it was "
+            "(results of an interrupted comparison are not written)"
+        )
+        return EXIT_INTERRUPTED
+    figures = make_figures(the_plan, rows, out_dir)
+    note = f"Wall time {wall_s / 60:.1f} min with {args.jobs} job(s) at once."
+    for path in write_outputs(the_plan, rows, out_dir, figures, note):
+        print(path)
+    for path in figures:
+        print(path)
+    converged = sum(r.converged for r in rows)
+    console.print(f"{converged}/{len(rows)} runs converged in {wall_s / 60:.1f} min")
+    if reference is not None:
+        diffs = differences(same_runs(reference, rows), rows)
+        if diffs:
+            console.print(f"[red]{len(diffs)} difference(s) from {args.reference}[/]:")
+            for d in diffs:
+                console.print("  " + d)
+            return EXIT_FAILED
+        console.print(f"identical to {args.reference} (wall time aside): {len(rows)} runs")
+    return EXIT_OK

@@ -1,0 +1,326 @@
+"""``umay compare``: the pure core on synthetic rows, bad input, Ctrl-C, and a small real
+comparison (2 scenarios × every strategy at 320×240) whose outputs must be complete and
+consistent."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from deploy.compare import (
+    CSV_COLUMNS,
+    CompareError,
+    CompareRow,
+    best_per_metric,
+    differences,
+    paired_medians,
+    parse_modes,
+    plan,
+    rows_csv,
+    rows_from_csv,
+    rows_from_json,
+    rows_json,
+    same_runs,
+    summarize_modes,
+    summary_markdown,
+)
+from deploy.compare_plots import write_overlay
+from tests.test_plots import PNG_SIGNATURE, write_recording
+
+UMAY = [sys.executable, "-m", "deploy"]
+SUITE = Path(__file__).resolve().parent.parent / "deploy" / "scenarios" / "suite"
+MODES = ("constant", "dynamic", "pmj", "mpj", "points3d")
+# The CI comparison: the baseline and the moving target (so the tracking columns are filled),
+# at 320×240 and with short timeouts; about 2 minutes on 2 cores.
+SMALL_SUITE = ("01_baseline.toml", "12_moving_target.toml")
+CHEAP = ["camera.width_px=320", "camera.height_px=240", "run.timeout_s=12.0"]
+CHEAP_ARGS = [a for item in CHEAP for a in ("--set", item)]
+RUN_TIMEOUT_S = 1200
+
+
+def row(scenario: str, mode: str, converged: bool = True, **fields) -> CompareRow:
+    base = {
+        "scenario": scenario,
+        "mode": mode,
+        "clock": "lockstep",
+        "converged": converged,
+        "reason": "converged" if converged else "timeout",
+        "frames": 150,
+        "sim_time_s": 5.0,
+        "wall_time_s": 30.0,
+        "final_pixel_rms": 0.2,
+        "final_position_error_m": 0.0004,
+        "final_orientation_error_deg": 0.1,
+        "path_length_m": 0.1,
+        "path_ratio": 1.05,
+        "peak_ee_speed_m_s": 0.08,
+        "peak_joint_speed_rad_s": 0.4,
+        "min_manipulability": 0.01,
+        "marker_lost_s": 0.0,
+        "scenario_file": f"suite/{scenario}.toml",
+        "moving_target": False,
+    }
+    data = base | fields
+    error = data["final_position_error_m"]
+    data["on_goal"] = data["converged"] and error is not None and error <= 0.005
+    return CompareRow(**data)
+
+
+def synthetic_rows() -> list[CompareRow]:
+    return [
+        row("a", "constant", path_ratio=1.20, frames=200),
+        row("a", "dynamic", path_ratio=1.10, frames=160),
+        row("a", "points3d", path_ratio=1.00, frames=170, final_pixel_rms=0.123456789012345),
+        row("b", "constant", converged=False, final_pixel_rms=None, path_ratio=1.5),
+        row("b", "dynamic", path_ratio=1.30, frames=180),
+        row("b", "points3d", path_ratio=1.02, frames=190, detail='odd, "quoted" text'),
+        row("m", "constant", moving_target=True, tracking_position_error_m=0.02),
+        row("m", "dynamic", moving_target=True, tracking_position_error_m=0.01),
+        row("m", "points3d", moving_target=True, final_position_error_m=0.02),
+    ]
+
+
+# --- pure core ------------------------------------------------------------------------------
+def test_csv_columns_are_every_field_once() -> None:
+    assert len(CSV_COLUMNS) == len(set(CSV_COLUMNS))
+    assert set(CSV_COLUMNS) == set(CompareRow.model_fields)
+
+
+def test_csv_and_json_read_back_to_the_same_rows() -> None:
+    rows = synthetic_rows()
+    assert rows_from_csv(rows_csv(rows)) == rows
+    assert rows_from_json(rows_json(rows)) == rows
+
+
+def test_summary_counts_medians_and_best() -> None:
+    modes = ("constant", "dynamic", "points3d")
+    summaries = {s.mode: s for s in summarize_modes(synthetic_rows(), modes)}
+    constant = summaries["constant"]
+    assert (constant.runs, constant.converged, constant.static_runs) == (3, 2, 2)
+    assert constant.static_converged == 1
+    assert constant.success_rate == pytest.approx(2 / 3)
+    points3d = summaries["points3d"]
+    assert (points3d.converged, points3d.on_goal) == (3, 2)  # m: converged 20 mm off
+    assert summaries["dynamic"].median_path_ratio == pytest.approx(1.20)  # a, b; m moves
+    assert summaries["constant"].median_frames == 200  # a only: b failed, m moves
+    assert summaries["dynamic"].median_tracking_position_error_m == pytest.approx(0.01)
+    best = {b.metric: b for b in best_per_metric(list(summaries.values()))}
+    assert best["median_path_ratio"].modes == ["points3d"]
+    assert best["success_rate"].modes == ["dynamic"]
+    assert best["median_tracking_position_error_m"].modes == ["dynamic"]
+
+
+def test_paired_medians_use_the_static_scenarios_every_strategy_converged_on() -> None:
+    common, ratios = paired_medians(synthetic_rows(), ("constant", "dynamic"), "path_ratio")
+    assert common == ["a"]  # b: constant failed; m: moving target
+    assert ratios == {"constant": 1.20, "dynamic": 1.10}
+
+
+def test_summary_markdown_counts_match_the_rows() -> None:
+    rows = synthetic_rows()
+    text = summary_markdown(rows, ("constant", "dynamic", "points3d"), ("a", "b", "m"))
+    assert "| constant | 2/3 | 2/3 |" in text and "| dynamic | 3/3 | 3/3 |" in text
+    assert "| points3d | 3/3 | 2/3 |" in text
+    assert "- b · constant: timeout" in text
+    assert "- m · points3d: converged in the image but off goal" in text
+    assert text.count("\n| a | ") == 3  # one line per run in the table of every run
+
+
+def test_differences_ignore_only_the_wall_time_and_the_file_path() -> None:
+    rows = synthetic_rows()
+    again = [
+        r.model_copy(update={"wall_time_s": r.wall_time_s + 7.0, "scenario_file": "copy.toml"})
+        for r in rows
+    ]
+    assert differences(rows, again) == []
+    again[1] = again[1].model_copy(update={"frames": 161})
+    assert differences(rows, again) == ["a · dynamic: frames 160 != 161"]
+    assert differences(same_runs(rows, again[:3]), again[:3]) == ["a · dynamic: frames 160 != 161"]
+    assert differences(rows, again[:-1]) == [
+        "a · dynamic: frames 160 != 161",
+        "m · points3d: only in the first",
+    ]
+
+
+def test_parse_modes() -> None:
+    assert parse_modes(None) == MODES
+    assert parse_modes(["mpj,constant", "mpj"]) == ("mpj", "constant")
+    assert parse_modes(["all"]) == MODES
+    with pytest.raises(CompareError, match="'nope'"):
+        parse_modes(["dynamic", "nope"])
+
+
+def _suite_copy(tmp_path: Path, names: tuple[str, ...]) -> Path:
+    folder = tmp_path / "scenarios"
+    folder.mkdir()
+    for name in names:
+        shutil.copy(SUITE / name, folder / name)
+    return folder
+
+
+def test_plan_is_scenario_major_and_records_the_figures_scenario(tmp_path: Path) -> None:
+    folder = _suite_copy(tmp_path, SMALL_SUITE)
+    p = plan(folder, ("mpj", "dynamic"), CHEAP, figures_scenario="12_moving_target")
+    assert [(j.scenario.name, j.mode) for j in p.jobs] == [
+        ("baseline", "mpj"),
+        ("baseline", "dynamic"),
+        ("moving_target", "mpj"),
+        ("moving_target", "dynamic"),
+    ]
+    assert p.figures_scenario == "moving_target"
+    assert [j.record for j in p.jobs] == [False, False, True, True]
+    assert all(j.scenario.camera.width_px == 320 for j in p.jobs)
+    assert [j.scenario.controller.mode.value for j in p.jobs] == ["mpj", "dynamic"] * 2
+
+
+@pytest.mark.parametrize(
+    ("setup", "message"),
+    [
+        ("missing", "no such directory"),
+        ("empty", "no scenario"),
+        ("invalid", "controller.gain"),
+        ("unreachable", "target.position"),
+        ("duplicate", "also the name of"),
+        ("figures", "--figures-scenario"),
+    ],
+)
+def test_plan_refuses_bad_input(tmp_path: Path, setup: str, message: str) -> None:
+    folder = tmp_path / "scenarios"
+    figures = None
+    if setup != "missing":
+        folder.mkdir()
+    baseline = (SUITE / "01_baseline.toml").read_text()
+    if setup == "invalid":
+        (folder / "a.toml").write_text(baseline.replace("gain = 1.0", "gain = -1.0"))
+    elif setup == "unreachable":
+        (folder / "a.toml").write_text(baseline.replace("[0.28, -0.32, 0.04]", "[0.9, -0.3, 0]"))
+    elif setup == "duplicate":
+        (folder / "a.toml").write_text(baseline)
+        (folder / "b.toml").write_text(baseline)
+    elif setup == "figures":
+        (folder / "a.toml").write_text(baseline)
+        figures = "nope"
+    with pytest.raises(CompareError, match=message):
+        plan(folder, MODES, figures_scenario=figures)
+
+
+def test_overlay_figure_is_a_png(tmp_path: Path) -> None:
+    recordings = {m: write_recording(tmp_path / f"{m}.mcap") for m in ("dynamic", "mpj")}
+    path = write_overlay(recordings, tmp_path / "overlay.png", 0.25, title="two strategies")
+    assert path is not None and path.read_bytes()[:8] == PNG_SIGNATURE
+    assert write_overlay({}, tmp_path / "none.png") is None
+
+
+# --- command line ---------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--modes", "dynamic", "warp"], "unknown strategy 'warp'"),
+        (["--scenarios", "/nonexistent/suite"], "no such directory"),
+        (["--jobs", "0"], "--jobs"),
+        (["--set", "controller.gain=-3"], "controller.gain"),
+    ],
+)
+def test_bad_input_exits_2_naming_it_and_launches_nothing(
+    tmp_path: Path, args: list[str], message: str
+) -> None:
+    out = tmp_path / "out"
+    started = time.monotonic()
+    proc = subprocess.run(
+        [*UMAY, "compare", "--out", str(out), *args], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert message in proc.stderr
+    assert not out.exists()  # nothing written, nothing launched
+    assert time.monotonic() - started < 60
+
+
+def _processes_mentioning(text: str) -> list[int]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if text in cmdline:
+            found.append(int(entry.name))
+    return found
+
+
+def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:
+    folder = _suite_copy(tmp_path, ("01_baseline.toml",))
+    out = tmp_path / "out"
+    args = ["--scenarios", str(folder), "--modes", "dynamic", "mpj", "--jobs", "2"]
+    proc = subprocess.Popen(
+        [*UMAY, "compare", *args, "--out", str(out), *CHEAP_ARGS],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while len(_processes_mentioning(str(folder))) < 8 and time.monotonic() < deadline:
+            time.sleep(0.2)  # two pipelines of four services each
+        assert len(_processes_mentioning(str(folder))) >= 8, "the pipelines never started"
+        time.sleep(2.0)
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, stderr
+    assert "interrupted" in stderr
+    assert _processes_mentioning(str(folder)) == []
+    assert not (out / "results.csv").exists()
+
+
+# --- a small real comparison ----------------------------------------------------------------
+def test_small_comparison_outputs_are_complete_and_consistent(tmp_path: Path) -> None:
+    folder = _suite_copy(tmp_path, SMALL_SUITE)
+    out = tmp_path / "out"
+    started = time.monotonic()
+    args = ["--scenarios", str(folder), "--jobs", "2", "--out", str(out), *CHEAP_ARGS]
+    proc = subprocess.run(
+        [*UMAY, "compare", *args],
+        capture_output=True,
+        text=True,
+        timeout=RUN_TIMEOUT_S,
+    )
+    print(f"\nsmall comparison: {time.monotonic() - started:.0f} s\n{proc.stderr[-3000:]}")
+    assert proc.returncode == 0, proc.stderr
+
+    rows = rows_from_csv((out / "results.csv").read_text())
+    assert rows == rows_from_json((out / "results.json").read_text())
+    assert [(r.scenario, r.mode) for r in rows] == [
+        (s, m) for s in ("baseline", "moving_target") for m in MODES
+    ]
+    for r in rows:
+        assert r.clock == "lockstep" and r.frames > 0 and r.final_position_error_m is not None
+        assert r.moving_target == (r.scenario == "moving_target")
+        assert (r.tracking_position_error_m is not None) == r.moving_target
+        assert r.reason in ("converged", "timeout"), r
+        assert r.on_goal == (r.converged and r.final_position_error_m <= 0.005)
+
+    summary = (out / "summary.md").read_text()
+    for s in summarize_modes(rows, MODES):
+        assert f"| {s.mode} | {s.converged}/{s.runs} | {s.on_goal}/{s.runs} |" in summary
+        assert s.runs == 2
+    assert summary.count("\n| baseline | ") == len(MODES)
+
+    for mode in MODES:
+        for name in ("image_trajectory.png", "ee_velocity.png"):
+            path = out / "figures" / mode / name
+            assert path.read_bytes()[:8] == PNG_SIGNATURE, path
+    assert (out / "figures" / "overlay.png").read_bytes()[:8] == PNG_SIGNATURE
+    assert "figures/overlay.png" in summary
+    json.loads((out / "results.json").read_text())  # plain JSON, not only pydantic's
