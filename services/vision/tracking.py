@@ -55,7 +55,7 @@ HELD_DEPTH = {"hand": "corners", "target": "plane"}
 # Markers whose partly hidden views are fitted (services.vision.partial): the target, which the
 # hand necessarily covers at the end; the hand moves, so its remembered plane is not its own.
 FITTED = ("target",)
-SIZE_TOLERANCE = 0.15  # relative: a side further off the marker's size is not the whole square
+SIZE_TOLERANCE = 0.04  # relative: a side further off the marker's size is not the whole square
 NEAR_DIAGONALS = 2.0  # the hand is "over" the target within this many target diagonals
 
 
