@@ -17,6 +17,11 @@ FloatArray = NDArray[np.float64]
 VELOCITY_WINDOW_S = 0.5  # the velocity is the slope of the corners' centroid over this window
 MIN_SPAN_S = 0.2  # views spanning less time: no estimate (zero)
 MAX_SPEED_M_S = 0.3  # a faster estimate is a glitch, not the object
+# A slower estimate is the measurement's wobble, not motion: a still target seen partly hidden
+# (fitted corners off by up to 0.5 px) gives slopes of about 1 mm/s, which, carried for the
+# seconds the hand hides it, moved the goal 3-4 mm. The moving targets that matter move at
+# centimetres per second.
+STILL_SPEED_M_S = 0.003
 # An unseen marker is carried along its velocity this long at most. The hand follows the
 # prediction; if the object stopped, the hand moves on past it, uncovers it and sees it again.
 PREDICTION_HORIZON_S = 5.0
@@ -40,7 +45,8 @@ class MarkerMotion:
     def velocity_m_s(self, t_s: float) -> FloatArray:
         """Velocity believed at ``t_s``: the least-squares slope of the corners' centroid over
         the window before the latest view, kept for at most :data:`PREDICTION_HORIZON_S` after
-        it; zero until the views span :data:`MIN_SPAN_S`."""
+        it; zero until the views span :data:`MIN_SPAN_S`, and zero below
+        :data:`STILL_SPEED_M_S`."""
         if not self.views or t_s - self.views[-1][0] > PREDICTION_HORIZON_S:
             return np.zeros(3)
         if self.views[-1][0] - self.views[0][0] < MIN_SPAN_S:
@@ -50,6 +56,8 @@ class MarkerMotion:
         dt = t - t.mean()
         velocity = dt @ (centres - centres.mean(axis=0)) / float(dt @ dt)
         speed = float(np.linalg.norm(velocity))
+        if speed < STILL_SPEED_M_S:
+            return np.zeros(3)
         if speed > MAX_SPEED_M_S:
             velocity = velocity * (MAX_SPEED_M_S / speed)
         return velocity

@@ -8,7 +8,7 @@ import pytest
 from common import kinematics as kin
 from common.camera import CameraIntrinsics, project
 from common.config import ControllerConfig, JacobianMode
-from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, MarkerMotion
+from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
 from services.controller.ibvs import (
     IbvsController,
     MarkerObservation,
@@ -258,6 +258,12 @@ def test_marker_motion_estimates_the_velocity_and_where_an_unseen_marker_is() ->
     assert not np.any(short.velocity_m_s(0.1))  # views spanning too little time
     fast = MarkerMotion().seen(0.0, square_points(np.zeros(3))).seen(0.3, square_points(np.ones(3)))
     assert np.linalg.norm(fast.velocity_m_s(0.3)) == pytest.approx(MAX_SPEED_M_S)
+    # A still marker whose measured corners creep (a partly hidden fit) is not carried away.
+    creep = MarkerMotion()
+    for i in range(16):
+        t = i / 30
+        creep = creep.seen(t, square_points(np.array([0.0, 0.0, 0.5 + 0.6 * STILL_SPEED_M_S * t])))
+    assert not np.any(creep.velocity_m_s(0.5)) and not np.any(creep.shift_m(4.0))
 
 
 @pytest.mark.parametrize("track", [True, False])

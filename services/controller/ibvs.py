@@ -178,9 +178,6 @@ def desired_observation(
     return MarkerObservation("visible", project(raised, k), raised[:, 2].copy(), raised)
 
 
-STILL_SPEED_M_S = 0.002  # a target believed slower than this counts as still (convergence)
-
-
 def carried(last: MarkerObservation, shift_m: FloatArray, k: CameraIntrinsics) -> MarkerObservation:
     """``last`` moved by ``shift_m`` (camera frame): where a hidden target is by now."""
     if not np.any(shift_m):
@@ -334,7 +331,7 @@ class IbvsController:
         err_px = feature_error_px_rms(hand.corners_px, target.corners_px)
         # On a target believed to move the hand is tracking, not done (and an unseen target
         # may have stopped: it must be seen again first).
-        still = float(np.linalg.norm(velocity)) < STILL_SPEED_M_S
+        still = not np.any(velocity)  # slower than motion.STILL_SPEED_M_S
         below = err_px < self.config.converged_px and still
         self.frames_below = self.frames_below + 1 if below else 0
         converged = self.frames_below >= self.config.converged_frames
