@@ -43,13 +43,19 @@ class MarkerMotion:
         return self.views[-1][0] if self.views else None
 
     def velocity_m_s(self, t_s: float) -> FloatArray:
-        """Velocity believed at ``t_s``: the least-squares slope of the corners' centroid over
-        the window before the latest view, kept for at most :data:`PREDICTION_HORIZON_S` after
-        it; zero until the views span :data:`MIN_SPAN_S`, and zero below
-        :data:`STILL_SPEED_M_S`."""
+        """Velocity believed at ``t_s``: :attr:`estimated_velocity_m_s`, kept for at most
+        :data:`PREDICTION_HORIZON_S` after the latest view (then zero: the marker is believed
+        to have stopped where the prediction ended)."""
         if not self.views or t_s - self.views[-1][0] > PREDICTION_HORIZON_S:
             return np.zeros(3)
-        if self.views[-1][0] - self.views[0][0] < MIN_SPAN_S:
+        return self.estimated_velocity_m_s
+
+    @property
+    def estimated_velocity_m_s(self) -> FloatArray:
+        """The least-squares slope of the corners' centroid over the window before the latest
+        view; zero until the views span :data:`MIN_SPAN_S`, and zero below
+        :data:`STILL_SPEED_M_S`; at most :data:`MAX_SPEED_M_S`."""
+        if not self.views or self.views[-1][0] - self.views[0][0] < MIN_SPAN_S:
             return np.zeros(3)
         t = np.array([v[0] for v in self.views])
         centres = np.array([v[1].mean(axis=0) for v in self.views])
@@ -63,8 +69,10 @@ class MarkerMotion:
         return velocity
 
     def shift_m(self, t_s: float) -> FloatArray:
-        """How far the marker has moved since its latest view, if it kept its velocity."""
+        """How far the marker has moved since its latest view, if it kept its velocity for at
+        most :data:`PREDICTION_HORIZON_S` (the prediction stays where it ended, rather than
+        jumping back to the last view)."""
         if not self.views:
             return np.zeros(3)
         elapsed_s = min(max(t_s - self.views[-1][0], 0.0), PREDICTION_HORIZON_S)
-        return self.velocity_m_s(t_s) * elapsed_s
+        return self.estimated_velocity_m_s * elapsed_s

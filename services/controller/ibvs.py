@@ -280,6 +280,8 @@ class IbvsController:
     last_target: MarkerObservation | None = None
     pairing: int | None = None  # hand corner i goes to target corner (i + pairing) % 4
     motion: MarkerMotion = field(default_factory=MarkerMotion)  # the target's
+    # The hidden target is where its motion predicts, unconfirmed since: not a goal to stop on.
+    predicted: bool = False
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
 
     def step(
@@ -296,10 +298,13 @@ class IbvsController:
         if target.usable:
             self.last_target = target
             self.motion = self.motion.seen(t_s, target.points_m)
+            self.predicted = False
         elif target.occluded and self.last_target is not None:
-            expected = carried(self.last_target, self.motion.shift_m(t_s), k)
+            shift = self.motion.shift_m(t_s)
+            expected = carried(self.last_target, shift, k)
             if hand_hides_target(hand, expected):
                 target, remembered = expected, True
+                self.predicted = self.predicted or bool(np.any(shift))
         if not (hand.visible and target.usable):
             self.frames_below = 0
             which = "hand" if not hand.visible else "target"
@@ -329,10 +334,10 @@ class IbvsController:
         twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
         twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
         err_px = feature_error_px_rms(hand.corners_px, target.corners_px)
-        # On a target believed to move the hand is tracking, not done (and an unseen target
-        # may have stopped: it must be seen again first).
+        # On a target believed to move the hand is tracking, not done; nor on a prediction of
+        # where a hidden target went: it must be seen again first.
         still = not np.any(velocity)  # slower than motion.STILL_SPEED_M_S
-        below = err_px < self.config.converged_px and still
+        below = err_px < self.config.converged_px and still and not self.predicted
         self.frames_below = self.frames_below + 1 if below else 0
         converged = self.frames_below >= self.config.converged_frames
         return ControlOutput(twist, True, err_px, converged, remembered)

@@ -56,6 +56,8 @@ class ControllerService:
             "holding": self.holding,
             "hold_reason": self.hold_reason,
             "target_remembered": self.target_remembered,
+            # servoing on where its motion says a hidden target went, not yet seen there
+            "target_predicted": self.controller.predicted,
             "target_speed_m_s": self.target_speed_m_s,
         }
 
