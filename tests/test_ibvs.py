@@ -195,6 +195,32 @@ def test_hold_when_a_marker_is_missing_and_memory_when_the_hand_hides_the_target
     assert not out.valid and out.hold_reason == "target no_depth"
 
 
+def test_no_convergence_on_a_predicted_target_until_it_is_seen_again() -> None:
+    """A target seen sliding, then hidden by the hand: the hand follows the prediction, and
+    even once the prediction has ended (the target believed still) the run is not converged
+    until vision sees the target again."""
+    velocity = np.array([0.02, 0.0, 0.0])
+    start = np.array([0.0, 0.05, 0.55])
+    ctrl = IbvsController(ControllerConfig(gain=1.0), np.eye(4))
+    dt = 1 / 30
+    last_seen_s = 15 * dt
+    for i in range(16):  # seen sliding for 0.5 s, the hand already on it
+        where = observe(square_points(start + velocity * i * dt))
+        ctrl.step(where, where, K, np.zeros(3), i * dt)
+    t = last_seen_s
+    for _ in range(30 * 7):  # hidden for 7 s, past the prediction horizon
+        t += dt
+        predicted = start + velocity * (last_seen_s + min(t - last_seen_s, PREDICTION_HORIZON_S))
+        hand = observe(square_points(predicted))  # the hand on the prediction, hiding it
+        out = ctrl.step(hand, not_seen("lost", occluded=True), K, np.zeros(3), t)
+        assert out.valid and out.target_remembered and not out.converged
+    assert ctrl.predicted and out.error_px_rms < 1e-6
+    for _ in range(6):  # seen again where predicted: done
+        t += dt
+        out = ctrl.step(hand, observe(square_points(predicted)), K, np.zeros(3), t)
+    assert not ctrl.predicted and out.converged
+
+
 def test_corner_pairing_takes_the_least_turn_and_holds_it_near_45_degrees() -> None:
     square = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
     for shift in range(4):  # the same square, its corners labelled from another one
@@ -252,6 +278,9 @@ def test_marker_motion_estimates_the_velocity_and_where_an_unseen_marker_is() ->
     np.testing.assert_allclose(motion.velocity_m_s(0.5), velocity, atol=1e-12)
     np.testing.assert_allclose(motion.shift_m(1.5), velocity * 1.0, atol=1e-12)
     assert not np.any(motion.velocity_m_s(0.5 + PREDICTION_HORIZON_S + 0.1))  # too long unseen
+    # ... and believed to have stopped where the prediction ended, not back where last seen.
+    far_later = motion.shift_m(0.5 + PREDICTION_HORIZON_S + 3.0)
+    np.testing.assert_allclose(far_later, velocity * PREDICTION_HORIZON_S, atol=1e-12)
     short = (
         MarkerMotion().seen(0.0, square_points(np.zeros(3))).seen(0.1, square_points(np.ones(3)))
     )
