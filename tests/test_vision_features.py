@@ -446,3 +446,12 @@ def test_a_frame_is_processed_quickly():
         vf.measure_markers(rgb, depth, K, CFG)
         times.append(time.perf_counter() - t0)
     assert np.median(times) < 0.025, f"median {1e3 * np.median(times):.1f} ms per frame"
+
+
+def test_the_occlusion_reach_is_scaled_to_a_coarser_depth_image() -> None:
+    """5 colour pixels are 2.5 pixels of a 320×240 depth image (kept one past the ring); at
+    the colour resolution the reach stays as configured."""
+    k_small = CameraIntrinsics.from_fov(320, 240, 57.0)
+    assert vf.depth_ring_px(5, K, None) == 5 and vf.depth_ring_px(5, K, K) == 5
+    assert vf.depth_ring_px(5, K, k_small) == 3
+    assert vf.depth_ring_px(12, K, k_small) == 6

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
 from common.config import VisionConfig
-from services.vision.occlusion import is_occluded
+from services.vision.occlusion import RING_WIDTH_PX, is_occluded
 
 FloatArray = NDArray[np.float64]
 Color = Literal["red", "green"]
@@ -839,6 +839,7 @@ def _measure(
     ring_px: int,
 ) -> MarkerMeasurement:
     """Depths and occlusion check of a marker whose corners are in their final order."""
+    ring_px = depth_ring_px(ring_px, k, k_depth)
     if quad.corners_px is None:
         occluded = quad.area_px > 0 and _blob_occluded(quad.mask, depth_m, k_depth or k, ring_px)
         return not_visible(quad.reason, quad.area_px, occluded)
@@ -866,6 +867,15 @@ def _measure(
         "",
         plane=depth.plane,
     )
+
+
+def depth_ring_px(ring_px: int, k: CameraIntrinsics, k_depth: CameraIntrinsics | None) -> int:
+    """``ring_px`` (colour pixels) in pixels of a coarser depth image, at least one pixel past
+    the occlusion ring: a 320×240 depth pixel covers four 640×480 colour ones, and a reach
+    kept at 5 depth pixels would count a hand 10 colour pixels away as in front."""
+    if k_depth is None or k_depth.width_px >= k.width_px:
+        return ring_px
+    return max(RING_WIDTH_PX + 1, round(ring_px * k_depth.width_px / k.width_px))
 
 
 def plane_depth_image(
