@@ -261,8 +261,11 @@ def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:
     folder = _suite_copy(tmp_path, ("01_baseline.toml",))
     out = tmp_path / "out"
     args = ["--scenarios", str(folder), "--modes", "dynamic", "mpj", "--jobs", "2"]
+    # Runs that cannot end before the interrupt: a threshold they never reach, a long timeout
+    # (a converging run took 8.6 s, less than the pipelines took to show up on a loaded CI).
+    never_done = ["--set", "controller.converged_px=0.0001", "--set", "run.timeout_s=600"]
     proc = subprocess.Popen(
-        [*UMAY, "compare", *args, "--out", str(out), *CHEAP_ARGS],
+        [*UMAY, "compare", *args, "--out", str(out), *CHEAP_ARGS, *never_done],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
