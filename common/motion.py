@@ -8,6 +8,7 @@ and to follow a target the hand hides.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,24 +49,27 @@ class MarkerMotion:
         to have stopped where the prediction ended)."""
         if not self.views or t_s - self.views[-1][0] > PREDICTION_HORIZON_S:
             return np.zeros(3)
-        return self.estimated_velocity_m_s
+        return self.estimated_velocity_m_s.copy()
 
-    @property
+    @cached_property  # immutable views: computed once (vision and controller ask per frame)
     def estimated_velocity_m_s(self) -> FloatArray:
         """The least-squares slope of the corners' centroid over the window before the latest
         view; zero until the views span :data:`MIN_SPAN_S`, and zero below
         :data:`STILL_SPEED_M_S`; at most :data:`MAX_SPEED_M_S`."""
+        velocity = np.zeros(3)
         if not self.views or self.views[-1][0] - self.views[0][0] < MIN_SPAN_S:
-            return np.zeros(3)
+            velocity.setflags(write=False)
+            return velocity
         t = np.array([v[0] for v in self.views])
         centres = np.array([v[1].mean(axis=0) for v in self.views])
         dt = t - t.mean()
         velocity = dt @ (centres - centres.mean(axis=0)) / float(dt @ dt)
         speed = float(np.linalg.norm(velocity))
         if speed < STILL_SPEED_M_S:
-            return np.zeros(3)
-        if speed > MAX_SPEED_M_S:
+            velocity = np.zeros(3)
+        elif speed > MAX_SPEED_M_S:
             velocity = velocity * (MAX_SPEED_M_S / speed)
+        velocity.setflags(write=False)  # cached: shared by every caller
         return velocity
 
     def shift_m(self, t_s: float) -> FloatArray:
