@@ -56,10 +56,6 @@ def add_compare_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_compare)
 
 
-def _interrupt(_signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def cmd_compare(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import (
@@ -111,8 +107,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     stop = threading.Event()
-    # SIGTERM behaves as Ctrl-C: the running pipelines are stopped, nothing is left behind.
-    previous = signal.signal(signal.SIGTERM, _interrupt)
+
+    def interrupt(_signum: int, _frame: object) -> None:
+        # Only set the event: an exception raised at an arbitrary point of the main thread
+        # (inside concurrent.futures.wait, holding a future's lock) could deadlock the pool.
+        stop.set()
+
+    # Ctrl-C and SIGTERM: the running pipelines are stopped, nothing is left behind.
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     started = time.monotonic()
     columns = (
         TextColumn("[bold]{task.description}"),
@@ -122,7 +124,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
         TextColumn("eta"),
         TimeRemainingColumn(),
     )
-    interrupted = False
     rows: list[CompareRow] = []
     running: set[str] = set()
     with Progress(*columns, console=console, transient=False) as bar:
@@ -146,10 +147,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
         try:
             rows = run_all(the_plan.jobs, args.jobs, out_dir, stop, on_start, on_done)
-        except KeyboardInterrupt:
-            interrupted = True
         finally:
-            signal.signal(signal.SIGTERM, previous)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        interrupted = stop.is_set()
     wall_s = time.monotonic() - started
     if interrupted:
         console.print(
