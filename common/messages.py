@@ -172,6 +172,12 @@ class JointState(Message):
 MarkerState = Literal["visible", "partial", "lost", "no_depth"]
 
 
+def is_usable(state: str, fitted: bool) -> bool:
+    """A marker's corners and depths can be acted on: seen whole, or partly hidden and fitted
+    from what is seen (one rule for vision, the wire format and the controller)."""
+    return state == "visible" or (state == "partial" and fitted)
+
+
 class MarkerFeatures(Message):
     """One square marker: four corners in canonical order, their depths and 3-D points.
 
@@ -200,7 +206,7 @@ class MarkerFeatures(Message):
 
     @property
     def usable(self) -> bool:
-        return self.visible or (self.state == "partial" and self.fitted)
+        return is_usable(self.state, self.fitted)
 
 
 class Features(Message):

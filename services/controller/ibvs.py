@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode
 from common.kinematics import skew
+from common.messages import is_usable
 from common.motion import MarkerMotion
 
 FloatArray = NDArray[np.float64]
@@ -155,7 +156,7 @@ class MarkerObservation:
 
     @property
     def usable(self) -> bool:
-        return self.visible or (self.state == "partial" and self.fitted)
+        return is_usable(self.state, self.fitted)
 
 
 def desired_observation(

@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
 from common.config import VisionConfig
+from common.messages import is_usable
 from services.vision.occlusion import RING_WIDTH_PX, is_occluded
 
 FloatArray = NDArray[np.float64]
@@ -139,7 +140,7 @@ class MarkerMeasurement:
     @property
     def usable(self) -> bool:
         """Corners and depths can be acted on: seen whole, or fitted from what is seen."""
-        return self.visible or self.fitted
+        return is_usable(self.state, self.fitted)
 
 
 def not_visible(reason: str, area_px: float = 0.0, occluded: bool = False) -> MarkerMeasurement:
