@@ -39,10 +39,6 @@ class MarkerMotion:
         kept = tuple(v for v in self.views if v[0] >= t_s - VELOCITY_WINDOW_S and v[0] < t_s)
         return MarkerMotion((*kept, (t_s, np.asarray(points_m, dtype=float))))
 
-    @property
-    def last_seen_s(self) -> float | None:
-        return self.views[-1][0] if self.views else None
-
     def velocity_m_s(self, t_s: float) -> FloatArray:
         """Velocity believed at ``t_s``: :attr:`estimated_velocity_m_s`, kept for at most
         :data:`PREDICTION_HORIZON_S` after the latest view (then zero: the marker is believed

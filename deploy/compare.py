@@ -159,14 +159,13 @@ def plan(
     modes: Sequence[str],
     overrides: Sequence[str] = (),
     figures_scenario: str | None = None,
-    check: Callable[[Scenario], object] | None = None,
 ) -> Plan:
     """Every (scenario, mode) job, scenario-major, after validating each scenario with each
-    mode (pydantic) and once with the pre-launch check (``check``, default
-    :func:`deploy.reachability.check_scenario`). Raises :class:`CompareError` naming the file
+    mode (pydantic) and once with the pre-launch check
+    (:func:`deploy.reachability.check_scenario`). Raises :class:`CompareError` naming the file
     and the reason."""
-    if check is None:
-        from deploy.reachability import check_scenario as check
+    from deploy.reachability import check_scenario as check
+
     files = scenario_files(directory)
     jobs: list[Job] = []
     names: dict[str, Path] = {}
@@ -267,12 +266,9 @@ def rows_from_json(text: str) -> list[CompareRow]:
     return [CompareRow.model_validate(r) for r in json.loads(text)]
 
 
-def differences(
-    a: Sequence[CompareRow], b: Sequence[CompareRow], ignore: frozenset[str] = frozenset()
-) -> list[str]:
+def differences(a: Sequence[CompareRow], b: Sequence[CompareRow]) -> list[str]:
     """What differs between two comparisons, run by run and field by field (exact: lockstep
     runs repeat bit for bit); the wall time and the scenario file's path are ignored."""
-    skip = ignore | NOT_RESULTS
     key = lambda r: (r.scenario, r.mode)  # noqa: E731
     left, right = {key(r): r for r in a}, {key(r): r for r in b}
     out = [f"{s} · {m}: only in the first" for s, m in left.keys() - right.keys()]
@@ -280,7 +276,7 @@ def differences(
     for k in sorted(left.keys() & right.keys()):
         x, y = left[k].model_dump(), right[k].model_dump()
         for field in CSV_COLUMNS:
-            if field not in skip and x[field] != y[field]:
+            if field not in NOT_RESULTS and x[field] != y[field]:
                 out.append(f"{k[0]} · {k[1]}: {field} {x[field]!r} != {y[field]!r}")
     return sorted(out)
 
@@ -656,7 +652,7 @@ def run_all(
     return [rows[i] for i in sorted(rows)]
 
 
-def make_figures(plan_: Plan, rows: Sequence[CompareRow], out_dir: Path) -> list[Path]:
+def make_figures(plan_: Plan, out_dir: Path) -> list[Path]:
     """Per strategy, the thesis-style figures of the figures scenario's run (Figs. 5.10-5.17:
     image trajectory, end-effector velocity, plus feature error and joint velocities), and
     ``overlay.png`` of every strategy's image trajectory, error and speed."""

@@ -158,7 +158,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             "(results of an interrupted comparison are not written)"
         )
         return EXIT_INTERRUPTED
-    figures = make_figures(the_plan, rows, out_dir)
+    figures = make_figures(the_plan, out_dir)
     note = f"Wall time {wall_s / 60:.1f} min with {args.jobs} job(s) at once."
     for path in write_outputs(the_plan, rows, out_dir, figures, note):
         print(path)

@@ -140,8 +140,6 @@ def _assign(sides: _Sides, points_px: FloatArray) -> tuple[FloatArray, FloatArra
 class SquareFit:
     square: SquareOnPlane
     corners_px: FloatArray
-    rms_px: float
-    points_per_side: tuple[int, int, int, int]
 
 
 def slid_to(square: SquareOnPlane, uv_px: FloatArray, k: CameraIntrinsics) -> SquareOnPlane:
@@ -223,8 +221,7 @@ def fit_square(
     sigma = np.sqrt(np.diag(np.linalg.inv(information))) * max(rms, 0.1)
     if max(sigma[0], sigma[1]) > MAX_SLIDE_SIGMA_M or sigma[2] > MAX_TURN_SIGMA_RAD:
         return None
-    counts = tuple(int(np.count_nonzero(side == i)) for i in range(4))
-    return SquareFit(square.moved(*params), sides.starts, rms, counts)  # type: ignore[arg-type]
+    return SquareFit(square.moved(*params), sides.starts)
 
 
 def stray_fraction(mask: np.ndarray, corners_px: FloatArray, offset_px: tuple[int, int]) -> float:

@@ -263,8 +263,9 @@ def observe(
     fresh = depth is not None and depth.age_s == 0.0
     usable = depth is not None and depth.age_s <= cfg.max_depth_age_s
     measured: dict[str, MarkerMeasurement] = {}
+    expected = {name: state.expected(name, t_s, k) for name in quads}
     for name, quad in quads.items():
-        memory = state.expected(name, t_s, k)
+        memory = expected[name]
         if fresh:
             assert depth is not None
             m = measure_quad(quad, depth.depth_m, k, cfg, depth.intrinsics)
@@ -284,7 +285,7 @@ def observe(
             m = _held(name, quad, memory, k, marker_size_m)
         measured[name] = m
     if not fresh:  # no depth to tell: the hand over the target's last place is what hides it
-        target, last = measured["target"], state.expected("target", t_s, k)
+        target, last = measured["target"], expected["target"]
         if (
             not target.visible
             and last is not None
