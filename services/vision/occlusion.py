@@ -49,14 +49,22 @@ def occluder_fraction(
     depth = depth_m[y0:y1, x0:x1]
     surface = surface_m[y0:y1, x0:x1] if isinstance(surface_m, np.ndarray) else surface_m
     valid = np.isfinite(depth) & (depth > 0)
-    closer = valid & (depth < surface - CLOSER_MARGIN_M)
-    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
-    near_closer = cv2.dilate(closer.astype(np.uint8), kernel) > 0
-    occluder = closer | (~valid & near_closer)
+    occluder = occluder_map(depth, surface, reach_px)
     known = np.count_nonzero(ring & (valid | occluder))
     if known == 0:
         return 0.0
     return float(np.count_nonzero(ring & occluder) / known)
+
+
+def occluder_map(depth_m: np.ndarray, surface_m: np.ndarray | float, reach_px: int) -> np.ndarray:
+    """Pixels taken by something in front of a surface: valid depth closer than ``surface_m``
+    by :data:`CLOSER_MARGIN_M`, and invalid depth within ``reach_px`` of such (a depth
+    camera's dropout along an occluder's edge)."""
+    valid = np.isfinite(depth_m) & (depth_m > 0)
+    closer = valid & (depth_m < surface_m - CLOSER_MARGIN_M)
+    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
+    near_closer = cv2.dilate(closer.astype(np.uint8), kernel) > 0
+    return closer | (~valid & near_closer)
 
 
 def is_occluded(

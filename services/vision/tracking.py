@@ -41,7 +41,7 @@ from services.vision.features import (
     plane_depth_image,
     to_depth_pixels,
 )
-from services.vision.occlusion import CLOSER_MARGIN_M, hidden_behind
+from services.vision.occlusion import hidden_behind, occluder_map
 from services.vision.partial import (
     MAX_STRAY_FRACTION,
     SquareOnPlane,
@@ -191,11 +191,7 @@ def _fit_partial(
         return None
     r0, r1, c0, c1 = bounds
     depth_crop = _depth_under(depth, k, bounds)
-    valid = np.isfinite(depth_crop) & (depth_crop > 0)
-    closer = valid & (depth_crop < _surface(memory, k, bounds) - CLOSER_MARGIN_M)
-    reach = 2 * cfg.occlusion_ring_px + 1
-    near = cv2.dilate(closer.astype(np.uint8), np.ones((reach, reach), np.uint8)) > 0
-    occluder = closer | (~valid & near)
+    occluder = occluder_map(depth_crop, _surface(memory, k, bounds), cfg.occlusion_ring_px)
     mask = quad.mask[r0:r1, c0:c1]
     edges = true_edge_points(mask, occluder, (c0, r0))
     moments = cv2.moments(mask, binaryImage=True)
@@ -213,7 +209,7 @@ def _fit_partial(
         corners_m,
         quad.area_px,
         measured.reason,
-        occluded=measured.occluded or bool(np.any(closer)),
+        occluded=measured.occluded or bool(np.any(occluder)),  # any closer pixel
         plane=memory.plane,
         fitted=True,
     )
