@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.camera import CameraIntrinsics, pixel_to_normalized
+from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import VisionConfig
 from services.vision import features as vf
+from services.vision import partial
 from services.vision.occlusion import hidden_behind, occluder_fraction
 from services.vision.tracking import DepthImage, TrackerState, observe
 from tests.test_vision_features import (
@@ -75,6 +76,30 @@ def test_a_partly_hidden_target_is_fitted_from_its_visible_edges() -> None:
     err = np.abs(match_order(m.corners_px, target.corners_px) - vf.order_corners(target.corners_px))
     assert err.max() < 0.3, f"fitted corners off by {err.max():.2f} px"
     np.testing.assert_allclose(np.sort(m.depths_m), np.sort(target.points_m[:, 2]), atol=1e-3)
+
+
+@pytest.mark.parametrize("params", [(0.004, -0.003, 0.2), (0.01, 0.01, 0.7), (0.0, 0.0, -0.5)])
+def test_the_fit_jacobian_matches_finite_differences(params: tuple[float, float, float]) -> None:
+    """The partial fit's Jacobian is written out (partial._sides): d(distance)/d(params) of
+    a pixel must match central differences of the distances themselves, for every side."""
+    _, target = scene()
+    square = partial.SquareOnPlane.from_corners(target.points_m, SIZE_M)
+    pixels = np.column_stack([np.random.default_rng(3).uniform(150, 450, (20, 2)), np.ones(20)])
+
+    def distances(p: np.ndarray) -> np.ndarray:
+        return pixels @ partial._sides(*partial._corners_and_jacobian(square, p, K)).distance
+
+    sides = partial._sides(*partial._corners_and_jacobian(square, np.array(params), K))
+    analytic = (pixels @ sides.d_distance).reshape(-1, 4, 3)
+    for j, step in enumerate((1e-6, 1e-6, 1e-5)):
+        bump = np.eye(3)[j] * step
+        numeric = (distances(np.add(params, bump)) - distances(np.subtract(params, bump))) / (
+            2 * step
+        )
+        assert np.allclose(analytic[:, :, j], numeric, rtol=1e-6, atol=1e-7 * np.abs(numeric).max())
+    # and the corners are those of the moved square
+    moved = square.moved(*params).corners_m()
+    assert np.allclose(sides.corners_px, project(moved, K))
 
 
 def test_a_sliver_is_not_fitted_but_known_to_be_hidden() -> None:

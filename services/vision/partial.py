@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from common.camera import CameraIntrinsics, project
+from common.camera import CameraIntrinsics
 from services.vision.features import FloatArray
 
 EDGE_CLEARANCE_PX = 3  # a blob edge point this close to an occluder may be the occluder's edge
@@ -31,8 +31,7 @@ MAX_TURN_SIGMA_RAD = math.radians(1.0)
 MAX_TURN_RAD = math.radians(20.0)  # from the remembered pose: more is not this square
 MAX_STRAY_FRACTION = 0.03  # of the blob's pixels outside the fitted square
 ITERATIONS = 8
-STEP_M = 1e-4  # finite-difference step of the Gauss-Newton Jacobian
-STEP_RAD = 1e-3
+_SIGNS = ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))  # the corners along (u, v)
 
 
 @dataclass(frozen=True)
@@ -65,8 +64,8 @@ class SquareOnPlane:
         return SquareOnPlane(centre, u, v, self.size_m)
 
     def corners_m(self) -> FloatArray:
+        signs = np.array(_SIGNS)
         h = self.size_m / 2.0
-        signs = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
         return self.centre_m + h * (signs[:, :1] * self.axis_u + signs[:, 1:] * self.axis_v)
 
 
@@ -97,39 +96,82 @@ def true_edge_points(
 
 @dataclass(frozen=True)
 class _Sides:
-    """The four side lines of a projected square, ``normals[k]·p = offsets[k]`` (unit normals;
-    the offsets already moved by where outline pixels sit, half a lattice step inside the true
-    edge, towards the centre), with each side's start corner, direction and length (px)."""
+    """The four sides of a projected square as linear maps of a pixel in homogeneous form
+    ``q = (u, v, 1)``: ``q @ distance`` (3, 4) its signed distance (px) from each side line
+    (unit normals; the lines already moved by where outline pixels sit, half a lattice step
+    inside the true edge, towards the centre), ``q @ along`` (3, 4) its position along each
+    side (0 at its start corner, 1 at its end), and ``q @ d_distance`` (3, 4·3) the distances'
+    derivatives with respect to the fit's parameters (linear in ``q`` too: a line's normal and
+    offset are what move). ``corners_px`` (4, 2): the start corners, side k from corner k to
+    k+1; ``lengths`` (4,) px."""
 
-    normals: FloatArray  # (4, 2)
-    offsets: FloatArray  # (4,)
-    starts: FloatArray  # (4, 2)
-    directions: FloatArray  # (4, 2), start → end
-    lengths: FloatArray  # (4,)
-
-
-def _sides(corners_px: FloatArray) -> _Sides:
-    starts = corners_px
-    directions = corners_px[[1, 2, 3, 0]] - starts
-    lengths = np.sqrt(np.sum(directions**2, axis=1))
-    normals = np.stack([-directions[:, 1], directions[:, 0]], axis=1) / lengths[:, None]
-    along_normal = np.sum(normals * starts, axis=1)
-    towards_centre = np.sign(normals @ corners_px.mean(axis=0) - along_normal)
-    inset = towards_centre * 0.5 * np.max(np.abs(normals), axis=1)
-    return _Sides(normals, along_normal + inset, starts, directions, lengths)
+    distance: FloatArray
+    along: FloatArray
+    d_distance: FloatArray
+    corners_px: FloatArray
+    lengths: FloatArray
 
 
-def _assign(sides: _Sides, points_px: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _sides(corners_px: list[list[float]], d_corners: list[list[list[float]]]) -> _Sides:
+    """The sides of the quadrilateral ``corners_px`` (4 × (u, v)) whose corners move with the
+    parameters as ``d_corners`` (4 × (d/dp of u, d/dp of v)). Plain Python: four sides of
+    a few numbers each, where numpy's per-call overhead would be the whole cost."""
+    cu = sum(c[0] for c in corners_px) / 4.0
+    cv = sum(c[1] for c in corners_px) / 4.0
+    distance: list[list[float]] = [[], [], []]  # rows: u, v, 1 coefficients of each side
+    along: list[list[float]] = [[], [], []]
+    d_distance: list[list[float]] = [[], [], []]
+    lengths = []
+    for k in range(4):
+        (au, av), (bu, bv) = corners_px[k], corners_px[(k + 1) % 4]
+        (dau, dav), (dbu, dbv) = d_corners[k], d_corners[(k + 1) % 4]
+        du, dv = bu - au, bv - av
+        length = math.hypot(du, dv)
+        nu, nv = -dv / length, du / length
+        on_line = nu * au + nv * av
+        towards_centre = math.copysign(1.0, nu * cu + nv * cv - on_line)
+        along_u = abs(nu) >= abs(nv)  # inset = ±½·max|n|: follows the larger component
+        inset = towards_centre * 0.5 * (abs(nu) if along_u else abs(nv))
+        distance[0].append(nu)
+        distance[1].append(nv)
+        distance[2].append(-(on_line + inset))
+        squared = length * length
+        along[0].append(du / squared)
+        along[1].append(dv / squared)
+        along[2].append(-(du * au + dv * av) / squared)
+        lengths.append(length)
+        for j in range(3):  # n = perp(d)/|d|  ⇒  dn = perp(dd)/|d| − n·(d·dd)/|d|²
+            ddu, ddv = dbu[j] - dau[j], dbv[j] - dav[j]
+            d_dot_dd = (du * ddu + dv * ddv) / squared
+            dnu = -ddv / length - nu * d_dot_dd
+            dnv = ddu / length - nv * d_dot_dd
+            d_inset = (
+                towards_centre
+                * 0.5
+                * ((dnu if nu >= 0.0 else -dnu) if along_u else (dnv if nv >= 0.0 else -dnv))
+            )
+            d_offset = dnu * au + dnv * av + nu * dau[j] + nv * dav[j] + d_inset
+            d_distance[0].append(dnu)
+            d_distance[1].append(dnv)
+            d_distance[2].append(-d_offset)
+    return _Sides(
+        np.array(distance),
+        np.array(along),
+        np.array(d_distance),
+        np.array(corners_px),
+        np.array(lengths),
+    )
+
+
+def _assign(sides: _Sides, points_h: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Each point's residual against the side it lies along (the nearest side whose extent it
     falls in), and that side's index; -1 (residual 0) for points near a corner, left out
-    (corners are rounded)."""
-    dist = points_px @ sides.normals.T - sides.offsets  # (N, 4)
-    t = (points_px @ sides.directions.T - np.sum(sides.starts * sides.directions, axis=1)) / (
-        sides.lengths**2
-    )
+    (corners are rounded). ``points_h`` (N, 3): pixels (u, v, 1)."""
+    dist = points_h @ sides.distance  # (N, 4)
+    t = points_h @ sides.along
     within = (t > -0.25) & (t < 1.25)  # a side's neighbourhood, corners included
     side = np.argmin(np.where(within, np.abs(dist), np.inf), axis=1)
-    rows = np.arange(len(points_px))
+    rows = np.arange(len(points_h))
     margin = CORNER_CLEARANCE_PX / sides.lengths[side]
     t_side = t[rows, side]
     keep = within[rows, side] & (t_side > margin) & (t_side < 1.0 - margin)
@@ -164,64 +206,91 @@ def fit_square_to_blob(
     )
 
 
+def _corners_and_jacobian(
+    square: SquareOnPlane, params: FloatArray, k: CameraIntrinsics
+) -> tuple[list[list[float]], list[list[list[float]]]]:
+    """The corners (4 × (u, v), px) of ``square.moved(*params)`` and their derivatives
+    (4 × (d/dp of u, d/dp of v)) with respect to the parameters (slide along u, slide along
+    v, turn). Plain Python, as :func:`_sides`."""
+    du, dv, turn = (float(p) for p in params)
+    c, s = math.cos(turn), math.sin(turn)
+    axis_u, axis_v = square.axis_u.tolist(), square.axis_v.tolist()
+    h = square.size_m / 2.0
+    u = [c * a + s * b for a, b in zip(axis_u, axis_v, strict=True)]
+    v = [-s * a + c * b for a, b in zip(axis_u, axis_v, strict=True)]
+    centre = [
+        m + du * a + dv * b
+        for m, a, b in zip(square.centre_m.tolist(), axis_u, axis_v, strict=True)
+    ]
+    fx, fy, cx, cy = k.fx_px, k.fy_px, k.cx_px, k.cy_px
+    corners, d_corners = [], []
+    for su, sv in _SIGNS:
+        x, y, z = (m + h * (su * a + sv * b) for m, a, b in zip(centre, u, v, strict=True))
+        # d(point)/d(turn); the slides move every corner by axis_u, axis_v
+        d_turn = [h * (su * b - sv * a) for a, b in zip(u, v, strict=True)]
+        x_n, y_n = x / z, y / z
+        corners.append([fx * x_n + cx, fy * y_n + cy])
+        # d(f·X/Z) = f·(dX − (X/Z)·dZ)/Z
+        d_corners.append(
+            [
+                [fx * (d[0] - x_n * d[2]) / z for d in (axis_u, axis_v, d_turn)],
+                [fy * (d[1] - y_n * d[2]) / z for d in (axis_u, axis_v, d_turn)],
+            ]
+        )
+    return corners, d_corners
+
+
 def fit_square(
     square: SquareOnPlane, edge_points_px: FloatArray, k: CameraIntrinsics
 ) -> SquareFit | None:
     """Slide and turn ``square`` in its plane until its projected sides run along the edge
-    points (Gauss-Newton on the three in-plane parameters from the given pose). None unless
-    the fit is tight, the edges pin the pose down (its 1-σ within :data:`MAX_SLIDE_SIGMA_M` and
-    :data:`MAX_TURN_SIGMA_RAD`) and it turned little."""
+    points (Gauss-Newton on the three in-plane parameters from the given pose; the Jacobian
+    written out, :func:`_sides`). None unless the fit is tight, the edges pin the pose down
+    (its 1-σ within :data:`MAX_SLIDE_SIGMA_M` and :data:`MAX_TURN_SIGMA_RAD`) and it turned
+    little."""
     if len(edge_points_px) < MIN_POINTS:
         return None
+    points_h = np.column_stack([edge_points_px, np.ones(len(edge_points_px))])
     params = np.zeros(3)
-    steps = np.array([STEP_M, STEP_M, STEP_RAD])
 
-    def sides_at(p: FloatArray) -> _Sides:
-        return _sides(project(square.moved(*p).corners_m(), k))
-
-    def jacobian(p: FloatArray, sides: _Sides, side: FloatArray) -> FloatArray:
-        """d(residual)/d(params) of the used points: the lines differentiated numerically
-        (three projections of four corners), the points' residuals follow linearly."""
+    def linearised(p: FloatArray) -> tuple[_Sides, FloatArray, FloatArray] | None:
+        """The sides at ``p``, the used points' residuals and their Jacobian (N, 3); None
+        with too few points away from the corners."""
+        sides = _sides(*_corners_and_jacobian(square, p, k))
+        r, side = _assign(sides, points_h)
         used = side >= 0
-        points, k_side = edge_points_px[used], side[used]
-        jac = np.empty((len(points), 3))
-        for j in range(3):
-            bumped = p.copy()
-            bumped[j] += steps[j]
-            moved = sides_at(bumped)
-            d_normals = (moved.normals - sides.normals) / steps[j]
-            d_offsets = (moved.offsets - sides.offsets) / steps[j]
-            jac[:, j] = np.sum(points * d_normals[k_side], axis=1) - d_offsets[k_side]
-        return jac
+        if np.count_nonzero(used) < MIN_POINTS:
+            return None
+        side = side[used]
+        d_all = (points_h[used] @ sides.d_distance).reshape(-1, 4, 3)
+        return sides, r[used], d_all[np.arange(len(side)), side]
 
     for _ in range(ITERATIONS):
-        sides = sides_at(params)
-        r, side = _assign(sides, edge_points_px)
-        if np.count_nonzero(side >= 0) < MIN_POINTS:
+        now = linearised(params)
+        if now is None:
             return None
-        delta, *_ = np.linalg.lstsq(jacobian(params, sides, side), -r[side >= 0], rcond=None)
+        _, r, jac = now
+        delta, *_ = np.linalg.lstsq(jac, -r, rcond=None)
         params += delta
         if abs(delta[0]) + abs(delta[1]) < 1e-6 and abs(delta[2]) < 1e-5:
             break
     # A square turned by 90° is the same square: keep the turn within ±45°, so that the
     # corners keep the labels they had (the corner set does not change).
     params[2] = math.remainder(params[2], math.pi / 2.0)
-    sides = sides_at(params)
-    r, side = _assign(sides, edge_points_px)
-    used = side >= 0
-    if np.count_nonzero(used) < MIN_POINTS:
+    now = linearised(params)
+    if now is None:
         return None
-    rms = float(np.sqrt(np.mean(r[used] ** 2)))
+    sides, r, jac = now
+    rms = float(np.sqrt(np.mean(r**2)))
     if rms > MAX_RMS_PX or abs(params[2]) > MAX_TURN_RAD:
         return None
-    jac = jacobian(params, sides, side)
     information = jac.T @ jac
     if np.linalg.cond(information) > 1e12:
         return None
     sigma = np.sqrt(np.diag(np.linalg.inv(information))) * max(rms, 0.1)
     if max(sigma[0], sigma[1]) > MAX_SLIDE_SIGMA_M or sigma[2] > MAX_TURN_SIGMA_RAD:
         return None
-    return SquareFit(square.moved(*params), sides.starts)
+    return SquareFit(square.moved(*params), sides.corners_px)
 
 
 def stray_fraction(mask: np.ndarray, corners_px: FloatArray, offset_px: tuple[int, int]) -> float:
