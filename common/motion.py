@@ -30,14 +30,17 @@ PREDICTION_HORIZON_S = 5.0
 
 @dataclass(frozen=True)
 class MarkerMotion:
-    """Recent views (sim time in s, the 4 corners' 3-D points in the camera frame in m)."""
+    """Recent views: sim time (s) and the centroid of the marker's corners (3-D, camera frame,
+    m), kept as the centroid since that is all the velocity needs."""
 
     views: tuple[tuple[float, FloatArray], ...] = ()
 
     def seen(self, t_s: float, points_m: FloatArray) -> MarkerMotion:
-        """With one more view; views older than the window before it are dropped."""
+        """With one more view (the corners' 3-D points, (4, 3) m); views older than the window
+        before it are dropped."""
         kept = tuple(v for v in self.views if v[0] >= t_s - VELOCITY_WINDOW_S and v[0] < t_s)
-        return MarkerMotion((*kept, (t_s, np.asarray(points_m, dtype=float))))
+        centre = np.asarray(points_m, dtype=float).mean(axis=0)
+        return MarkerMotion((*kept, (t_s, centre)))
 
     def velocity_m_s(self, t_s: float) -> FloatArray:
         """Velocity believed at ``t_s``: :attr:`estimated_velocity_m_s`, kept for at most
@@ -57,7 +60,7 @@ class MarkerMotion:
             velocity.setflags(write=False)
             return velocity
         t = np.array([v[0] for v in self.views])
-        centres = np.array([v[1].mean(axis=0) for v in self.views])
+        centres = np.array([v[1] for v in self.views])
         dt = t - t.mean()
         velocity = dt @ (centres - centres.mean(axis=0)) / float(dt @ dt)
         speed = float(np.linalg.norm(velocity))
