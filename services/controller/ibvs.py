@@ -224,6 +224,10 @@ def rolled(observation: MarkerObservation, shift: int) -> MarkerObservation:
 CORNER_SWITCH_RATIO = 0.7
 
 
+# Row k: the target corner each hand corner i goes to in pairing k, (i + k) % 4.
+_CYCLIC_PAIRINGS = (np.arange(4)[None, :] + np.arange(4)[:, None]) % 4
+
+
 def pairing_costs_px2(hand_px: FloatArray, target_px: FloatArray) -> FloatArray:
     """Squared shape mismatch (px²) for each of the 4 cyclic pairings of the hand's corners
     with the target's (entry k pairs hand corner i with target corner (i + k) % 4).
@@ -235,7 +239,7 @@ def pairing_costs_px2(hand_px: FloatArray, target_px: FloatArray) -> FloatArray:
     about the optical axis; it is also the one with the least squared image error."""
     hand = hand_px - hand_px.mean(axis=0)
     target = target_px - target_px.mean(axis=0)
-    return np.array([float(np.sum((hand - np.roll(target, -k, axis=0)) ** 2)) for k in range(4)])
+    return np.sum((hand - target[_CYCLIC_PAIRINGS]) ** 2, axis=(1, 2))
 
 
 def choose_pairing(costs_px2: FloatArray, current: int | None) -> int:
