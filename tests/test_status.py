@@ -60,9 +60,9 @@ def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> N
             for key_stats in list(st["received"].values()) + list(st["published"].values()):
                 assert {"count", "rate_hz", "age_s", "dropped"} <= set(key_stats)
             assert st["processing_ms_p50"] is not None and st["processing_ms_p99"] is not None
-        assert {"sim_time_s", "real_time_factor", "render_ms", "dropped_frames"} <= set(
-            out["sim"]["status"]["fields"]
-        )
+        sim_fields = out["sim"]["status"]["fields"]
+        assert {"sim_time_s", "real_time_factor", "render_ms", "dropped_frames"} <= set(sim_fields)
+        assert sim_fields["shm_fallbacks"] == 0  # a pool of 8 frames: never full here
         assert {"markers", "lost_reasons", "depth_age_s"} <= set(out["vision"]["status"]["fields"])
         assert {"mode", "error_px_rms", "converged"} <= set(out["controller"]["status"]["fields"])
         assert {"deadman", "saturated_joints"} <= set(out["actuation"]["status"]["fields"])

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from common.camera import CameraIntrinsics
+from common.camera import CameraIntrinsics, pixel_to_normalized
 from services.vision.features import FloatArray
 
 EDGE_CLEARANCE_PX = 3  # a blob edge point this close to an occluder may be the occluder's edge
@@ -186,7 +186,7 @@ class SquareFit:
 
 def slid_to(square: SquareOnPlane, uv_px: FloatArray, k: CameraIntrinsics) -> SquareOnPlane:
     """``square`` slid in its plane so that its centre is seen at pixel ``uv_px``."""
-    ray = np.array([(uv_px[0] - k.cx_px) / k.fx_px, (uv_px[1] - k.cy_px) / k.fy_px, 1.0])
+    ray = np.append(pixel_to_normalized(uv_px, k)[0], 1.0)
     normal = np.cross(square.axis_u, square.axis_v)
     depth = float(normal @ square.centre_m) / float(normal @ ray)
     offset = depth * ray - square.centre_m
