@@ -176,6 +176,15 @@ class TypedPublisher(Generic[M]):
         self.meter.tick()
 
 
+def typed_publisher(
+    session: zenoh.Session, key: str, block: bool = True, frames: bool = False
+) -> TypedPublisher[Any]:
+    """A :class:`TypedPublisher` on ``key`` (see :meth:`Node.publisher` for the options)."""
+    cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+    writer = ShmFrameWriter() if frames and shm_enabled() else None
+    return TypedPublisher(key, session.declare_publisher(key, congestion_control=cc), frames=writer)
+
+
 class Node:
     """One service: a Zenoh session, typed pub/sub, a status queryable, a liveliness token.
 
@@ -226,11 +235,7 @@ class Node:
         """``block``: back-pressure instead of dropping when the network is congested.
         ``frames``: camera frames, written into a shared-memory pool (:class:`ShmFrameWriter`)
         unless shared memory is off."""
-        cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
-        writer = ShmFrameWriter() if frames and shm_enabled() else None
-        pub = TypedPublisher(
-            key, self.session.declare_publisher(key, congestion_control=cc), frames=writer
-        )
+        pub = typed_publisher(self.session, key, block, frames)
         self._publishers[key] = pub
         return pub
 

@@ -84,12 +84,12 @@ from common.messages import (
 )
 from common.transport import (
     ENV_SHM,
-    ShmFrameWriter,
     TypedPublisher,
     alive_services,
     free_tcp_endpoint,
     open_session,
     query_status,
+    typed_publisher,
 )
 from deploy.supervisor import Supervisor
 
@@ -711,16 +711,9 @@ def run_synthetic(
         session.declare_subscriber(keys.joint_command, trace.on_command),
     ]
     publishers: dict[str, TypedPublisher[Any]] = {
-        name: TypedPublisher(
-            key,
-            session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK),
-            frames=ShmFrameWriter() if shm and name != "joint_state" else None,
-        )
-        for name, key in (
-            ("joint_state", keys.joint_state),
-            ("depth", keys.depth),
-            ("rgb", keys.rgb),
-        )
+        "joint_state": typed_publisher(session, keys.joint_state),
+        "depth": typed_publisher(session, keys.depth, frames=True),
+        "rgb": typed_publisher(session, keys.rgb, frames=True),
     }
     sup = Supervisor(
         scenario_path,

@@ -657,19 +657,19 @@ def make_figures(plan_: Plan, out_dir: Path) -> list[Path]:
     image trajectory, end-effector velocity, plus feature error and joint velocities), and
     ``overlay.png`` of every strategy's image trajectory, error and speed."""
     from deploy.compare_plots import write_overlay
-    from deploy.plots import plot_recording
+    from deploy.plots import load_series, plot_series
 
     job = next(j for j in plan_.jobs if j.record)
     converged_px = job.scenario.controller.converged_px
     written: list[Path] = []
-    recordings = {}
+    series = {}
     for mode in plan_.modes:
         rec = figure_recording(out_dir, mode)
         if rec.is_file():
-            recordings[mode] = rec
-            written += plot_recording(rec, rec.parent, converged_px)
+            series[mode] = load_series(rec)  # read once: the mode's figures and the overlay
+            written += plot_series(series[mode], rec.parent, converged_px, source=str(rec))
     overlay = write_overlay(
-        recordings,
+        series,
         out_dir / "figures" / "overlay.png",
         converged_px,
         title=f"All strategies, scenario {plan_.figures_scenario!r}",

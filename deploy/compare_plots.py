@@ -22,7 +22,7 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from deploy.plots import HAND_GREEN, TARGET_RED, RunSeries, load_series
+from deploy.plots import HAND_GREEN, TARGET_RED, RunSeries
 
 OVERLAY_DPI = 100
 MARGIN_PX = 25.0  # around the trails in the zoomed image panel
@@ -183,14 +183,15 @@ def overlay_figure(
 
 
 def write_overlay(
-    recordings: Mapping[str, Path],
+    series: Mapping[str, RunSeries],
     path: Path,
     converged_px: float | None = None,
     title: str = "",
 ) -> Path | None:
-    """Read each strategy's recording, draw :func:`overlay_figure`, save it as PNG at ``path``;
-    None (nothing written) when there is nothing to draw."""
-    fig = overlay_figure({m: load_series(p) for m, p in recordings.items()}, converged_px, title)
+    """Draw :func:`overlay_figure` of each strategy's recorded series
+    (:func:`deploy.plots.load_series`), save it as PNG at ``path``; None (nothing written)
+    when there is nothing to draw."""
+    fig = overlay_figure(series, converged_px, title)
     if fig is None:
         return None
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -431,7 +431,16 @@ def plot_recording(
 ) -> list[Path]:
     """Write the run's figures as PNGs into ``out_dir``; returns the paths written (figures
     whose channel is missing or empty are skipped)."""
-    series = load_series(Path(path))
+    return plot_series(load_series(Path(path)), out_dir, converged_px, source=str(path))
+
+
+def plot_series(
+    series: RunSeries,
+    out_dir: Path,
+    converged_px: float | None = DEFAULT_CONVERGED_PX,
+    source: str = "",
+) -> list[Path]:
+    """:func:`plot_recording` of a recording already read (``source``: its name, for the log)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     builders: list[tuple[str, Callable[[], Figure | None]]] = [
@@ -444,7 +453,7 @@ def plot_recording(
     for name, build in builders:
         fig = build()
         if fig is None:
-            log.info("%s: no data for %s, skipped", path, name)
+            log.info("%s: no data for %s, skipped", source, name)
             continue
         target = out / name
         fig.savefig(target, dpi=DPI)

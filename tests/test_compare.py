@@ -33,6 +33,7 @@ from deploy.compare import (
     summary_markdown,
 )
 from deploy.compare_plots import write_overlay
+from deploy.plots import load_series
 from tests.test_plots import PNG_SIGNATURE, write_recording
 
 UMAY = [sys.executable, "-m", "deploy"]
@@ -213,8 +214,8 @@ def test_plan_refuses_bad_input(tmp_path: Path, setup: str, message: str) -> Non
 
 
 def test_overlay_figure_is_a_png(tmp_path: Path) -> None:
-    recordings = {m: write_recording(tmp_path / f"{m}.mcap") for m in ("dynamic", "mpj")}
-    path = write_overlay(recordings, tmp_path / "overlay.png", 0.25, title="two strategies")
+    series = {m: load_series(write_recording(tmp_path / f"{m}.mcap")) for m in ("dynamic", "mpj")}
+    path = write_overlay(series, tmp_path / "overlay.png", 0.25, title="two strategies")
     assert path is not None and path.read_bytes()[:8] == PNG_SIGNATURE
     assert write_overlay({}, tmp_path / "none.png") is None
 
