@@ -708,7 +708,7 @@ def _marker_depth_pixels(
     )
     # A regular grid of about DEPTH_MAX_PLANE_PIXELS samples is plenty for a plane; all
     # pixels only if that leaves too few (sparse depth).
-    step = max(1, math.isqrt(int(side_px * side_px) // DEPTH_MAX_PLANE_PIXELS))
+    step = _grid_step(int(side_px * side_px))
     while True:
         z = depth_m[r0:r1:step, c0:c1:step]
         vv, uu = np.nonzero((inner[::step, ::step] > 0) & (z > 0) & (z < np.inf))  # NaN: neither
@@ -717,6 +717,12 @@ def _marker_depth_pixels(
         step = 1
     uv = np.column_stack([uu * step + c0, vv * step + r0]).astype(float)
     return uv, z[vv, uu].astype(float)
+
+
+def _grid_step(pixel_count: int) -> int:
+    """Sampling step (px, both directions) that leaves about :data:`DEPTH_MAX_PLANE_PIXELS` of
+    ``pixel_count`` pixels: plenty for a plane, and fast."""
+    return max(1, math.isqrt(pixel_count // DEPTH_MAX_PLANE_PIXELS))
 
 
 def _median(values: FloatArray) -> float:
@@ -923,8 +929,7 @@ def _blob_occluded(
     r0, r1, c0, c1 = bounds
     crop_mask, crop_depth = small[r0:r1, c0:c1], depth_m[r0:r1, c0:c1]
     eroded = cv2.erode(crop_mask, MORPH_KERNEL)
-    # about DEPTH_MAX_PLANE_PIXELS samples on a grid, as for a whole marker's plane
-    step = max(1, math.isqrt(cv2.countNonZero(eroded) // DEPTH_MAX_PLANE_PIXELS))
+    step = _grid_step(cv2.countNonZero(eroded))
     z_grid = crop_depth[::step, ::step]
     vv, uu = np.nonzero((eroded[::step, ::step] > 0) & (z_grid > 0) & np.isfinite(z_grid))
     if vv.size < DEPTH_MIN_PIXELS:

@@ -212,16 +212,10 @@ def _corners_and_jacobian(
     """The corners (4 × (u, v), px) of ``square.moved(*params)`` and their derivatives
     (4 × (d/dp of u, d/dp of v)) with respect to the parameters (slide along u, slide along
     v, turn). Plain Python, as :func:`_sides`."""
-    du, dv, turn = (float(p) for p in params)
-    c, s = math.cos(turn), math.sin(turn)
+    moved = square.moved(*(float(p) for p in params))
     axis_u, axis_v = square.axis_u.tolist(), square.axis_v.tolist()
+    u, v, centre = moved.axis_u.tolist(), moved.axis_v.tolist(), moved.centre_m.tolist()
     h = square.size_m / 2.0
-    u = [c * a + s * b for a, b in zip(axis_u, axis_v, strict=True)]
-    v = [-s * a + c * b for a, b in zip(axis_u, axis_v, strict=True)]
-    centre = [
-        m + du * a + dv * b
-        for m, a, b in zip(square.centre_m.tolist(), axis_u, axis_v, strict=True)
-    ]
     fx, fy, cx, cy = k.fx_px, k.fy_px, k.cx_px, k.cy_px
     corners, d_corners = [], []
     for su, sv in _SIGNS:
