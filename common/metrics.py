@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import deque
@@ -50,6 +51,21 @@ class TopicMeter:
         )
 
 
+def percentile(values: np.ndarray, q: float) -> float:
+    """``np.percentile(values, q)`` (its default linear interpolation, same result to the bit)
+    by partial sorting. np.percentile goes through np.unique, whose first call imports
+    numpy.ma: 14 ms once, in the middle of whichever frame needs it first."""
+    if not 0.0 <= q <= 100.0 or len(values) == 0:
+        raise ValueError(f"percentile {q} of {len(values)} values")
+    position = q / 100.0 * (len(values) - 1)
+    below = math.floor(position)
+    above = min(below + 1, len(values) - 1)
+    part = np.partition(values, [below, above])
+    a, b, t = float(part[below]), float(part[above]), position - below
+    # numpy's lerp: from the nearer end, so that t = 0 and t = 1 give a and b exactly
+    return b - (b - a) * (1.0 - t) if t >= 0.5 else a + (b - a) * t
+
+
 class DurationMeter:
     """The last ``size`` processing times (ms), as p50 / p99."""
 
@@ -62,5 +78,5 @@ class DurationMeter:
     def percentiles(self) -> tuple[float | None, float | None]:
         if not self._values:
             return None, None
-        p50, p99 = np.percentile(np.fromiter(self._values, float), [50, 99])
-        return float(p50), float(p99)
+        values = np.fromiter(self._values, float)
+        return percentile(values, 50.0), percentile(values, 99.0)

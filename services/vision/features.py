@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
 from common.config import VisionConfig
 from common.messages import is_usable
+from common.metrics import percentile
 from services.vision.occlusion import RING_WIDTH_PX, is_occluded
 
 FloatArray = NDArray[np.float64]
@@ -940,7 +941,7 @@ def _blob_occluded(
     if plane is not None:
         surface: FloatArray | float = plane_depth_image(plane, k_depth, bounds)
     else:
-        surface = float(np.percentile(z, 5.0))
+        surface = percentile(z, 5.0)
     return is_occluded(crop_depth, crop_mask, surface, ring_px)
 
 
