@@ -417,6 +417,63 @@ def test_fast_path_matches_the_reference_path():
             np.testing.assert_allclose(result[name].corners_px, reference, atol=1e-9)
 
 
+def test_the_tracking_window_finds_what_the_whole_image_finds(monkeypatch):
+    """A marker seen last frame is looked for first in a window around its last corners. Its
+    mask, corners and reason must be exactly those found in the whole image: when it has moved
+    a little (found inside the window, the whole image is not even converted), far (searched
+    for in the whole image) or across the window's edge (likewise)."""
+    whole_image_conversions = []
+    coarse_image = vf._coarse_image
+
+    def spy(rgb, cfg):
+        whole_image_conversions.append(rgb.shape[:2] == SHAPE)
+        return coarse_image(rgb, cfg)
+
+    monkeypatch.setattr(vf, "_coarse_image", spy)
+    rng = np.random.default_rng(5)
+    for moved_px in [(0.0, 0.0), (6.0, -4.0), (30.0, 12.0), (200.0, 0.0)]:
+        for _ in range(3):
+            hand = random_marker(rng, GREEN, u_range=(120.0, 230.0))
+            target = random_marker(rng, scaled(RED, 0.8), u_range=(410.0, 520.0))
+            rgb, _ = render([hand, target])
+            previous = {
+                "hand": vf.order_corners(hand.corners_px) - moved_px,
+                "target": vf.order_corners(target.corners_px) + moved_px,
+            }
+            whole = vf.find_marker_quads(rgb, CFG)
+            whole_image_conversions.clear()
+            tracked = vf.find_marker_quads(rgb, CFG, previous)
+            if moved_px == (0.0, 0.0):
+                assert not any(whole_image_conversions)
+            regions = [roi for _, roi in vf._marker_masks(rgb, CFG, previous)]
+            assert regions == [roi for _, roi in vf._marker_masks(rgb, CFG, {})]
+            for name in vf.MARKERS:
+                assert tracked[name].reason == whole[name].reason
+                assert np.array_equal(tracked[name].mask, whole[name].mask), (name, moved_px)
+                assert whole[name].corners_px is not None, whole[name].reason
+                reordered = vf.order_corners(whole[name].corners_px, previous[name])
+                np.testing.assert_array_equal(tracked[name].corners_px, reordered)
+
+
+@pytest.mark.parametrize(
+    "corners_px",
+    [
+        [[100.3, 50.2], [161.0, 55.0], [158.0, 117.7], [97.0, 111.0]],
+        [[0.5, 2], [30, 4], [28, 35], [1, 33]],
+    ],
+)
+def test_the_tracking_window_lies_on_the_coarse_grid_inside_the_image(corners_px):
+    rows, cols = vf._tracking_window(np.array(corners_px), SHAPE)
+    (u0, v0), (u1, v1) = np.min(corners_px, axis=0), np.max(corners_px, axis=0)
+    for span, lo, hi, size in ((rows, v0, v1, SHAPE[0]), (cols, u0, u1, SHAPE[1])):
+        assert span.start % vf.COARSE_STEP == 0 and (span.stop - span.start) % vf.COARSE_STEP == 0
+        assert span.start >= 0 and span.stop <= size
+        assert span.start <= max(lo - vf.TRACK_MARGIN_MIN_PX, 0)  # the margin is kept
+        assert span.stop >= hi + vf.TRACK_MARGIN_MIN_PX
+    assert vf._tracking_window(None, SHAPE) is None
+    assert vf._tracking_window(np.array(corners_px) - 1000.0, SHAPE) is None  # far outside
+
+
 def test_marker_partly_hidden_by_a_closer_object_is_occluded():
     """A square cut along a side by something in front still looks like a quadrilateral in
     colour; the depth around its outline gives the occluder away."""

@@ -47,6 +47,11 @@ MARKERS: dict[str, Color] = {"hand": "green", "target": "red"}
 MORPH_KERNEL = np.ones((3, 3), np.uint8)  # square: leaves straight digital edges untouched
 COARSE_STEP = 2  # colour is first thresholded on every 2nd pixel to find each marker...
 ROI_PAD_PX = 8  # ...then at full resolution in its bounding box grown by this margin
+# A marker seen last frame is first looked for in a window around its last corners: their box
+# grown by this fraction of its longer side, and by at least TRACK_MARGIN_MIN_PX (how far it
+# may have moved since); anywhere in the image when it is not found well inside the window.
+TRACK_MARGIN_FRACTION = 0.5
+TRACK_MARGIN_MIN_PX = 16
 APPROX_EPSILON_FRACTIONS = (0.01, 0.02, 0.03, 0.05, 0.08)  # of the hull perimeter
 MIN_CORNER_ANGLE_RAD = math.radians(20.0)  # sharper or flatter: not a square in perspective
 MAX_CORNER_ANGLE_RAD = math.radians(165.0)
@@ -212,33 +217,103 @@ def _check_rgb(rgb: np.ndarray) -> None:
 
 
 def _coarse_image(rgb: np.ndarray, cfg: VisionConfig) -> np.ndarray:
-    """Every COARSE_STEP-th pixel, in the threshold colour space (4× fewer pixels to convert)."""
+    """Every COARSE_STEP-th pixel, in the threshold colour space (4× fewer pixels to convert).
+    Of an even-sized image or window, the pixels at multiples of COARSE_STEP from its start."""
     h, w = rgb.shape[:2]
     size = ((w + COARSE_STEP - 1) // COARSE_STEP, (h + COARSE_STEP - 1) // COARSE_STEP)
     return _threshold_space(cv2.resize(rgb, size, interpolation=cv2.INTER_NEAREST), cfg)
 
 
-def _marker_mask(
-    rgb: np.ndarray, coarse: np.ndarray, color: Color, cfg: VisionConfig
-) -> tuple[np.ndarray, Roi]:
-    """Full-size 0/255 mask equal to :func:`segment` around the largest coarse blob of the
-    colour and 0 elsewhere (so the largest blob is the same, at a fraction of the cost), and
-    that region."""
-    mask = np.zeros(rgb.shape[:2], np.uint8)
+def _tracking_window(corners_px: FloatArray | None, shape: tuple[int, ...]) -> Roi | None:
+    """Where to look first for a marker whose last corners were ``corners_px`` (see
+    TRACK_MARGIN_FRACTION), inside the image. It starts on the coarse grid and spans a multiple
+    of COARSE_STEP, so that its coarse pixels are those of the whole image. None: no corners."""
+    if corners_px is None:
+        return None
+    low, high = corners_px.min(axis=0), corners_px.max(axis=0)
+    margin = max(TRACK_MARGIN_MIN_PX, TRACK_MARGIN_FRACTION * float(np.max(high - low)))
+
+    def span(lo: float, hi: float, size: int) -> slice:
+        usable = size - size % COARSE_STEP
+        start = min(max(math.floor(lo - margin), 0) // COARSE_STEP * COARSE_STEP, usable)
+        stop = min(
+            start + -(-(math.ceil(hi + margin) - start) // COARSE_STEP) * COARSE_STEP, usable
+        )
+        return slice(start, max(stop, start))
+
+    rows, cols = span(low[1], high[1], shape[0]), span(low[0], high[0], shape[1])
+    return (rows, cols) if rows.stop > rows.start and cols.stop > cols.start else None
+
+
+def _blob_region(
+    coarse: np.ndarray,
+    color: Color,
+    cfg: VisionConfig,
+    shape: tuple[int, ...],
+    window: Roi | None = None,
+) -> Roi | None:
+    """The region (full resolution, in an image of ``shape``) of the largest coarse blob of the
+    colour: its bounding box grown by ROI_PAD_PX. None: no blob. ``coarse``: the whole image's
+    :func:`_coarse_image`, or ``window``'s; then None also when the blob reaches an edge of the
+    window that is not the image's (it may go on outside)."""
     contours, _ = cv2.findContours(
         _threshold(coarse, color, cfg), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE
     )
     if not contours:
-        return mask, (slice(0, 0), slice(0, 0))
+        return None
     x, y, w, h = cv2.boundingRect(max(contours, key=cv2.contourArea))
-    rows = slice(
-        max(y * COARSE_STEP - ROI_PAD_PX, 0), min((y + h) * COARSE_STEP + ROI_PAD_PX, mask.shape[0])
+    if window is not None:
+        rows, cols = window
+        if (
+            (x == 0 and cols.start > 0)
+            or (y == 0 and rows.start > 0)
+            or (x + w == coarse.shape[1] and cols.stop < shape[1])
+            or (y + h == coarse.shape[0] and rows.stop < shape[0])
+        ):
+            return None
+        x, y = x + cols.start // COARSE_STEP, y + rows.start // COARSE_STEP
+    return (
+        slice(
+            max(y * COARSE_STEP - ROI_PAD_PX, 0), min((y + h) * COARSE_STEP + ROI_PAD_PX, shape[0])
+        ),
+        slice(
+            max(x * COARSE_STEP - ROI_PAD_PX, 0), min((x + w) * COARSE_STEP + ROI_PAD_PX, shape[1])
+        ),
     )
-    cols = slice(
-        max(x * COARSE_STEP - ROI_PAD_PX, 0), min((x + w) * COARSE_STEP + ROI_PAD_PX, mask.shape[1])
-    )
-    mask[rows, cols] = segment(rgb[rows, cols], color, cfg)
-    return mask, (rows, cols)
+
+
+def _marker_mask(
+    rgb: np.ndarray, region: Roi | None, color: Color, cfg: VisionConfig
+) -> tuple[np.ndarray, Roi]:
+    """Full-size 0/255 mask equal to :func:`segment` in ``region`` (the largest coarse blob's,
+    :func:`_blob_region`) and 0 elsewhere (so the largest blob is the same, at a fraction of
+    the cost), and that region (empty: none)."""
+    mask = np.zeros(rgb.shape[:2], np.uint8)
+    if region is None:
+        return mask, (slice(0, 0), slice(0, 0))
+    mask[region] = segment(rgb[region], color, cfg)
+    return mask, region
+
+
+def _marker_masks(
+    rgb: np.ndarray, cfg: VisionConfig, previous: dict[str, np.ndarray]
+) -> list[tuple[np.ndarray, Roi]]:
+    """Each marker's :func:`_marker_mask`, its blob looked for in its tracking window when it was
+    seen last frame (the same region as from the whole image when the blob is well inside the
+    window; the whole image's colour conversion is then skipped), else in the whole image."""
+    whole: np.ndarray | None = None  # the whole image's coarse pixels, made when first needed
+    masks = []
+    for name, color in MARKERS.items():
+        window = _tracking_window(previous.get(name), rgb.shape)
+        region = None
+        if window is not None:
+            coarse = _coarse_image(rgb[window], cfg)
+            region = _blob_region(coarse, color, cfg, rgb.shape, window)
+        if region is None:
+            whole = _coarse_image(rgb, cfg) if whole is None else whole
+            region = _blob_region(whole, color, cfg, rgb.shape)
+        masks.append(_marker_mask(rgb, region, color, cfg))
+    return masks
 
 
 # --- corner ordering ---------------------------------------------------------------------------
@@ -969,7 +1044,8 @@ def measure_marker(
     corner labelling stable (see :func:`order_corners`).
     """
     _check_frame(rgb, depth_m, k_depth)
-    mask, roi = _marker_mask(rgb, _coarse_image(rgb, cfg), color, cfg)
+    region = _blob_region(_coarse_image(rgb, cfg), color, cfg, rgb.shape)
+    mask, roi = _marker_mask(rgb, region, color, cfg)
     (quad,) = _find_quads([(mask, roi)], cfg.min_area_px)
     corners = quad.corners_px
     if corners is not None:
@@ -1000,8 +1076,7 @@ def find_marker_quads(
     ``previous`` maps the same keys to last frame's corners (to keep their order)."""
     _check_rgb(rgb)
     previous = previous or {}
-    coarse = _coarse_image(rgb, cfg)  # shared: the colour conversion is a costly step
-    masks = [_marker_mask(rgb, coarse, color, cfg) for color in MARKERS.values()]
+    masks = _marker_masks(rgb, cfg, previous)
     quads = _find_quads(masks, cfg.min_area_px)  # both markers' sides refined in one batch
     out = {}
     for name, quad, (mask, _) in zip(MARKERS, quads, masks, strict=True):
