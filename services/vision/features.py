@@ -953,9 +953,7 @@ def _measure(
     bounds = _bounding_box(depth_corners, ring_px + 3, depth_m.shape)
     r0, r1, c0, c1 = bounds
     crop_mask = registered_mask(mask, depth_m.shape)[r0:r1, c0:c1]
-    surface = float(np.min(depth.depths_m))
-    if depth.plane is not None:
-        surface = plane_depth_image(depth.plane, k_depth, bounds)
+    surface = marker_surface(depth.plane, depth.depths_m, k_depth, bounds)
     if is_occluded(depth_m[r0:r1, c0:c1], crop_mask, surface, ring_px):
         return not_visible("occluded", quad.area_px, occluded=True)
     return MarkerMeasurement(
@@ -990,6 +988,19 @@ def plane_depth_image(
     x = (np.arange(c0, c1, dtype=float) - k.cx_px) / k.fx_px
     y = (np.arange(r0, r1, dtype=float) - k.cy_px) / k.fy_px
     return 1.0 / ((a * x)[None, :] + ((b * y) + c)[:, None])
+
+
+def marker_surface(
+    plane: PlaneFit | None,
+    depths_m: FloatArray,
+    k: CameraIntrinsics,
+    bounds: tuple[int, int, int, int],
+) -> FloatArray | float:
+    """A marker's surface along each pixel's ray of ``bounds`` (row0, row1, col0, col1) of an
+    image with intrinsics ``k``: its plane, else its nearest corner's depth (m)."""
+    if plane is not None:
+        return plane_depth_image(plane, k, bounds)
+    return float(np.min(depths_m))
 
 
 def _blob_occluded(

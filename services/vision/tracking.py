@@ -35,10 +35,10 @@ from services.vision.features import (
     PlaneFit,
     colour_mask,
     find_marker_quads,
+    marker_surface,
     mask_bounds,
     measure_quad,
     not_visible,
-    plane_depth_image,
     to_depth_pixels,
 )
 from services.vision.occlusion import hidden_behind, occluder_map
@@ -139,14 +139,6 @@ def _depth_under(
     return depth.depth_m[np.clip(dv, 0, h - 1)[:, None], np.clip(du, 0, w - 1)[None, :]]
 
 
-def _surface(memory: MarkerMemory, k: CameraIntrinsics, bounds: tuple[int, int, int, int]):
-    """The marker's remembered surface along each pixel's ray of ``bounds``: its plane, else
-    its nearest corner's depth."""
-    if memory.plane is not None:
-        return plane_depth_image(memory.plane, k, bounds)
-    return float(np.min(memory.depths_m))
-
-
 def _hidden_in_depth(
     name: str,
     memory: MarkerMemory | None,
@@ -166,7 +158,9 @@ def _hidden_in_depth(
     r0, r1, c0, c1 = bounds
     depth_crop = _depth_under(depth, k, bounds)
     colour = colour_mask(rgb[r0:r1, c0:c1], MARKERS[name], cfg)
-    surface = np.broadcast_to(_surface(memory, k, bounds), depth_crop.shape)
+    surface = np.broadcast_to(
+        marker_surface(memory.plane, memory.depths_m, k, bounds), depth_crop.shape
+    )
     return hidden_behind(depth_crop, region[r0:r1, c0:c1], surface, colour)
 
 
@@ -191,7 +185,9 @@ def _fit_partial(
         return None
     r0, r1, c0, c1 = bounds
     depth_crop = _depth_under(depth, k, bounds)
-    occluder = occluder_map(depth_crop, _surface(memory, k, bounds), cfg.occlusion_ring_px)
+    occluder = occluder_map(
+        depth_crop, marker_surface(memory.plane, memory.depths_m, k, bounds), cfg.occlusion_ring_px
+    )
     mask = quad.mask[r0:r1, c0:c1]
     edges = true_edge_points(mask, occluder, (c0, r0))
     moments = cv2.moments(mask, binaryImage=True)
