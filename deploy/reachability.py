@@ -25,6 +25,18 @@ def marker_in_image(corners_base: np.ndarray, scenario: Scenario) -> bool:
     )
 
 
+def goal_pose(scenario: Scenario) -> np.ndarray:
+    """Where the hand's marker must end (base frame): above the target by the approach height."""
+    target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
+    return kin.goal_marker_pose(target, scenario.target.approach_height_m)
+
+
+def square_turns(pose: np.ndarray) -> list[np.ndarray]:
+    """``pose`` and its turns by 90°, 180° and 270° about the marker's normal: the square looks
+    the same in all four, so the hand may end in any of them."""
+    return [pose @ kin.homogeneous(kin.rot_z(k * np.pi / 2), np.zeros(3)) for k in range(4)]
+
+
 def check_scenario(scenario: Scenario, seeds: int = 12) -> np.ndarray:
     """Raise :class:`ScenarioError` naming the field if the scenario cannot work; return a joint
     configuration that reaches the target."""
@@ -35,7 +47,6 @@ def check_scenario(scenario: Scenario, seeds: int = 12) -> np.ndarray:
         raise ScenarioError(f"robot.q0: {joints} outside the joint limits")
     size = scenario.marker.size_m
     target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
-    goal_pose = kin.goal_marker_pose(target, scenario.target.approach_height_m)
     if not marker_in_image(kin.marker_corners(target, size), scenario):
         raise ScenarioError("target.position: the target marker is not fully in the camera image")
     start = kin.forward_kinematics(q0) @ kin.hand_marker_in_ee()
@@ -45,8 +56,7 @@ def check_scenario(scenario: Scenario, seeds: int = 12) -> np.ndarray:
     tool = kin.hand_marker_in_ee()
     for i in range(seeds):
         seed = q0 if i == 0 else rng.uniform(kin.JOINT_LOWER_RAD, kin.JOINT_UPPER_RAD)
-        for k in range(4):  # the square looks the same turned by 90°
-            goal = goal_pose @ kin.homogeneous(kin.rot_z(k * np.pi / 2), np.zeros(3))
+        for goal in square_turns(goal_pose(scenario)):
             q, pos_err, rot_err = kin.inverse_kinematics(goal, seed, tool, iterations=100)
             if pos_err < 1e-4 and rot_err < 1e-3:
                 return q

@@ -25,7 +25,7 @@ import numpy as np
 
 from common import kinematics as kin
 from common.config import Scenario, ScenarioError, load_scenario
-from deploy.reachability import check_scenario, marker_in_image
+from deploy.reachability import check_scenario, goal_pose, marker_in_image, square_turns
 
 SUITE_DIR = Path(__file__).resolve().parent / "scenarios" / "suite"
 KINECT_RANGE_MARGIN_M = 0.03  # noisy depth: 3 cm clear of the near limit (the brief's 0.43 m)
@@ -72,11 +72,6 @@ def min_range_m(scenario: Scenario) -> float:
     return kinect.min_range_m + margin
 
 
-def goal_pose(scenario: Scenario) -> np.ndarray:
-    target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
-    return kin.goal_marker_pose(target, scenario.target.approach_height_m)
-
-
 def start_pose(
     goal: np.ndarray, offset_m: np.ndarray, turn_deg: float, tilt_deg: float = 0.0
 ) -> np.ndarray:
@@ -102,10 +97,8 @@ def solve_start(
     tool = kin.hand_marker_in_ee()
     # The branch the goal was solved on: one of the square's four 90° turns about its normal.
     here = kin.forward_kinematics(q) @ tool
-    k_best = min(
-        range(4),
-        key=lambda k: kin.rotation_error_rad(here[:3, :3], goal[:3, :3] @ kin.rot_z(k * np.pi / 2)),
-    )
+    turns = square_turns(goal)
+    k_best = min(range(4), key=lambda k: kin.rotation_error_rad(here[:3, :3], turns[k][:3, :3]))
     symmetric = kin.homogeneous(kin.rot_z(k_best * np.pi / 2), np.zeros(3))
     for i in range(1, steps + 1):
         f = i / steps
@@ -131,8 +124,7 @@ def goal_on_start_branch(scenario: Scenario) -> np.ndarray:
     q0 = np.array(scenario.robot.q0)
     goal = goal_pose(scenario)
     tool = kin.hand_marker_in_ee()
-    for k in range(4):  # the square's four equivalent turns
-        wanted = goal @ kin.homogeneous(kin.rot_z(k * np.pi / 2), np.zeros(3))
+    for wanted in square_turns(goal):
         q, pos_err, rot_err = kin.inverse_kinematics(wanted, q0, tool)
         if pos_err < 1e-5 and rot_err < 1e-4 and np.linalg.norm(q - q0) < np.pi:
             return q
