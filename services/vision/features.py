@@ -227,7 +227,8 @@ def _coarse_image(rgb: np.ndarray, cfg: VisionConfig) -> np.ndarray:
 def _tracking_window(corners_px: FloatArray | None, shape: tuple[int, ...]) -> Roi | None:
     """Where to look first for a marker whose last corners were ``corners_px`` (see
     TRACK_MARGIN_FRACTION), inside the image. It starts on the coarse grid and spans a multiple
-    of COARSE_STEP, so that its coarse pixels are those of the whole image. None: no corners."""
+    of COARSE_STEP, so that its coarse pixels are those of the whole image (of an even size:
+    cv2.resize samples an odd one slightly differently). None: no corners, or none inside."""
     if corners_px is None:
         return None
     low, high = corners_px.min(axis=0), corners_px.max(axis=0)
