@@ -285,12 +285,15 @@ def analyse_trace(trace: Trace, window: list[int]) -> dict[str, Any]:
             )
             for k in window
         ]
-    for row in rows:
+    per_frame: list[dict[str, Any]] = []  # the complete frames, for the figure
+    for k, row in zip(window, rows, strict=True):
         stages = frame_stages(*row)
         for s, v in stages.items():
             per_stage[s].append(v)
         if all(s in stages for s in LATENCY_STAGES):
             latency.append(row[4].applied_time_s - row[0].capture_time_s)
+            ms = {s: round(1000.0 * v, 4) for s, v in stages.items()}
+            per_frame.append({"frame_seq": k, "latency_ms": round(1000.0 * latency[-1], 4), **ms})
     rendered = [k for k in window if timings[k] is not None]
     with trace.lock:
         have_features = [k for k in rendered if k in trace.features]
@@ -318,6 +321,7 @@ def analyse_trace(trace: Trace, window: list[int]) -> dict[str, Any]:
             "apply": len(have_command) - len(have_applied),
         },
         "resends": (last.resends - first.resends) if first and last else 0,
+        "frames_ms": per_frame,
     }
 
 
@@ -637,6 +641,10 @@ def run_inprocess(
         "stages_ms": {s: summary_ms(v) for s, v in times.items()},
         "per_frame_ms": summary_ms(per_frame),
         "per_frame_with_codec_ms": summary_ms(with_codec),
+        "frames_ms": [  # frame by frame, for the figure
+            {"frame_seq": k, "latency_ms": round(1000.0 * v, 4)}
+            for k, v in zip(velocities, per_frame, strict=True)
+        ],
         "render_fps": round(1.0 / float(np.median(times["render"])), 3) if frames else None,
         "load_before": load_before,
         "load_after": machine_load(),
@@ -914,6 +922,8 @@ def median_of_runs(runs: list[dict[str, Any]]) -> dict[str, Any]:
         return first
 
     out = merge(runs)
+    for part in ("distributed", "inprocess"):  # frame by frame: in each run, not medians
+        out[part].pop("frames_ms", None)
     out["runs"] = len(runs)
     out["dropped_max"] = {
         part: {k: max(r[part]["dropped"][k] for r in runs) for k in runs[0][part]["dropped"]}

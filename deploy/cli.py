@@ -405,6 +405,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     print(format_report(result))
     if args.json:
         write_json(result, args.json)
+    if args.figure:
+        from deploy.plots import write_bench_figure
+
+        write_bench_figure(runs[0], Path(args.figure))  # frame by frame: the first run
+        print(f"figure: {args.figure}" + (" (the first run)" if len(runs) > 1 else ""))
     return 0
 
 
@@ -453,6 +458,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="frames of the 30 Hz synthetic source (default: --frames; 0: skip it)",
     )
     p.add_argument("--json", default=None, metavar="OUT.json", help="write the results here")
+    p.add_argument(
+        "--figure", default=None, metavar="OUT.png", help="the frames' stages as a PNG (1st run)"
+    )
     p.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
     p.add_argument("--log-dir", default="out/logs/bench", help="the services' log files")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import BinaryIO, TypeVar
 
 import numpy as np
+from matplotlib import colormaps
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -459,6 +460,59 @@ def plot_series(
         fig.savefig(target, dpi=DPI)
         written.append(target)
     return written
+
+
+def bench_figure(result: dict) -> Figure | None:
+    """``umay bench``'s frames one by one: the distributed latency (frame captured → command
+    applied) as a stack of its stages, and the in-process functions' time on the same frames
+    as a line. None when the result has no frame rows (e.g. a medians-of-runs result)."""
+    frames = result.get("distributed", {}).get("frames_ms") or []
+    if not frames:
+        return None
+    fig, (ax,) = _new_figure(9.0, 4.2)
+    seqs = np.array([f["frame_seq"] for f in frames])
+    # The rows hold the stages in loop order; the render is not part of the latency.
+    stages = [k for k in frames[0] if k not in ("frame_seq", "latency_ms", "render")]
+    colours = colormaps["tab10"].colors
+    bottom = np.zeros(len(frames))
+    for i, stage in enumerate(stages):
+        height = np.array([f.get(stage, 0.0) for f in frames])
+        label = stage.replace("_", " ")
+        ax.bar(seqs, height, bottom=bottom, width=0.85, color=colours[i % 10], label=label)
+        bottom += height
+    inprocess = {f["frame_seq"]: f["latency_ms"] for f in result["inprocess"].get("frames_ms", [])}
+    if inprocess:
+        ks = sorted(inprocess)
+        ax.plot(
+            ks,
+            [inprocess[k] for k in ks],
+            color="black",
+            linewidth=1.4,
+            marker=".",
+            label="in-process functions",
+        )
+    cfg, ratio = result.get("config", {}), result.get("ratio", {}).get("p50")
+    ax.set_title(
+        "frame captured → command applied, render excluded\n"
+        f"{cfg.get('width_px')}×{cfg.get('height_px')} {cfg.get('clock')}, {cfg.get('transport')}"
+        + ("" if ratio is None else f"; distributed / in-process p50 {ratio:.2f}"),
+        fontsize=10,
+    )
+    ax.set_xlabel("camera frame")
+    ax.set_ylabel("ms")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    _style_axes(ax)
+    return fig
+
+
+def write_bench_figure(result: dict, path: Path) -> bool:
+    """:func:`bench_figure` as a PNG at ``path``; False when there is nothing to draw."""
+    fig = bench_figure(result)
+    if fig is None:
+        return False
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI)
+    return True
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,7 +11,15 @@ from pathlib import Path
 import pytest
 
 from common.messages import AppliedCommand, Header, SimTiming
-from deploy.bench import LATENCY_STAGES, PIPELINE, STAGES, SYNTHETIC_STAGES, Trace, analyse_trace
+from deploy.bench import (
+    LATENCY_STAGES,
+    PIPELINE,
+    STAGES,
+    SYNTHETIC_STAGES,
+    Trace,
+    analyse_trace,
+    median_of_runs,
+)
 
 FRAMES = 20
 
@@ -56,6 +64,9 @@ def test_stages_add_up_to_the_latency_and_missing_answers_count_as_drops() -> No
     assert r["stages_ms"]["render"]["p50"] == pytest.approx(100.0)
     assert r["stages_ms"]["vision"]["p50"] == pytest.approx(8.0)
     assert r["latency_ms"]["p50"] == pytest.approx(22.0)
+    assert [row["frame_seq"] for row in r["frames_ms"]] == [0, 1]  # the complete ones
+    assert all(row["latency_ms"] == pytest.approx(22.0) for row in r["frames_ms"])
+    assert all(row["vision"] == pytest.approx(8.0) for row in r["frames_ms"])
     total = sum(r["stages_ms"][s]["mean"] for s in LATENCY_STAGES)
     assert total == pytest.approx(r["latency_ms"]["mean"], abs=1e-3)
 
@@ -76,10 +87,13 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> dict:
     argv = [sys.executable, "-m", "deploy", "bench", "--frames", str(FRAMES)]
     argv += ["--size", "320x240", "--mode", "lockstep", "--warmup", "2"]
     argv += ["--json", str(out), "--log-dir", str(tmp / "logs")]
+    argv += ["--figure", str(tmp / "stages.png")]
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
     assert "latency excl. render" in proc.stdout and "ratio distributed / in-process" in proc.stdout
-    return json.loads(out.read_text())
+    result = json.loads(out.read_text())
+    result["_figure"] = tmp / "stages.png"
+    return result
 
 
 def test_bench_json_is_complete_and_sane(bench: dict) -> None:
@@ -135,6 +149,45 @@ def test_bench_json_is_complete_and_sane(bench: dict) -> None:
         for stage in SYNTHETIC_STAGES:
             check_summary(s["stages_ms"][stage])
     assert set(s["services"]) == set(PIPELINE)
+
+
+def test_bench_keeps_every_frame_and_draws_them(bench: dict) -> None:
+    """Frame by frame: each complete frame's stages add up to its latency, the in-process
+    loop timed the same frames, and the figure of them was written."""
+    d, i = bench["distributed"], bench["inprocess"]
+    rows = d["frames_ms"]
+    assert len(rows) == d["frames_complete"] == FRAMES
+    for row in rows:
+        assert sum(row[s] for s in LATENCY_STAGES) == pytest.approx(row["latency_ms"], abs=1e-3)
+        assert all(row[s] >= 0.0 for s in STAGES), row
+    assert [r["frame_seq"] for r in i["frames_ms"]] == [r["frame_seq"] for r in rows]
+    assert sorted(r["latency_ms"] for r in rows)[FRAMES // 2] == pytest.approx(
+        d["latency_ms"]["p50"], rel=0.2
+    )
+    figure = bench["_figure"]
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and figure.stat().st_size > 20_000
+
+
+def test_medians_of_runs_leave_the_frame_rows_to_each_run() -> None:
+    run = {
+        "distributed": {"latency_ms": {"p50": 10.0}, "dropped": {"vision": 0}, "frames_ms": [{}]},
+        "inprocess": {"per_frame_ms": {"p50": 8.0}, "frames_ms": [{}]},
+    }
+    other = {
+        "distributed": {
+            **run["distributed"],
+            "latency_ms": {"p50": 14.0},
+            "dropped": {"vision": 2},
+        },
+        "inprocess": {**run["inprocess"], "per_frame_ms": {"p50": 6.0}},
+    }
+    m = median_of_runs([run, other])
+    assert (
+        m["distributed"]["latency_ms"]["p50"] == 12.0
+        and m["inprocess"]["per_frame_ms"]["p50"] == 7.0
+    )
+    assert "frames_ms" not in m["distributed"] and "frames_ms" not in m["inprocess"]
+    assert m["dropped_max"]["distributed"]["vision"] == 2 and m["runs"] == 2
 
 
 def test_bench_refuses_bad_options_with_exit_2(tmp_path: Path) -> None:
