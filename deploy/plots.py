@@ -465,7 +465,8 @@ def plot_series(
 def bench_figure(result: dict) -> Figure | None:
     """``umay bench``'s frames one by one: the distributed latency (frame captured → command
     applied) as a stack of its stages, and the in-process functions' time on the same frames
-    as a line. None when the result has no frame rows (e.g. a medians-of-runs result)."""
+    as a line (lockstep only: a realtime run's frames are not the baseline's). None when the
+    result has no frame rows (e.g. a medians-of-runs result)."""
     frames = result.get("distributed", {}).get("frames_ms") or []
     if not frames:
         return None
@@ -480,8 +481,11 @@ def bench_figure(result: dict) -> Figure | None:
         label = stage.replace("_", " ")
         ax.bar(seqs, height, bottom=bottom, width=0.85, color=colours[i % 10], label=label)
         bottom += height
+    cfg = result.get("config", {})
+    lockstep = cfg.get("clock") == "lockstep"  # else the baseline's frames are other frames
+    ratio = result.get("ratio", {}).get("p50") if lockstep else None
     inprocess = {f["frame_seq"]: f["latency_ms"] for f in result["inprocess"].get("frames_ms", [])}
-    if inprocess:
+    if inprocess and lockstep:
         ks = sorted(inprocess)
         ax.plot(
             ks,
@@ -491,7 +495,6 @@ def bench_figure(result: dict) -> Figure | None:
             marker=".",
             label="in-process functions",
         )
-    cfg, ratio = result.get("config", {}), result.get("ratio", {}).get("p50")
     ax.set_title(
         "frame captured → command applied, render excluded\n"
         f"{cfg.get('width_px')}×{cfg.get('height_px')} {cfg.get('clock')}, {cfg.get('transport')}"

@@ -20,6 +20,7 @@ from deploy.bench import (
     analyse_trace,
     median_of_runs,
 )
+from deploy.plots import bench_figure
 
 FRAMES = 20
 
@@ -166,6 +167,24 @@ def test_bench_keeps_every_frame_and_draws_them(bench: dict) -> None:
     )
     figure = bench["_figure"]
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and figure.stat().st_size > 20_000
+
+
+@pytest.mark.parametrize("clock", ["lockstep", "realtime"])
+def test_the_figure_stacks_the_stages_and_shows_the_baseline_only_in_lockstep(clock) -> None:
+    row = {"latency_ms": 3.0, "render": 50.0, "publish": 1.0, "vision": 2.0}
+    result = {
+        "config": {"clock": clock, "width_px": 320, "height_px": 240, "transport": "shm"},
+        "distributed": {"frames_ms": [{"frame_seq": k, **row} for k in range(3)]},
+        "inprocess": {"frames_ms": [{"frame_seq": k, "latency_ms": 1.5} for k in range(3)]},
+        "ratio": {"p50": 2.0},
+    }
+    (ax,) = bench_figure(result).axes
+    bars = [p for c in ax.containers for p in c]
+    assert len(bars) == 3 * 2  # publish and vision per frame, not the render
+    assert max(b.get_y() + b.get_height() for b in bars) == pytest.approx(3.0)
+    assert len(ax.get_lines()) == (1 if clock == "lockstep" else 0)
+    assert ("2.00" in ax.get_title()) == (clock == "lockstep")
+    assert bench_figure({"distributed": {"frames_ms": []}, "inprocess": {}}) is None
 
 
 def test_medians_of_runs_leave_the_frame_rows_to_each_run() -> None:
