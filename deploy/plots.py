@@ -484,12 +484,11 @@ def bench_figure(result: dict) -> Figure | None:
     cfg = result.get("config", {})
     lockstep = cfg.get("clock") == "lockstep"  # else the baseline's frames are other frames
     ratio = result.get("ratio", {}).get("p50") if lockstep else None
-    inprocess = {f["frame_seq"]: f["latency_ms"] for f in result["inprocess"].get("frames_ms", [])}
+    inprocess = result["inprocess"].get("frames_ms", [])  # in frame order
     if inprocess and lockstep:
-        ks = sorted(inprocess)
         ax.plot(
-            ks,
-            [inprocess[k] for k in ks],
+            [f["frame_seq"] for f in inprocess],
+            [f["latency_ms"] for f in inprocess],
             color="black",
             linewidth=1.4,
             marker=".",

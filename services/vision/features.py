@@ -235,12 +235,11 @@ def _tracking_window(corners_px: FloatArray | None, shape: tuple[int, ...]) -> R
     margin = max(TRACK_MARGIN_MIN_PX, TRACK_MARGIN_FRACTION * float(np.max(high - low)))
 
     def span(lo: float, hi: float, size: int) -> slice:
+        """[lo - margin, hi + margin] out to the coarse grid, clipped to its whole steps."""
         usable = size - size % COARSE_STEP
-        start = min(max(math.floor(lo - margin), 0) // COARSE_STEP * COARSE_STEP, usable)
-        stop = min(
-            start + -(-(math.ceil(hi + margin) - start) // COARSE_STEP) * COARSE_STEP, usable
-        )
-        return slice(start, max(stop, start))
+        start = min(max(math.floor((lo - margin) / COARSE_STEP) * COARSE_STEP, 0), usable)
+        stop = min(max(math.ceil((hi + margin) / COARSE_STEP) * COARSE_STEP, start), usable)
+        return slice(start, stop)
 
     rows, cols = span(low[1], high[1], shape[0]), span(low[0], high[0], shape[1])
     return (rows, cols) if rows.stop > rows.start and cols.stop > cols.start else None
