@@ -142,6 +142,14 @@ def manipulability(jacobian: FloatArray) -> float:
     return float(np.sqrt(max(np.linalg.det(jacobian @ jacobian.T), 0.0)))
 
 
+def cross(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a × b`` of two 3-vectors: np.cross's arithmetic, bit for bit, without its generic
+    overhead (about 50 µs a call against 3 µs; the controller takes two per frame)."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
+
+
 def skew(v: FloatArray) -> FloatArray:
     """Cross-product matrix: ``skew(a) @ b == cross(a, b)``."""
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])

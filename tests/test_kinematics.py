@@ -61,3 +61,13 @@ def test_inverse_kinematics_reaches_a_reachable_pose() -> None:
     seed = q_true + 0.2  # (q = 0 itself is singular: joints 1 and 3 align)
     _, pos_err, rot_err = kin.inverse_kinematics(goal, seed, kin.hand_marker_in_ee())
     assert pos_err < 1e-6 and rot_err < 1e-6
+
+
+def test_cross_is_np_cross_bit_for_bit() -> None:
+    # The controller's twist transform and s* normal use it: results must not move at all.
+    rng = np.random.default_rng(7)
+    for _ in range(2000):
+        a = rng.normal(size=3) * 10 ** rng.uniform(-6, 6)
+        b = rng.normal(size=3) * 10 ** rng.uniform(-6, 6)
+        assert np.array_equal(kin.cross(a, b), np.cross(a, b))
+    assert np.array_equal(kin.cross(np.array([1.0, 0, 0]), np.array([0, 1.0, 0])), [0, 0, 1.0])

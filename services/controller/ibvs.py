@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode
-from common.kinematics import skew
+from common.kinematics import cross, skew
 from common.messages import is_usable
 from common.motion import MarkerMotion
 
@@ -111,7 +111,7 @@ def camera_twist_to_base_ee(
     """
     rot, origin = t_base_cam[:3, :3], t_base_cam[:3, 3]
     omega_b = rot @ twist_cam[3:]
-    v_e = rot @ twist_cam[:3] + np.cross(omega_b, p_ee_base_m - origin)
+    v_e = rot @ twist_cam[:3] + cross(omega_b, p_ee_base_m - origin)
     return np.concatenate([v_e, omega_b])
 
 
@@ -171,7 +171,7 @@ def desired_observation(
     if approach_height_m == 0.0:
         return target
     p = target.points_m
-    normal = np.cross(p[2] - p[0], p[3] - p[1])
+    normal = cross(p[2] - p[0], p[3] - p[1])
     normal /= np.linalg.norm(normal)
     if normal @ p.mean(axis=0) > 0:  # make it face the camera (at the origin)
         normal = -normal

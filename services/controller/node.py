@@ -76,8 +76,6 @@ class ControllerService:
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
         self.hold_reason = out.hold_reason
-        velocity = self.controller.motion.velocity_m_s(features.header.sim_time_s)
-        self.target_speed_m_s = float(np.linalg.norm(velocity))
         self.last_output = EndEffectorTwist(
             header=self.node.header(features.header.sim_time_s, features.header.frame_seq),
             linear_m_s=out.twist_base_ee[:3].tolist(),
@@ -89,6 +87,9 @@ class ControllerService:
             converged=out.converged,
         )
         self.pub.put(self.last_output)
+        # For status only: after the twist is out, off the loop's latency.
+        velocity = self.controller.motion.velocity_m_s(features.header.sim_time_s)
+        self.target_speed_m_s = float(np.linalg.norm(velocity))
 
     def on_event(self, key: str, msg: Features | JointState) -> None:
         if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:
