@@ -94,6 +94,7 @@ def test_position_and_speed_limits_hold_after_the_acceleration_limit() -> None:
     assert np.abs(cmd.velocity_rad_s).max() <= kin.JOINT_VELOCITY_LIMIT_RAD_S.max() + 1e-12
 
 
+@pytest.mark.filterwarnings("error")  # handled, so no RuntimeWarning in the service log
 def test_nonfinite_inverse_is_flagged() -> None:
     cmd = twist_to_joint_velocities(np.full(6, np.inf), np.full(6, 0.5), 0.02, 0.002)
     assert cmd.clamps.nonfinite

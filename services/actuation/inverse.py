@@ -128,7 +128,8 @@ def twist_to_joint_velocities(
     jac = kin.geometric_jacobian(q_rad)
     w = kin.manipulability(jac)
     delta = damping_for(w, damping_max, threshold)
-    qdot = damped_pinv(jac, delta) @ np.asarray(twist_base_ee, dtype=float)
+    with np.errstate(invalid="ignore", over="ignore"):  # a non-finite result is handled next
+        qdot = damped_pinv(jac, delta) @ np.asarray(twist_base_ee, dtype=float)
     if not np.all(np.isfinite(qdot)):  # never let NaN/Inf reach the motors
         return JointCommand(np.zeros(kin.N_JOINTS), Clamps(nonfinite=True), w, delta)
     accelerated = False
