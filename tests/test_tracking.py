@@ -78,6 +78,25 @@ def test_a_partly_hidden_target_is_fitted_from_its_visible_edges() -> None:
     np.testing.assert_allclose(np.sort(m.depths_m), np.sort(target.points_m[:, 2]), atol=1e-3)
 
 
+def test_a_target_slid_partly_out_of_the_picture_is_fitted_and_not_occluded() -> None:
+    """Nothing is in front of it: the fit comes from the edges inside the image, and the
+    blob's own occlusion check (run after the fit, whose occluder map is empty) says clear."""
+    hand, _ = scene()
+    rot = rotation(0.3, 0.8, 0.4)
+    start_m = np.array([0.22, 0.04, 0.5])
+    rgb, depth = render([hand, Marker(square_3d(start_m, SIZE_M, rot), RED)])
+    _, state = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, TrackerState())
+    target = Marker(square_3d(start_m + 0.03 * rot[:, 0], SIZE_M, rot), RED)  # slid in its plane
+    assert target.corners_px[:, 0].max() > SHAPE[1] + 20  # a good part of it out of the image
+    rgb, depth = render([hand, target])
+    measured, _ = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, state, 1 / 30)
+    m = measured["target"]
+    assert (m.state, m.reason) == ("partial", "touches image border")
+    assert m.fitted and m.usable and not m.occluded
+    err = np.abs(match_order(m.corners_px, target.corners_px) - vf.order_corners(target.corners_px))
+    assert err.max() < 0.3, f"fitted corners off by {err.max():.2f} px"
+
+
 @pytest.mark.parametrize("params", [(0.004, -0.003, 0.2), (0.01, 0.01, 0.7), (0.0, 0.0, -0.5)])
 def test_the_fit_jacobian_matches_finite_differences(params: tuple[float, float, float]) -> None:
     """The partial fit's Jacobian is written out (partial._sides): d(distance)/d(params) of

@@ -29,6 +29,7 @@ from common.config import VisionConfig
 from common.motion import MarkerMotion
 from services.vision.features import (
     MARKERS,
+    REASON_STATES,
     FloatArray,
     MarkerMeasurement,
     MarkerQuad,
@@ -164,6 +165,35 @@ def _hidden_in_depth(
     return hidden_behind(depth_crop, region[r0:r1, c0:c1], surface, colour)
 
 
+@dataclass(frozen=True)
+class _PartialFit:
+    """A partly hidden marker fitted from its visible edges: corners (px), their depths and
+    1-σ on the remembered plane (m), the square's corners (m, optical frame), and whether any
+    pixel around it is closer than that plane (something in front of it)."""
+
+    corners_px: FloatArray
+    depths_m: FloatArray
+    depth_sigmas_m: FloatArray
+    points_m: FloatArray
+    plane: PlaneFit
+    occluder_seen: bool
+
+    def measurement(self, reason: str, area_px: float, occluded: bool) -> MarkerMeasurement:
+        """As a measurement of a marker seen only in part, for ``reason``."""
+        return MarkerMeasurement(
+            "partial",
+            self.corners_px,
+            self.depths_m,
+            self.depth_sigmas_m,
+            self.points_m,
+            area_px,
+            reason,
+            occluded=occluded or self.occluder_seen,
+            plane=self.plane,
+            fitted=True,
+        )
+
+
 def _fit_partial(
     quad: MarkerQuad,
     memory: MarkerMemory | None,
@@ -171,8 +201,7 @@ def _fit_partial(
     depth: DepthImage,
     cfg: VisionConfig,
     marker_size_m: float,
-    measured: MarkerMeasurement,
-) -> MarkerMeasurement | None:
+) -> _PartialFit | None:
     """A partly hidden marker's corners from its visible edges (see
     :mod:`services.vision.partial`), its known size and remembered plane; None if the fit
     does not hold."""
@@ -195,19 +224,14 @@ def _fit_partial(
     fit = fit_square_to_blob(square, edges, centre, k)
     if fit is None or stray_fraction(mask, fit.corners_px, (c0, r0)) > MAX_STRAY_FRACTION:
         return None
-    corners_m = fit.square.corners_m()
     xy = pixel_to_normalized(fit.corners_px, k)
-    return MarkerMeasurement(
-        "partial",
+    return _PartialFit(
         fit.corners_px,
         memory.plane.depths_m(xy),
         memory.plane.depth_sigmas_m(xy),
-        corners_m,
-        quad.area_px,
-        measured.reason,
-        occluded=measured.occluded or bool(np.any(occluder)),  # any closer pixel
-        plane=memory.plane,
-        fitted=True,
+        fit.square.corners_m(),
+        memory.plane,
+        bool(np.any(occluder)),
     )
 
 
@@ -240,6 +264,36 @@ def _held(
     )
 
 
+def _measure_fresh(
+    name: str,
+    quad: MarkerQuad,
+    memory: MarkerMemory | None,
+    rgb: np.ndarray,
+    k: CameraIntrinsics,
+    depth: DepthImage,
+    cfg: VisionConfig,
+    marker_size_m: float,
+) -> MarkerMeasurement:
+    """A marker in a colour frame taken with the depth image: measured in full, and fitted
+    from its visible edges when only part of it shows (a marker in :data:`FITTED`)."""
+    fit: _PartialFit | None = None
+    no_quad = quad.corners_px is None and REASON_STATES[quad.reason] == "partial"
+    if name in FITTED and no_quad:
+        fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
+        if fit is not None and fit.occluder_seen:
+            # Occluded whatever the blob's own depth says: its check (measure_quad) is skipped.
+            return fit.measurement(quad.reason, quad.area_px, occluded=True)
+    m = measure_quad(quad, depth.depth_m, k, cfg, depth.intrinsics)
+    if not m.visible and not m.occluded and _hidden_in_depth(name, memory, rgb, k, depth, cfg):
+        m = not_visible(m.reason, m.area_px, occluded=True)
+    if name in FITTED and m.state == "partial":
+        if not no_quad:  # corners found but hidden in depth: not fitted yet
+            fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
+        if fit is not None:
+            m = fit.measurement(m.reason, m.area_px, m.occluded)
+    return m
+
+
 def observe(
     rgb: np.ndarray,
     k: CameraIntrinsics,
@@ -260,15 +314,7 @@ def observe(
         memory = expected[name]
         if fresh:
             assert depth is not None
-            m = measure_quad(quad, depth.depth_m, k, cfg, depth.intrinsics)
-            if (
-                not m.visible
-                and not m.occluded
-                and _hidden_in_depth(name, memory, rgb, k, depth, cfg)
-            ):
-                m = not_visible(m.reason, m.area_px, occluded=True)
-            if name in FITTED and m.state == "partial":
-                m = _fit_partial(quad, memory, k, depth, cfg, marker_size_m, m) or m
+            m = _measure_fresh(name, quad, memory, rgb, k, depth, cfg, marker_size_m)
         elif quad.corners_px is None:
             m = not_visible(quad.reason, quad.area_px)
         elif not usable:
