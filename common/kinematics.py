@@ -144,7 +144,8 @@ def manipulability(jacobian: FloatArray) -> float:
 
 def cross(a: FloatArray, b: FloatArray) -> FloatArray:
     """``a × b`` of two 3-vectors: np.cross's arithmetic, bit for bit, without its generic
-    overhead (about 50 µs a call against 3 µs; the controller takes two per frame)."""
+    overhead (about 50 µs a call against 3 µs): for per-frame work in the controller and
+    vision."""
     return np.array(
         [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
     )

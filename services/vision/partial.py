@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from common.camera import CameraIntrinsics, pixel_to_normalized
+from common.kinematics import cross
 from services.vision.features import FloatArray
 
 EDGE_CLEARANCE_PX = 3  # a blob edge point this close to an occluder may be the occluder's edge
@@ -187,7 +188,7 @@ class SquareFit:
 def slid_to(square: SquareOnPlane, uv_px: FloatArray, k: CameraIntrinsics) -> SquareOnPlane:
     """``square`` slid in its plane so that its centre is seen at pixel ``uv_px``."""
     ray = np.append(pixel_to_normalized(uv_px, k)[0], 1.0)
-    normal = np.cross(square.axis_u, square.axis_v)
+    normal = cross(square.axis_u, square.axis_v)
     depth = float(normal @ square.centre_m) / float(normal @ ray)
     offset = depth * ray - square.centre_m
     return square.moved(float(offset @ square.axis_u), float(offset @ square.axis_v), 0.0)

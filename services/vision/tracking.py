@@ -29,7 +29,6 @@ from common.config import VisionConfig
 from common.motion import MarkerMotion
 from services.vision.features import (
     MARKERS,
-    REASON_STATES,
     FloatArray,
     MarkerMeasurement,
     MarkerQuad,
@@ -277,8 +276,8 @@ def _measure_fresh(
     """A marker in a colour frame taken with the depth image: measured in full, and fitted
     from its visible edges when only part of it shows (a marker in :data:`FITTED`)."""
     fit: _PartialFit | None = None
-    no_quad = quad.corners_px is None and REASON_STATES[quad.reason] == "partial"
-    if name in FITTED and no_quad:
+    fit_first = name in FITTED and quad.corners_px is None  # no quadrilateral: partly hidden
+    if fit_first:
         fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
         if fit is not None and fit.occluder_seen:
             # Occluded whatever the blob's own depth says: its check (measure_quad) is skipped.
@@ -287,7 +286,7 @@ def _measure_fresh(
     if not m.visible and not m.occluded and _hidden_in_depth(name, memory, rgb, k, depth, cfg):
         m = not_visible(m.reason, m.area_px, occluded=True)
     if name in FITTED and m.state == "partial":
-        if not no_quad:  # corners found but hidden in depth: not fitted yet
+        if not fit_first:  # a quadrilateral, but something in front of it in depth
             fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
         if fit is not None:
             m = fit.measurement(m.reason, m.area_px, m.occluded)
