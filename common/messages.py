@@ -7,6 +7,7 @@ safe to act on. Images travel as raw bytes with their shape and dtype (:class:`I
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -58,11 +59,15 @@ class Header(Message):
     )
 
 
+ImageDtype = Literal["uint8", "float32"]
+ITEMSIZE: dict[str, int] = {"uint8": 1, "float32": 4}  # bytes per element of each ImageDtype
+
+
 class ImageSpec(Message):
     """Shape and dtype of a raw C-contiguous image (what a frame's header says of its pixels)."""
 
     shape: Annotated[list[int], Field(min_length=2, max_length=3)]
-    dtype: Literal["uint8", "float32"]
+    dtype: ImageDtype
 
     @model_validator(mode="after")
     def _shape_in_range(self) -> ImageSpec:
@@ -72,7 +77,8 @@ class ImageSpec(Message):
 
     @property
     def nbytes(self) -> int:
-        return int(np.prod(self.shape)) * np.dtype(self.dtype).itemsize
+        # Plain Python: np.prod and np.dtype cost ~10 µs a call, a few calls per frame per hop.
+        return math.prod(self.shape) * ITEMSIZE[self.dtype]
 
 
 class ImageData(ImageSpec):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import get_args
 
 import msgpack
 import numpy as np
@@ -21,7 +22,16 @@ from common.codec import (
     encode,
     unpack,
 )
-from common.messages import DepthFrame, Header, ImageData, JointVelocityCommand, RgbFrame
+from common.messages import (
+    ITEMSIZE,
+    DepthFrame,
+    Header,
+    ImageData,
+    ImageDtype,
+    ImageSpec,
+    JointVelocityCommand,
+    RgbFrame,
+)
 
 K = CameraIntrinsics.from_fov(64, 48, 57.0)
 
@@ -98,6 +108,14 @@ def test_image_size_must_match_shape() -> None:
     data["depth_m"] = ImageData.from_array(np.zeros((48, 64), np.uint8)).model_dump()
     with pytest.raises(MessageError, match="float32"):
         decode(msgpack.packb(data), DepthFrame, FRAME_MAX_BYTES)
+
+
+def test_image_sizes_are_numpys_for_every_allowed_dtype() -> None:
+    assert set(get_args(ImageDtype)) == set(ITEMSIZE)
+    for dtype in ITEMSIZE:
+        for shape in ([480, 640], [240, 320, 3], [1, 1]):
+            expected = np.zeros(shape, dtype).nbytes
+            assert ImageSpec(shape=shape, dtype=dtype).nbytes == expected  # type: ignore[arg-type]
 
 
 # --- the raw frame layout --------------------------------------------------------------------
