@@ -10,12 +10,15 @@ from common.camera import CameraIntrinsics, project
 from common.config import ControllerConfig, JacobianMode
 from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
 from services.controller.ibvs import (
+    USES_CURRENT,
+    USES_DESIRED,
     IbvsController,
     MarkerObservation,
     base_ee_twist_to_camera,
     camera_twist_to_base_ee,
     choose_pairing,
     clamp_twist,
+    control_matrix,
     desired_observation,
     interaction_matrix,
     pairing_costs_px2,
@@ -162,6 +165,31 @@ def test_every_strategy_converges_in_a_kinematic_loop(mode: JacobianMode) -> Non
         hand = centre + v * dt + (_axis_angle_safe(w, dt) @ (hand - centre).T).T
     assert out.converged, f"{mode}: error still {out.error_px_rms:.3f} px (started {first:.1f})"
     np.testing.assert_allclose(hand, target, atol=2e-3)
+
+
+@pytest.mark.parametrize("mode", [m for m in JacobianMode if m is not JacobianMode.POINTS3D])
+def test_each_strategy_needs_only_its_own_matrices(mode: JacobianMode) -> None:
+    l_current, l_desired, l_constant = (RNG.normal(size=(8, 6)) for _ in range(3))
+    full = control_matrix(mode, l_current, l_desired, l_constant)
+    np.testing.assert_array_equal(
+        control_matrix(
+            mode,
+            l_current if mode in USES_CURRENT else None,
+            l_desired if mode in USES_DESIRED else None,
+            l_constant if mode is JacobianMode.CONSTANT else None,
+        ),
+        full,
+    )
+    if mode in USES_DESIRED:  # a matrix it needs, missing: named
+        with pytest.raises(ValueError, match="l_desired"):
+            control_matrix(mode, l_current, None, l_constant)
+    expected = {
+        JacobianMode.CONSTANT: np.linalg.pinv(l_constant),
+        JacobianMode.DYNAMIC: np.linalg.pinv(l_current),
+        JacobianMode.PMJ: np.linalg.pinv(0.5 * (l_current + l_desired)),
+        JacobianMode.MPJ: 0.5 * (np.linalg.pinv(l_current) + np.linalg.pinv(l_desired)),
+    }[mode]
+    np.testing.assert_array_equal(full, expected)
 
 
 def _axis_angle_safe(w: np.ndarray, dt: float) -> np.ndarray:

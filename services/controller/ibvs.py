@@ -78,8 +78,16 @@ def feature_error_px_rms(s_px: FloatArray, s_star_px: FloatArray) -> float:
     return float(np.sqrt(np.mean((np.asarray(s_px) - np.asarray(s_star_px)) ** 2)))
 
 
+# The interaction matrices each image-point strategy is built from (the others are not needed).
+USES_CURRENT = frozenset({JacobianMode.DYNAMIC, JacobianMode.PMJ, JacobianMode.MPJ})
+USES_DESIRED = frozenset({JacobianMode.PMJ, JacobianMode.MPJ})
+
+
 def control_matrix(
-    mode: JacobianMode, l_current: FloatArray, l_desired: FloatArray, l_constant: FloatArray
+    mode: JacobianMode,
+    l_current: FloatArray | None,
+    l_desired: FloatArray | None,
+    l_constant: FloatArray | None,
 ) -> FloatArray:
     """The 6×2N matrix ``M`` of ``(v, ω) = λ · M · e`` for each image-point strategy.
 
@@ -88,16 +96,24 @@ def control_matrix(
     - pmj:      ``((L_n + L*)/2)⁺``  (Malis: pseudo-inverse of the mean);
     - mpj:      ``(L_n⁺ + L*⁺)/2``   (mean of the pseudo-inverses).
 
+    A matrix the mode does not use may be None (:data:`USES_CURRENT`, :data:`USES_DESIRED`).
     points3d does not use image points: its matrix is :func:`points3d_control_matrix`.
     """
+
+    def given(matrix: FloatArray | None, name: str) -> FloatArray:
+        if matrix is None:
+            raise ValueError(f"{mode.value} needs {name}")
+        return matrix
+
     if mode is JacobianMode.CONSTANT:
-        return np.linalg.pinv(l_constant)
+        return np.linalg.pinv(given(l_constant, "l_constant"))
     if mode is JacobianMode.DYNAMIC:
-        return np.linalg.pinv(l_current)
+        return np.linalg.pinv(given(l_current, "l_current"))
     if mode is JacobianMode.PMJ:
-        return np.linalg.pinv(0.5 * (l_current + l_desired))
+        return np.linalg.pinv(0.5 * (given(l_current, "l_current") + given(l_desired, "l_desired")))
     if mode is JacobianMode.MPJ:
-        return 0.5 * (np.linalg.pinv(l_current) + np.linalg.pinv(l_desired))
+        pinv_current = np.linalg.pinv(given(l_current, "l_current"))
+        return 0.5 * (pinv_current + np.linalg.pinv(given(l_desired, "l_desired")))
     if mode is JacobianMode.POINTS3D:
         raise ValueError("points3d servoes 3-D points: use points3d_control_matrix")
     raise ValueError(f"unknown Jacobian mode {mode!r}")
@@ -355,11 +371,15 @@ class IbvsController:
         s = pixel_to_normalized(hand.corners_px, k)
         s_star = pixel_to_normalized(target.corners_px, k)
         error = (s - s_star).reshape(-1)
-        l_current = interaction_matrix(s, hand.depth_m)
-        l_desired = interaction_matrix(s_star, target.depth_m)
-        assert self.l_constant is not None and self.pairing is not None
-        l_constant = np.roll(self.l_constant, -2 * self.pairing, axis=0)  # 2 rows per corner
-        return error, control_matrix(self.config.mode, l_current, l_desired, l_constant)
+        mode = self.config.mode
+        # Only the matrices this strategy uses (the controller's share of the loop's latency).
+        l_current = interaction_matrix(s, hand.depth_m) if mode in USES_CURRENT else None
+        l_desired = interaction_matrix(s_star, target.depth_m) if mode in USES_DESIRED else None
+        l_constant = None
+        if mode is JacobianMode.CONSTANT:
+            assert self.l_constant is not None and self.pairing is not None
+            l_constant = np.roll(self.l_constant, -2 * self.pairing, axis=0)  # 2 rows per corner
+        return error, control_matrix(mode, l_current, l_desired, l_constant)
 
     @staticmethod
     def _points3d_law(
