@@ -16,6 +16,7 @@ from pathlib import Path
 from common.config import ClockMode, JacobianMode, ScenarioError
 from common.keys import SERVICES, Keys, default_prefix
 from common.transport import DEFAULT_ENDPOINT, open_session, setup_logging
+from deploy.paths import FIGURE_SUFFIXES, OutputPathError, check_output_dir, check_output_file
 
 EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -71,10 +72,17 @@ def cmd_run(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     overrides, scenario = validated
     record = Path(args.record) if args.record else None
-    if args.plot and record is None:
-        record = Path(args.plot) / "run.mcap"  # plotting needs a recording
-    if record is not None:
-        record.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        if args.result:
+            check_output_file("--result", args.result)
+        if args.plot:
+            check_output_dir("--plot", args.plot)
+            record = record or Path(args.plot) / "run.mcap"  # plotting needs a recording
+        if args.record:
+            check_output_file("--record", args.record)
+    except OutputPathError as exc:
+        print(f"umay run: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     result = run_once(
         args.scenario,
         scenario,
@@ -333,7 +341,9 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     try:
         overrides = parse_overrides(args.set)
         scenarios = [load_scenario(p, overrides) for p in (args.scenario or [None])]
-    except ScenarioError as exc:
+        if args.json:
+            check_output_file("--json", args.json)
+    except (ScenarioError, OutputPathError) as exc:
         print(f"umay accuracy: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     conditions = default_conditions(args.seed)
@@ -348,7 +358,6 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
         )
     print(format_table(results))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps([r.model_dump() for r in results], indent=2) + "\n")
     return 0
 
@@ -378,7 +387,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     ]
     try:
         scenario = prepare(args.scenario, overrides)
-    except ScenarioError as exc:
+        if args.json:
+            check_output_file("--json", args.json)
+        if args.figure:
+            check_output_file("--figure", args.figure, FIGURE_SUFFIXES)
+    except (ScenarioError, OutputPathError) as exc:
         print(f"umay bench: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     runs = []
@@ -403,13 +416,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
             print(f"--- run {i + 1} of {args.repeat}\n{format_report(result)}\n", flush=True)
     result = runs[0] if len(runs) == 1 else {**median_of_runs(runs), "each_run": runs}
     print(format_report(result))
-    if args.json:
-        write_json(result, args.json)
-    if args.figure:
-        from deploy.plots import write_bench_figure
+    try:  # checked before the runs; this fails only if the disk changed since (full, say)
+        if args.json:
+            write_json(result, args.json)
+        if args.figure:
+            from deploy.plots import write_bench_figure
 
-        write_bench_figure(runs[0], Path(args.figure))  # frame by frame: the first run
-        print(f"figure: {args.figure}" + (" (the first run)" if len(runs) > 1 else ""))
+            write_bench_figure(runs[0], Path(args.figure))  # frame by frame: the first run
+            print(f"figure: {args.figure}" + (" (the first run)" if len(runs) > 1 else ""))
+    except OSError as exc:
+        print(f"umay bench: could not write the results: {exc}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -459,7 +476,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", default=None, metavar="OUT.json", help="write the results here")
     p.add_argument(
-        "--figure", default=None, metavar="OUT.png", help="the frames' stages as a PNG (1st run)"
+        "--figure",
+        default=None,
+        metavar="OUT.png",
+        help="the frames' stages as a figure, .png, .svg or .pdf (1st run)",
     )
     p.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
     p.add_argument("--log-dir", default="out/logs/bench", help="the services' log files")

@@ -83,6 +83,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         same_runs,
         write_outputs,
     )
+    from deploy.paths import OutputPathError, check_output_dir
 
     console = Console(stderr=True)
 
@@ -101,11 +102,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
             except (OSError, ValueError) as exc:
                 raise CompareError(f"--reference: {args.reference}: {exc}") from exc
         the_plan = plan(Path(args.scenarios), modes, args.set, args.figures_scenario)
-    except (CompareError, ScenarioError) as exc:
+        out_dir = check_output_dir("--out", args.out)  # last: nothing is created on bad input
+    except (CompareError, ScenarioError, OutputPathError) as exc:
         return bad(str(exc))
 
-    out_dir = Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
     stop = threading.Event()
 
     def interrupt(_signum: int, _frame: object) -> None:

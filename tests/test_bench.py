@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -219,3 +220,23 @@ def test_bench_refuses_bad_options_with_exit_2(tmp_path: Path) -> None:
         )
         assert proc.returncode == 2, (args, proc.stderr)
         assert "umay bench" in proc.stderr
+
+
+UMAY_BENCH = [sys.executable, "-m", "deploy", "bench"]
+
+
+def test_bench_refuses_an_unwritable_output_before_it_starts(tmp_path: Path) -> None:
+    """Found before the runs (minutes with --repeat), not after them with a traceback."""
+    (tmp_path / "file").write_text("x")
+    for option, path in (("--json", tmp_path / "file" / "b.json"), ("--figure", "b.txt")):
+        started = time.monotonic()
+        proc = subprocess.run(
+            [*UMAY_BENCH, option, str(path), "--log-dir", str(tmp_path / "logs")],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert proc.returncode == 2, proc.stderr
+        assert f"umay bench: {option} {path}:" in proc.stderr and "Traceback" not in proc.stderr
+        assert not (tmp_path / "logs").exists()  # no service was started
+        assert time.monotonic() - started < 30

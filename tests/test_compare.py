@@ -228,6 +228,7 @@ def test_overlay_figure_is_a_png(tmp_path: Path) -> None:
         (["--scenarios", "/nonexistent/suite"], "no such directory"),
         (["--jobs", "0"], "--jobs"),
         (["--set", "controller.gain=-3"], "controller.gain"),
+        (["--out", "/proc/no-such-dir/out"], "--out /proc/no-such-dir/out: cannot write"),
     ],
 )
 def test_bad_input_exits_2_naming_it_and_launches_nothing(

@@ -98,6 +98,8 @@ def test_two_lockstep_runs_give_identical_results(tmp_path: Path) -> None:
         (["--set", "target.position=[2.0, -0.3, 0.0]"], "target.position"),
         (["--set", "robot.q0=[0.0, 0.0]"], "robot.q0"),
         (["--scenario", "/nonexistent.toml"], "no such scenario"),
+        (["--result", "/proc/no-such-dir/result.json"], "--result"),
+        (["--plot", "/proc/no-such-dir/plots"], "--plot"),
     ],
 )
 def test_bad_input_exits_2_naming_the_field_and_launches_nothing(
