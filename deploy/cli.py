@@ -131,6 +131,11 @@ def cmd_plot(args: argparse.Namespace) -> int:
     if not path.is_file():
         print(f"umay plot: {path}: no such file", file=sys.stderr)
         return EXIT_BAD_INPUT
+    try:
+        check_output_dir("--out", args.out)
+    except OutputPathError as exc:
+        print(f"umay plot: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     written = plot_recording(path, Path(args.out))
     for p in written:
         print(p)
@@ -242,6 +247,11 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     if args.duration is not None and args.duration <= 0:
         print("umay record: --duration must be positive", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        check_output_file("OUT.mcap", args.out)
+    except OutputPathError as exc:
+        print(f"umay record: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     keys = Keys(args.prefix or default_prefix())
     metadata = {"prefix": keys.prefix, "recorded_by": "umay record"}

@@ -243,3 +243,16 @@ def test_umay_plot_on_a_real_recording_writes_the_four_figures(
         "joint_velocities.png",
     ]
     assert all((tmp_path / "plots" / n).stat().st_size > 10_000 for n in names)
+
+
+def test_plot_and_record_refuse_an_unwritable_output_naming_it(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("x")
+    blocked = tmp_path / "file" / "inside"  # under a file: no folder can be made there
+    cases = [
+        (("plot", str(REFERENCE), "--out", str(blocked)), f"umay plot: --out {blocked}:"),
+        (("record", str(blocked / "r.mcap"), "--duration", "1"), "umay record: OUT.mcap"),
+    ]
+    for args, message in cases:
+        proc = umay(*args)
+        assert proc.returncode == 2, proc.stderr
+        assert message in proc.stderr and "Traceback" not in proc.stderr
