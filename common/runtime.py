@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import logging
+import os
 import signal
 import sys
 import threading
@@ -14,6 +16,12 @@ import zenoh
 from common.config import Scenario, ScenarioError, load_scenario
 from common.keys import Keys, default_prefix
 from common.transport import ZenohConfigError, setup_logging, zenoh_config
+
+# Set by the supervisor for its children: the PID they stop without (see ServiceContext).
+ENV_SUPERVISOR_PID = "UMAY_SUPERVISOR_PID"
+SUPERVISOR_CHECK_S = 0.5  # how often a supervised service looks for its supervisor
+
+log = logging.getLogger("umay")
 
 
 def service_arguments(service: str, argv: list[str] | None) -> argparse.Namespace:
@@ -56,9 +64,17 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
+def supervisor_pid(env: dict[str, str]) -> int | None:
+    """The PID in ``$UMAY_SUPERVISOR_PID`` (None: not supervised, or not a PID)."""
+    value = env.get(ENV_SUPERVISOR_PID, "").strip()
+    return int(value) if value.isdigit() and int(value) > 1 else None
+
+
 class ServiceContext:
     """Parsed arguments, validated scenario, keys, an open Zenoh session and a stop event that
-    SIGINT/SIGTERM set."""
+    SIGINT/SIGTERM set, and that the supervisor's end sets too: a service launched by one
+    (``$UMAY_SUPERVISOR_PID``) stops when it is no longer that process's child, so a
+    supervisor killed outright (SIGKILL, the OOM killer) leaves no service running."""
 
     def __init__(self, service: str, argv: list[str] | None) -> None:
         args = service_arguments(service, argv)
@@ -83,3 +99,14 @@ class ServiceContext:
         self.stop = threading.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: self.stop.set())
+        supervisor = supervisor_pid(dict(os.environ))
+        if supervisor is not None:
+            threading.Thread(target=self._stop_without, args=(supervisor,), daemon=True).start()
+
+    def _stop_without(self, supervisor: int) -> None:
+        """Set ``stop`` once this process is no longer ``supervisor``'s child (it was
+        re-parented: the supervisor is gone)."""
+        while not self.stop.wait(SUPERVISOR_CHECK_S):
+            if os.getppid() != supervisor:
+                log.warning("supervisor (pid %d) is gone; stopping", supervisor)
+                self.stop.set()

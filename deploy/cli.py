@@ -567,4 +567,12 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(os.path.basename(sys.argv[0]) or "umay")
     logging.getLogger().setLevel(os.environ.get("UMAY_LOG_LEVEL", "WARNING"))
     args = build_parser().parse_args(argv)
-    return int(args.func(args))
+    # SIGTERM (a CI timeout, `kill`, a container stopping) ends a command as Ctrl-C does: the
+    # services it launched are stopped on the way out. Commands that run until told to stop
+    # (up, router, record, compare) install their own handlers.
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        return int(args.func(args))
+    except KeyboardInterrupt:
+        print(f"umay {args.command}: interrupted; what it started is stopped", file=sys.stderr)
+        return 130

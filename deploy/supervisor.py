@@ -21,6 +21,7 @@ from pathlib import Path
 
 from common.config import RestartPolicy, SupervisorConfig
 from common.keys import SERVICES
+from common.runtime import ENV_SUPERVISOR_PID
 from common.transport import ENV_CONFIG, ENV_CONNECT
 
 log = logging.getLogger("umay.supervisor")
@@ -92,6 +93,7 @@ class Supervisor:
         if self.zenoh_config:
             env[ENV_CONFIG] = self.zenoh_config
         env.setdefault("PYTHONUNBUFFERED", "1")
+        env[ENV_SUPERVISOR_PID] = str(os.getpid())  # the children stop if this process dies
         env.update(self.extra_env)
         return env
 

@@ -5,7 +5,6 @@ consistent."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
 import subprocess
@@ -34,6 +33,7 @@ from deploy.compare import (
 )
 from deploy.compare_plots import write_overlay
 from deploy.plots import load_series
+from tests.conftest import processes_mentioning
 from tests.test_plots import PNG_SIGNATURE, write_recording
 
 UMAY = [sys.executable, "-m", "deploy"]
@@ -245,20 +245,6 @@ def test_bad_input_exits_2_naming_it_and_launches_nothing(
     assert time.monotonic() - started < 60
 
 
-def _processes_mentioning(text: str) -> list[int]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except OSError:
-            continue
-        if text in cmdline:
-            found.append(int(entry.name))
-    return found
-
-
 def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:
     folder = _suite_copy(tmp_path, ("01_baseline.toml",))
     out = tmp_path / "out"
@@ -274,9 +260,9 @@ def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:
     )
     try:
         deadline = time.monotonic() + 120
-        while len(_processes_mentioning(str(folder))) < 8 and time.monotonic() < deadline:
+        while len(processes_mentioning(str(folder))) < 8 and time.monotonic() < deadline:
             time.sleep(0.2)  # two pipelines of four services each
-        assert len(_processes_mentioning(str(folder))) >= 8, "the pipelines never started"
+        assert len(processes_mentioning(str(folder))) >= 8, "the pipelines never started"
         time.sleep(2.0)
         proc.send_signal(signal.SIGINT)
         _, stderr = proc.communicate(timeout=60)
@@ -285,7 +271,7 @@ def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:
             proc.kill()
     assert proc.returncode == 130, stderr
     assert "interrupted" in stderr
-    assert _processes_mentioning(str(folder)) == []
+    assert processes_mentioning(str(folder)) == []
     assert not (out / "results.csv").exists()
 
 

@@ -15,10 +15,11 @@ from zenoh import SampleKind
 
 from common.config import RestartPolicy, SupervisorConfig
 from common.keys import SERVICES
+from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
 from common.transport import free_tcp_endpoint, open_session
 from deploy.status import collect
 from deploy.supervisor import Supervisor, backoff_s, wants_restart
-from tests.conftest import launch_umay_up
+from tests.conftest import launch_umay_up, processes_mentioning
 
 
 def test_restart_policy_and_backoff() -> None:
@@ -166,3 +167,55 @@ def _alive(pid: int) -> bool:
             return f.read().split(")")[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def test_supervisor_pid_is_read_only_when_it_is_a_pid() -> None:
+    assert supervisor_pid({ENV_SUPERVISOR_PID: "4242"}) == 4242
+    for value in ("", "abc", "-5", "1", "0"):  # 1: init, never a supervisor
+        assert supervisor_pid({ENV_SUPERVISOR_PID: value}) is None
+    assert supervisor_pid({}) is None
+
+
+def _umay_run_until_services_run(tmp_path: Path) -> tuple[subprocess.Popen, list[int]]:
+    """``umay run`` on a unique prefix (a long timeout), once its four services run."""
+    prefix = f"test/{os.urandom(6).hex()}"
+    options = ["--prefix", prefix, "--listen", free_tcp_endpoint(), "--log-dir", str(tmp_path)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "deploy", "run", "--quiet", "--timeout", "600", *options],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+    def services() -> list[int]:  # the run's children: every process on the prefix but it
+        return [pid for pid in processes_mentioning(prefix) if pid != proc.pid]
+
+    if not wait_for(lambda: len(services()) == len(SERVICES), 60):
+        proc.kill()
+        _, stderr = proc.communicate(timeout=30)
+        pytest.fail(f"the services never all ran: {services()}; {stderr}")
+    time.sleep(2.0)  # past start-up: sessions open, signal handlers in place
+    assert proc.poll() is None and len(services()) == len(SERVICES)
+    return proc, services()
+
+
+def test_sigterm_ends_umay_run_and_its_services(tmp_path: Path) -> None:
+    """A CI timeout or `kill` stops a run as Ctrl-C does: nothing is left running."""
+    proc, pids = _umay_run_until_services_run(tmp_path)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 130 and "interrupted" in stderr, stderr
+    assert not any(_alive(p) for p in pids)  # stopped before umay run returned
+
+
+def test_services_stop_when_their_supervisor_is_killed(tmp_path: Path) -> None:
+    """SIGKILL (or the OOM killer) gives the supervisor no chance to stop its children: they
+    notice they were re-parented and stop themselves."""
+    proc, pids = _umay_run_until_services_run(tmp_path)
+    proc.kill()
+    proc.communicate(timeout=30)
+    killed = time.monotonic()
+    gone = wait_for(lambda: not any(_alive(p) for p in pids), 15)
+    print(f"services gone {time.monotonic() - killed:.2f} s after their supervisor's SIGKILL")
+    assert gone, [p for p in pids if _alive(p)]
+    assert "supervisor" in (tmp_path / "vision.log").read_text()
