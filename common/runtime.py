@@ -9,6 +9,7 @@ import signal
 import sys
 import threading
 import tomllib
+from collections.abc import Mapping
 from typing import Any
 
 import zenoh
@@ -64,10 +65,11 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def supervisor_pid(env: dict[str, str]) -> int | None:
+def supervisor_pid(env: Mapping[str, str]) -> int | None:
     """The PID in ``$UMAY_SUPERVISOR_PID`` (None: not supervised, or not a PID)."""
     value = env.get(ENV_SUPERVISOR_PID, "").strip()
-    return int(value) if value.isdigit() and int(value) > 1 else None
+    pid = int(value) if value.isdigit() else 0
+    return pid if pid > 1 else None
 
 
 class ServiceContext:
@@ -99,7 +101,7 @@ class ServiceContext:
         self.stop = threading.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: self.stop.set())
-        supervisor = supervisor_pid(dict(os.environ))
+        supervisor = supervisor_pid(os.environ)
         if supervisor is not None:
             threading.Thread(target=self._stop_without, args=(supervisor,), daemon=True).start()
 

@@ -72,17 +72,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     overrides, scenario = validated
     record = Path(args.record) if args.record else None
-    try:
-        if args.result:
-            check_output_file("--result", args.result)
-        if args.plot:
-            check_output_dir("--plot", args.plot)
-            record = record or Path(args.plot) / "run.mcap"  # plotting needs a recording
-        if args.record:
-            check_output_file("--record", args.record)
-    except OutputPathError as exc:
-        print(f"umay run: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    if args.result:
+        check_output_file("--result", args.result)
+    if args.plot:
+        check_output_dir("--plot", args.plot)
+        record = record or Path(args.plot) / "run.mcap"  # plotting needs a recording
+    if args.record:
+        check_output_file("--record", args.record)
     result = run_once(
         args.scenario,
         scenario,
@@ -131,11 +127,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
     if not path.is_file():
         print(f"umay plot: {path}: no such file", file=sys.stderr)
         return EXIT_BAD_INPUT
-    try:
-        check_output_dir("--out", args.out)
-    except OutputPathError as exc:
-        print(f"umay plot: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    check_output_dir("--out", args.out)
     written = plot_recording(path, Path(args.out))
     for p in written:
         print(p)
@@ -248,11 +240,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         print("umay record: --duration must be positive", file=sys.stderr)
         return EXIT_BAD_INPUT
-    try:
-        check_output_file("OUT.mcap", args.out)
-    except OutputPathError as exc:
-        print(f"umay record: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    check_output_file("OUT.mcap", args.out)
     keys = Keys(args.prefix or default_prefix())
     metadata = {"prefix": keys.prefix, "recorded_by": "umay record"}
     if args.scenario or args.set:
@@ -351,11 +339,11 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     try:
         overrides = parse_overrides(args.set)
         scenarios = [load_scenario(p, overrides) for p in (args.scenario or [None])]
-        if args.json:
-            check_output_file("--json", args.json)
-    except (ScenarioError, OutputPathError) as exc:
+    except ScenarioError as exc:
         print(f"umay accuracy: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if args.json:
+        check_output_file("--json", args.json)
     conditions = default_conditions(args.seed)
     with Progress(transient=True) as bar:
         task = bar.add_task("postures", total=args.frames * len(scenarios))
@@ -397,13 +385,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     ]
     try:
         scenario = prepare(args.scenario, overrides)
-        if args.json:
-            check_output_file("--json", args.json)
-        if args.figure:
-            check_output_file("--figure", args.figure, FIGURE_SUFFIXES)
-    except (ScenarioError, OutputPathError) as exc:
+    except ScenarioError as exc:
         print(f"umay bench: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if args.json:
+        check_output_file("--json", args.json)
+    if args.figure:
+        check_output_file("--figure", args.figure, FIGURE_SUFFIXES)
     runs = []
     for i in range(args.repeat):
         try:
@@ -573,6 +561,9 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     try:
         return int(args.func(args))
+    except OutputPathError as exc:  # raised by the commands' checks, before any work starts
+        print(f"umay {args.command}: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"umay {args.command}: interrupted; what it started is stopped", file=sys.stderr)
         return 130
