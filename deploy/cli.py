@@ -121,14 +121,18 @@ def cmd_up(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from deploy.plots import plot_recording
+    from deploy.plots import NotARecordingError, plot_recording
 
     path = Path(args.file)
     if not path.is_file():
         print(f"umay plot: {path}: no such file", file=sys.stderr)
         return EXIT_BAD_INPUT
     check_output_dir("--out", args.out)
-    written = plot_recording(path, Path(args.out))
+    try:
+        written = plot_recording(path, Path(args.out))
+    except NotARecordingError as exc:
+        print(f"umay plot: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     for p in written:
         print(p)
     if not written:

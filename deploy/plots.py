@@ -35,6 +35,7 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.writer import MCAP0_MAGIC
 from pydantic import BaseModel
 
 from common import keys as data_keys
@@ -131,11 +132,17 @@ def _wanted_topics(f: BinaryIO) -> list[str] | None:
     return sorted({c.topic for c in summary.channels.values() if _suffix_of(c.topic)})
 
 
+class NotARecordingError(ValueError):
+    """The file is not MCAP at all (a recording cut short still starts as one)."""
+
+
 def _iter_payloads(path: Path) -> Iterator[tuple[str, bytes]]:
     """(suffix, payload) of every message on a wanted channel. With a summary only the
     wanted channels' chunks are read; without one (a recording cut short) the file is scanned
     linearly and whatever precedes the damage is kept."""
     with path.open("rb") as f:
+        if f.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+            raise NotARecordingError(f"{path}: not an MCAP recording (no MCAP magic at its start)")
         topics = _wanted_topics(f)
         if topics == []:
             return

@@ -20,7 +20,7 @@ from common.messages import (
     MarkerFeatures,
     SimTruth,
 )
-from deploy.plots import load_series, plot_recording
+from deploy.plots import NotARecordingError, load_series, plot_recording
 
 PREFIX = "umay/test"
 K = CameraIntrinsics.from_fov(640, 480, 57.0)
@@ -216,6 +216,14 @@ def test_truncated_recording_keeps_what_precedes_the_damage(tmp_path: Path) -> N
     cut.write_bytes(data[: int(len(data) * 0.8)])  # summary and footer lost
     series = load_series(cut)
     assert series.feat_t_s.size > 0
+
+
+def test_a_file_that_is_not_mcap_is_refused_by_name(tmp_path: Path) -> None:
+    not_mcap = tmp_path / "notes.mcap"
+    not_mcap.write_text("hostname\n")
+    with pytest.raises(NotARecordingError, match=r"notes\.mcap: not an MCAP recording"):
+        plot_recording(not_mcap, tmp_path / "figs")
+    assert not (tmp_path / "figs").exists()
 
 
 @pytest.mark.parametrize("threshold", [None, 0.5])

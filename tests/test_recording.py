@@ -245,6 +245,15 @@ def test_umay_plot_on_a_real_recording_writes_the_four_figures(
     assert all((tmp_path / "plots" / n).stat().st_size > 10_000 for n in names)
 
 
+def test_umay_plot_refuses_a_file_that_is_not_mcap(tmp_path: Path) -> None:
+    not_mcap = tmp_path / "hostname"
+    not_mcap.write_text("box\n")
+    proc = umay("plot", str(not_mcap), "--out", str(tmp_path / "plots"))
+    assert proc.returncode == 2, proc.stderr
+    assert f"umay plot: {not_mcap}: not an MCAP recording" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
 def test_plot_and_record_refuse_an_unwritable_output_naming_it(tmp_path: Path) -> None:
     (tmp_path / "file").write_text("x")
     blocked = tmp_path / "file" / "inside"  # under a file: no folder can be made there
