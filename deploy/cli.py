@@ -335,11 +335,12 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
 
     from common.config import load_scenario
     from common.runtime import parse_overrides
-    from deploy.accuracy import default_conditions, evaluate, format_table
 
     if args.frames < 1:
         print("umay accuracy: --frames must be at least 1", file=sys.stderr)
         return EXIT_BAD_INPUT
+    from deploy.accuracy import default_conditions, evaluate, format_table  # loads pybullet
+
     try:
         overrides = parse_overrides(args.set)
         scenarios = [load_scenario(p, overrides) for p in (args.scenario or [None])]
