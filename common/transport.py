@@ -124,14 +124,17 @@ class ShmFrameWriter:
     this host that map the pool, and its bytes over the network to the others (another host,
     shared memory disabled); when the pool is full (subscribers still hold old frames) the
     frame goes as an ordinary put. The pool holds :data:`POOL_FRAMES` frames of the first
-    frame's size (4 to 64 MiB)."""
+    frame's size (4 to 64 MiB). Where the host cannot give one (a small or read-only
+    ``/dev/shm``, as in many containers) every frame goes as an ordinary put, and
+    :attr:`unavailable` says why."""
 
     POOL_FRAMES = 8
 
     def __init__(self) -> None:
         self._provider: Any = None
         self._scratch = bytearray()
-        self.fallbacks = 0  # frames put without the pool (exhausted, or too large for it)
+        self.fallbacks = 0  # frames put without the pool (none, exhausted, or too small)
+        self.unavailable = ""  # why there is no pool ("": there is one, or not yet)
 
     def payload(self, parts: tuple[bytes, memoryview]) -> Any:
         """The frame as a pool chunk to put (or as a bytearray when the pool cannot take it)."""
@@ -144,9 +147,11 @@ class ShmFrameWriter:
         for part in parts:
             view[offset : offset + len(part)] = part
             offset += len(part)
+        if self._provider is None and not self.unavailable:
+            self._provider = self._open_pool(size)
         if self._provider is None:
-            pool = min(max(self.POOL_FRAMES * size, 4 << 20), 64 << 20)
-            self._provider = zshm.ShmProvider.default_backend(pool)
+            self.fallbacks += 1
+            return self._scratch
         try:
             chunk = self._provider.alloc(size, policy=zshm.GarbageCollect())  # never blocks
         except zenoh.ZError:
@@ -154,6 +159,19 @@ class ShmFrameWriter:
             return self._scratch
         chunk[:] = self._scratch  # this wheel's chunks take only bytes/bytearray
         return chunk
+
+    def _open_pool(self, frame_bytes: int) -> Any:
+        """A pool for :data:`POOL_FRAMES` frames, or None (the reason kept and logged once)."""
+        import zenoh.shm as zshm
+
+        pool_bytes = min(max(self.POOL_FRAMES * frame_bytes, 4 << 20), 64 << 20)
+        try:
+            return zshm.ShmProvider.default_backend(pool_bytes)
+        except zenoh.ZError as exc:
+            reason = str(exc).split(" at /", 1)[0]  # the rest is the Rust source location
+            self.unavailable = f"no shared-memory pool of {pool_bytes / 2**20:.1f} MiB ({reason})"
+            log.warning("%s: camera frames go over the network", self.unavailable)
+            return None
 
 
 def shm_enabled() -> bool:

@@ -24,8 +24,9 @@ def world(scenario: Scenario):
     w.close()
 
 
-def launch_umay_up(log_dir, clock: str, *extra: str):
-    """``umay up`` as a child process under a unique prefix: (process, keys, endpoint)."""
+def launch_umay_up(log_dir, clock: str, *extra: str, wrapper: tuple[str, ...] = ()):
+    """``umay up`` as a child process under a unique prefix: (process, keys, endpoint).
+    ``wrapper``: a command that runs it (it must exec its arguments)."""
     import subprocess
     import sys
     import uuid
@@ -36,7 +37,7 @@ def launch_umay_up(log_dir, clock: str, *extra: str):
     endpoint = free_tcp_endpoint()
     keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "deploy", "up", "--clock", clock, "--prefix", keys.prefix,
+        [*wrapper, sys.executable, "-m", "deploy", "up", "--clock", clock, "--prefix", keys.prefix,
          "--listen", endpoint, "--connect", endpoint, "--log-dir", str(log_dir), *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip

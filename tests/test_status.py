@@ -11,10 +11,16 @@ import time
 import uuid
 from pathlib import Path
 
+import pytest
+
 from common.keys import SERVICES, Keys
 from common.transport import free_tcp_endpoint, open_session
 from deploy.status import collect
 from deploy.supervisor import Supervisor
+from tests.conftest import launch_umay_up
+
+# Run the rest of the command line with a 1 MiB /dev/shm of its own (in a mount namespace).
+SMALL_SHM_THEN_EXEC = 'mount -t tmpfs -o size=1m tmpfs /dev/shm && exec "$@"'
 
 
 def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> None:
@@ -80,4 +86,39 @@ def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> N
         assert gone_after is not None and gone_after < 2.0
     finally:
         sup.stop()
+        session.close()
+
+
+def test_without_room_for_shared_memory_frames_go_over_the_network(tmp_path: Path) -> None:
+    """A host whose /dev/shm cannot hold the frame pool (1 MiB, as in a small container): the
+    sim says why in its status, and the frames reach vision over the network, so the loop
+    still runs. The pipeline runs in a mount namespace of its own, whose /dev/shm is a 1 MiB
+    tmpfs; the test's session, outside it, queries the status over TCP. Needs root (to mount),
+    as CI has."""
+    if os.geteuid() != 0:
+        pytest.fail("this test mounts a small /dev/shm in a mount namespace: run it as root")
+    small_shm = ("unshare", "-m", "sh", "-c", SMALL_SHM_THEN_EXEC, "sh")
+    proc, keys, endpoint = launch_umay_up(tmp_path / "logs", "lockstep", wrapper=small_shm)
+    session = open_session(connect=[endpoint])
+    try:
+        deadline, views = time.monotonic() + 90, {}
+        while time.monotonic() < deadline and proc.poll() is None:
+            views = {v.name: v for v in collect(session, keys, 0.5)}
+            controller = views.get("controller")
+            status = controller.status if controller else None
+            twists = status.published.get(keys.twist) if status else None
+            if twists is not None and twists.count >= 10:
+                break
+            time.sleep(0.3)
+        assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
+        assert all(views.get(name) and views[name].alive for name in SERVICES), views
+        sim = views["sim"].status.fields
+        assert sim["shm_unavailable"].startswith("no shared-memory pool"), sim
+        rgb = views["vision"].status.received[keys.rgb]
+        assert rgb.count >= 10 and rgb.shm == 0 and rgb.dropped == 0
+        assert sim["shm_fallbacks"] >= 2 * rgb.count  # every rgb and depth frame
+        assert views["controller"].status.published[keys.twist].count >= 10
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=30)
         session.close()

@@ -88,9 +88,12 @@ class SimService:
             "dropped_frames": self.dropped_frames,
             "watchdog_stops": self.watchdog_stops,
             "motor_clamps": self.motor_clamps,
-            # frames put as ordinary messages because the shared-memory pool was full
+            # frames put as ordinary messages: no shared-memory pool, or it was full
             "shm_fallbacks": sum(
                 p.frames.fallbacks for p in (self.pub_rgb, self.pub_depth) if p.frames is not None
+            ),
+            "shm_unavailable": next(
+                (p.frames.unavailable for p in (self.pub_rgb, self.pub_depth) if p.frames), ""
             ),
             "real_time_factor": round(
                 self.world.sim_time_s / max(time.monotonic() - self.started_s, 1e-9), 3
