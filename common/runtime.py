@@ -16,7 +16,7 @@ import zenoh
 
 from common.config import Scenario, ScenarioError, load_scenario
 from common.keys import Keys, default_prefix
-from common.transport import ZenohConfigError, setup_logging, zenoh_config
+from common.transport import ZenohConfigError, open_session, setup_logging
 
 # Set by the supervisor for its children: the PID they stop without (see ServiceContext).
 ENV_SUPERVISOR_PID = "UMAY_SUPERVISOR_PID"
@@ -89,12 +89,10 @@ class ServiceContext:
         self.keys = Keys(args.prefix or default_prefix())
         connect = args.connect.split(",") if args.connect else None
         try:
-            config = zenoh_config(args.zenoh_config, connect)
+            self.session = open_session(args.zenoh_config, connect)
         except ZenohConfigError as exc:
             print(exc, file=sys.stderr)
             raise SystemExit(2) from exc
-        try:
-            self.session = zenoh.open(config)
         except zenoh.ZError as exc:  # e.g. the router is unreachable or refuses the login
             print(f"{service}: cannot open the Zenoh session: {exc}", file=sys.stderr)
             raise SystemExit(1) from exc

@@ -104,7 +104,28 @@ def open_session(
     connect: list[str] | None = None,
     listen: list[str] | None = None,
 ) -> zenoh.Session:
-    return zenoh.open(zenoh_config(config_path, connect, listen))
+    """A session on :func:`zenoh_config`. Where the host cannot give Zenoh shared memory (no
+    writable ``/dev/shm``, as in some containers, and Zenoh then fails to open at all) it
+    opens without it, with a warning: frames go over the network. Raises
+    :class:`ZenohConfigError` for a bad config file, ``zenoh.ZError`` if it cannot open."""
+    try:
+        return zenoh.open(zenoh_config(config_path, connect, listen))
+    except zenoh.ZError as exc:
+        if not shm_enabled():
+            raise
+        without_shm = zenoh_config(config_path, connect, listen)
+        without_shm.insert_json5("transport/shared_memory/enabled", "false")
+        try:
+            session = zenoh.open(without_shm)
+        except zenoh.ZError:
+            raise exc from None  # not shared memory's fault: the first error is the one
+        log.warning("Zenoh session opened without shared memory (%s)", zenoh_reason(exc))
+        return session
+
+
+def zenoh_reason(exc: zenoh.ZError) -> str:
+    """A Zenoh error's message without the Rust source location that ends it."""
+    return str(exc).split(" at /", 1)[0]
 
 
 def free_tcp_endpoint() -> str:
@@ -168,7 +189,7 @@ class ShmFrameWriter:
         try:
             return zshm.ShmProvider.default_backend(pool_bytes)
         except zenoh.ZError as exc:
-            reason = str(exc).split(" at /", 1)[0]  # the rest is the Rust source location
+            reason = zenoh_reason(exc)
             self.unavailable = f"no shared-memory pool of {pool_bytes / 2**20:.1f} MiB ({reason})"
             log.warning("%s: camera frames go over the network", self.unavailable)
             return None

@@ -19,9 +19,6 @@ from deploy.status import collect
 from deploy.supervisor import Supervisor
 from tests.conftest import launch_umay_up
 
-# Run the rest of the command line with a 1 MiB /dev/shm of its own (in a mount namespace).
-SMALL_SHM_THEN_EXEC = 'mount -t tmpfs -o size=1m tmpfs /dev/shm && exec "$@"'
-
 
 def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> None:
     endpoint = free_tcp_endpoint()
@@ -89,16 +86,21 @@ def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> N
         session.close()
 
 
-def test_without_room_for_shared_memory_frames_go_over_the_network(tmp_path: Path) -> None:
-    """A host whose /dev/shm cannot hold the frame pool (1 MiB, as in a small container): the
-    sim says why in its status, and the frames reach vision over the network, so the loop
-    still runs. The pipeline runs in a mount namespace of its own, whose /dev/shm is a 1 MiB
-    tmpfs; the test's session, outside it, queries the status over TCP. Needs root (to mount),
-    as CI has."""
+@pytest.mark.parametrize("shm_mount", ["size=1m", "ro"])
+def test_without_room_for_shared_memory_frames_go_over_the_network(
+    tmp_path: Path, shm_mount: str
+) -> None:
+    """A host whose /dev/shm cannot hold the frame pool (1 MiB, as in a small container) or
+    cannot be written at all (read-only, where Zenoh cannot even open a session with shared
+    memory): the sim says why in its status, and the frames reach vision over the network, so
+    the loop still runs. The pipeline runs in a mount namespace of its own with that
+    /dev/shm; the test's session, outside it, queries the status over TCP. Needs root (to
+    mount), as CI has."""
     if os.geteuid() != 0:
         pytest.fail("this test mounts a small /dev/shm in a mount namespace: run it as root")
-    small_shm = ("unshare", "-m", "sh", "-c", SMALL_SHM_THEN_EXEC, "sh")
-    proc, keys, endpoint = launch_umay_up(tmp_path / "logs", "lockstep", wrapper=small_shm)
+    mount_then_exec = f'mount -t tmpfs -o size=1m,{shm_mount} tmpfs /dev/shm && exec "$@"'
+    wrapper = ("unshare", "-m", "sh", "-c", mount_then_exec, "sh")
+    proc, keys, endpoint = launch_umay_up(tmp_path / "logs", "lockstep", wrapper=wrapper)
     session = open_session(connect=[endpoint])
     try:
         deadline, views = time.monotonic() + 90, {}
