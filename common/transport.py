@@ -111,14 +111,16 @@ def open_session(
     try:
         return zenoh.open(zenoh_config(config_path, connect, listen))
     except zenoh.ZError as exc:
-        if not shm_enabled():
+        # Only for shared memory's errors ("Unable to create POSIX shm segment"): a retry
+        # after any other (a router that does not answer) would double the wait for nothing.
+        if not shm_enabled() or "shm" not in str(exc).lower():
             raise
         without_shm = zenoh_config(config_path, connect, listen)
         without_shm.insert_json5("transport/shared_memory/enabled", "false")
         try:
             session = zenoh.open(without_shm)
         except zenoh.ZError:
-            raise exc from None  # not shared memory's fault: the first error is the one
+            raise exc from None  # the first error is the one to report
         log.warning("Zenoh session opened without shared memory (%s)", zenoh_reason(exc))
         return session
 
