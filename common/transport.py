@@ -104,21 +104,25 @@ def open_session(
     connect: list[str] | None = None,
     listen: list[str] | None = None,
 ) -> zenoh.Session:
-    """A session on :func:`zenoh_config`. Where the host cannot give Zenoh shared memory (no
-    writable ``/dev/shm``, as in some containers, and Zenoh then fails to open at all) it
-    opens without it, with a warning: frames go over the network. Raises
+    """A session on :func:`zenoh_config` (opened by :func:`open_zenoh`). Raises
     :class:`ZenohConfigError` for a bad config file, ``zenoh.ZError`` if it cannot open."""
+    return open_zenoh(zenoh_config(config_path, connect, listen))
+
+
+def open_zenoh(config: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open(config)``; where the host cannot give Zenoh shared memory (no writable
+    ``/dev/shm``, as in some containers, where Zenoh fails to open at all) it opens without
+    it, with a warning: large payloads then go over the network."""
     try:
-        return zenoh.open(zenoh_config(config_path, connect, listen))
+        return zenoh.open(config)
     except zenoh.ZError as exc:
         # Only for shared memory's errors ("Unable to create POSIX shm segment"): a retry
         # after any other (a router that does not answer) would double the wait for nothing.
-        if not shm_enabled() or "shm" not in str(exc).lower():
+        if "shm" not in str(exc).lower():
             raise
-        without_shm = zenoh_config(config_path, connect, listen)
-        without_shm.insert_json5("transport/shared_memory/enabled", "false")
+        config.insert_json5("transport/shared_memory/enabled", "false")
         try:
-            session = zenoh.open(without_shm)
+            session = zenoh.open(config)
         except zenoh.ZError:
             raise exc from None  # the first error is the one to report
         log.warning("Zenoh session opened without shared memory (%s)", zenoh_reason(exc))

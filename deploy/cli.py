@@ -15,7 +15,7 @@ from pathlib import Path
 
 from common.config import ClockMode, JacobianMode, ScenarioError
 from common.keys import SERVICES, Keys, default_prefix
-from common.transport import DEFAULT_ENDPOINT, open_session, setup_logging
+from common.transport import DEFAULT_ENDPOINT, open_session, open_zenoh, setup_logging
 from deploy.paths import FIGURE_SUFFIXES, OutputPathError, check_output_dir, check_output_file
 
 EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
@@ -167,7 +167,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     try:
-        session = zenoh.open(cfg)
+        session = open_zenoh(cfg)
     except Exception as exc:
         print(f"umay router: cannot start: {exc}", file=sys.stderr)
         return 1
