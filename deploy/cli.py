@@ -79,6 +79,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         record = record or Path(args.plot) / "run.mcap"  # plotting needs a recording
     if args.record:
         check_output_file("--record", args.record)
+    check_output_dir("--log-dir", args.log_dir)
     result = run_once(
         args.scenario,
         scenario,
@@ -111,6 +112,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     if validated is None:
         return EXIT_BAD_INPUT
     overrides, scenario = validated
+    check_output_dir("--log-dir", args.log_dir)
     listen = args.listen or default_listen_endpoint()
     # Also join the well-known endpoint (or --connect), so a supervisor already running on
     # this prefix is seen even when this one had to listen elsewhere.
@@ -309,6 +311,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if not speed > 0:
             print(f"umay replay: --speed {args.speed!r}: a positive number or max", file=sys.stderr)
             return EXIT_BAD_INPUT
+    check_output_dir("--log-dir", args.log_dir)
     try:
         report = replay_service(
             args.file,
@@ -397,6 +400,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         check_output_file("--json", args.json)
     if args.figure:
         check_output_file("--figure", args.figure, FIGURE_SUFFIXES)
+    check_output_dir("--log-dir", args.log_dir)
     runs = []
     for i in range(args.repeat):
         try:

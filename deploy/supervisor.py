@@ -72,7 +72,6 @@ class Supervisor:
         self.zenoh_config = zenoh_config
         self.config = config or SupervisorConfig()
         self.log_dir = log_dir
-        log_dir.mkdir(parents=True, exist_ok=True)
         common_args = ["--prefix", prefix]
         if scenario_path:
             common_args += ["--scenario", str(scenario_path)]
@@ -107,6 +106,9 @@ class Supervisor:
         log.info("started %s (pid %d)", child.name, child.process.pid)
 
     def start(self) -> None:
+        # Here, not in __init__: callers open their Zenoh session before making the
+        # supervisor and start it inside the try that closes the session again.
+        self.log_dir.mkdir(parents=True, exist_ok=True)
         for child in self.children.values():
             self.start_child(child)
 

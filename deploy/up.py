@@ -42,10 +42,10 @@ def run_up(
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: stop.set())
-    sup.start()
-    node.ready()
-    print(f"umay up: services running under {prefix}, Zenoh at {listen}; Ctrl-C stops them")
     try:
+        sup.start()
+        node.ready()
+        print(f"umay up: services running under {prefix}, Zenoh at {listen}; Ctrl-C stops them")
         while not stop.wait(0.05):
             for event in sup.tick():
                 print(f"umay up: {event}", file=sys.stderr, flush=True)

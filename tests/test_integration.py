@@ -100,6 +100,7 @@ def test_two_lockstep_runs_give_identical_results(tmp_path: Path) -> None:
         (["--scenario", "/nonexistent.toml"], "no such scenario"),
         (["--result", "/proc/no-such-dir/result.json"], "--result"),
         (["--plot", "/proc/no-such-dir/plots"], "--plot"),
+        (["--log-dir", "/proc/no-such-dir/logs"], "--log-dir"),
     ],
 )
 def test_bad_input_exits_2_naming_the_field_and_launches_nothing(

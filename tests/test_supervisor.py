@@ -219,3 +219,21 @@ def test_services_stop_when_their_supervisor_is_killed(tmp_path: Path) -> None:
     print(f"services gone {time.monotonic() - killed:.2f} s after their supervisor's SIGKILL")
     assert gone, [p for p in pids if _alive(p)]
     assert "supervisor" in (tmp_path / "vision.log").read_text()
+
+
+def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path: Path) -> None:
+    """run_once called directly (no CLI check first) with a log folder that cannot be made:
+    the error comes out and the process ends. It used to hang at exit, its Zenoh session
+    left open because the supervisor failed before the try that closes it."""
+    (tmp_path / "file").write_text("x")
+    code = (
+        "from pathlib import Path\n"
+        "from common.config import load_scenario\n"
+        "from deploy.run import run_once\n"
+        f"run_once(None, load_scenario(), [], 'test/{tmp_path.name}', "
+        f"Path({str(tmp_path / 'file' / 'logs')!r}), listen='{free_tcp_endpoint()}', quiet=True)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1
+    assert "NotADirectoryError" in proc.stderr
+    assert not processes_mentioning(f"test/{tmp_path.name}")
