@@ -10,6 +10,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+import zenoh
+
 SERVICES: tuple[str, ...] = ("sim", "vision", "controller", "actuation")
 
 # Data keys, relative to the prefix.
@@ -30,13 +32,27 @@ def default_prefix() -> str:
     return f"umay/{os.environ.get('UMAY_ROBOT_ID', 'umay1')}"
 
 
+def check_prefix(prefix: str) -> str:
+    """``prefix`` if it can prefix every key: a Zenoh key expression (no empty chunk, no
+    leading or trailing slash) without wildcards; else ValueError saying why."""
+    if any(c in prefix for c in "*$?#"):
+        raise ValueError(f"invalid key prefix {prefix!r}: no wildcards (* $ ? #)")
+    try:
+        zenoh.KeyExpr(prefix)
+    except zenoh.ZError:
+        raise ValueError(
+            f"invalid key prefix {prefix!r}: empty, or with an empty chunk or a leading or "
+            "trailing slash"
+        ) from None
+    return prefix
+
+
 @dataclass(frozen=True)
 class Keys:
     prefix: str
 
     def __post_init__(self) -> None:
-        if not self.prefix or any(c in self.prefix for c in "*$?#") or self.prefix.endswith("/"):
-            raise ValueError(f"invalid key prefix {self.prefix!r}")
+        check_prefix(self.prefix)
 
     # sim
     @property

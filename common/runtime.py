@@ -15,7 +15,7 @@ from typing import Any
 import zenoh
 
 from common.config import Scenario, ScenarioError, load_scenario
-from common.keys import Keys, default_prefix
+from common.keys import Keys, check_prefix, default_prefix
 from common.transport import ZenohConfigError, open_session, setup_logging
 
 # Set by the supervisor for its children: the PID they stop without (see ServiceContext).
@@ -25,10 +25,20 @@ SUPERVISOR_CHECK_S = 0.5  # how often a supervised service looks for its supervi
 log = logging.getLogger("umay")
 
 
+def prefix_argument(value: str) -> str:
+    """argparse type of ``--prefix``: a valid key prefix, else a usage error saying why."""
+    try:
+        return check_prefix(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def service_arguments(service: str, argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog=f"umay service {service}")
     parser.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
-    parser.add_argument("--prefix", default=None, help="Zenoh key prefix (default: umay/<id>)")
+    parser.add_argument(
+        "--prefix", type=prefix_argument, help="Zenoh key prefix (default: umay/<id>)"
+    )
     parser.add_argument("--connect", default=None, help="Zenoh endpoint(s), comma-separated")
     parser.add_argument("--zenoh-config", default=None, help="Zenoh JSON5 config file")
     parser.add_argument(

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from common.config import ClockMode, JacobianMode, ScenarioError
 from common.keys import SERVICES, Keys, default_prefix
+from common.runtime import prefix_argument
 from common.transport import DEFAULT_ENDPOINT, open_session, open_zenoh, setup_logging
 from deploy.paths import FIGURE_SUFFIXES, OutputPathError, check_output_dir, check_output_file
 
@@ -27,7 +28,7 @@ def _scenario_options(p: argparse.ArgumentParser, clock_default: str) -> None:
         "--mode", default=None, help="Jacobian strategy: constant|dynamic|pmj|mpj|points3d"
     )
     p.add_argument("--clock", default=clock_default, help="lockstep|realtime")
-    p.add_argument("--prefix", default=None, help="Zenoh key prefix (default: umay/<id>)")
+    p.add_argument("--prefix", type=prefix_argument, help="Zenoh key prefix (default: umay/<id>)")
     p.add_argument("--listen", default=None, help="Zenoh endpoint the services connect to")
     p.add_argument("--log-dir", default="out/logs", help="per-service log files")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
@@ -184,11 +185,15 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 def cmd_logs(args: argparse.Namespace) -> int:
     path = Path(args.log_dir) / f"{args.name}.log"
+    if args.lines < 0:
+        print(f"umay logs: -n {args.lines}: a number of lines, 0 or more", file=sys.stderr)
+        return EXIT_BAD_INPUT
     if not path.exists():
         print(f"umay logs: no log for {args.name} in {args.log_dir}", file=sys.stderr)
         return EXIT_BAD_INPUT
     lines = path.read_text(errors="replace").splitlines()
-    print("\n".join(lines[-args.lines :]))
+    if args.lines:  # lines[-0:] would be all of them
+        print("\n".join(lines[-args.lines :]))
     if args.follow:
         with path.open(errors="replace") as f:
             f.seek(0, 2)
@@ -521,7 +526,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_service)
 
     p = sub.add_parser("status", help="ask every service for its status over Zenoh")
-    p.add_argument("--prefix", default=None)
+    p.add_argument("--prefix", type=prefix_argument)
     p.add_argument("--connect", default=None, help="Zenoh endpoint(s) of the running system")
     p.add_argument("--timeout", type=float, default=1.0)
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -532,7 +537,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", metavar="OUT.mcap")
     p.add_argument("--keys", default=None, help="key expression (default: <prefix>/**)")
     p.add_argument("--duration", type=float, default=None, help="seconds (default: Ctrl-C)")
-    p.add_argument("--prefix", default=None)
+    p.add_argument("--prefix", type=prefix_argument)
     p.add_argument("--connect", default=None, help="Zenoh endpoint(s) of the running system")
     p.add_argument("--scenario", default=None, help="scenario the system runs (for a replay)")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")

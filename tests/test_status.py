@@ -124,3 +124,27 @@ def test_without_room_for_shared_memory_frames_go_over_the_network(
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=30)
         session.close()
+
+
+@pytest.mark.parametrize(
+    "prefix, reason",
+    [("bad*prefix", "no wildcards"), ("a//b", "empty chunk"), ("trail/", "trailing slash")],
+)
+def test_a_bad_prefix_is_refused_by_name(prefix: str, reason: str) -> None:
+    with pytest.raises(ValueError, match=reason):
+        Keys(prefix)
+    for command in (["status"], ["service", "vision"]):
+        proc = subprocess.run(
+            [sys.executable, "-m", "deploy", *command, "--prefix", prefix],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+        assert proc.returncode == 2, proc.stderr
+        assert f"argument --prefix: invalid key prefix {prefix!r}" in proc.stderr
+        assert reason in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_good_prefixes_pass() -> None:
+    for prefix in ("umay/umay1", "test/3f2a9c", "robot-2/arm_left"):
+        assert Keys(prefix).twist == f"{prefix}/controller/twist"
