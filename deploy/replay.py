@@ -51,6 +51,7 @@ from common.config import DEFAULT_SCENARIO, ScenarioError, load_scenario
 from common.keys import Keys
 from common.runtime import parse_overrides
 from common.transport import alive_services, free_tcp_endpoint, open_session
+from deploy.paths import check_output_dir
 from deploy.recording import iter_messages, read_metadata, split_data_key, topics
 from deploy.supervisor import Supervisor
 
@@ -392,6 +393,7 @@ def replay_service(
             load_scenario(scenario_path, parse_overrides(all_overrides))
         except ScenarioError as exc:  # bad input: name the recording, not the temporary file
             raise ScenarioError(str(exc).replace(str(scenario_path), f"{path} scenario")) from exc
+        check_output_dir("--log-dir", log_dir)  # last, so that bad input leaves no folder
         published, no_answer, frames, capture = _run(
             keys,
             service,

@@ -171,9 +171,11 @@ def test_replay_and_info_refuse_bad_input_with_exit_2(tmp_path: Path) -> None:
          "controller.gain"),
         (["info", str(tmp_path / "none.mcap")], "no such file"),
         (["info", str(junk)], "not a readable MCAP"),
+        (["replay", str(REFERENCE), "--service", "vision", "--log-dir", "/proc/no/logs"],
+         "umay replay: --log-dir /proc/no/logs: cannot write"),
     ]  # fmt: skip
     for args, fragment in cases:
-        if args[0] == "replay":
+        if args[0] == "replay" and "--log-dir" not in args:
             args = [*args, "--log-dir", str(tmp_path / "logs")]
         proc = umay(*args)
         assert proc.returncode == 2, (args, proc.stdout, proc.stderr)
