@@ -16,7 +16,7 @@ import zenoh
 
 from common.config import Scenario, ScenarioError, load_scenario
 from common.keys import Keys, check_prefix, default_prefix
-from common.transport import ZenohConfigError, open_session, setup_logging
+from common.transport import ZenohConfigError, check_endpoints, open_session, setup_logging
 
 # Set by the supervisor for its children: the PID they stop without (see ServiceContext).
 ENV_SUPERVISOR_PID = "UMAY_SUPERVISOR_PID"
@@ -33,13 +33,35 @@ def prefix_argument(value: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def endpoints_argument(value: str) -> str:
+    """argparse type of ``--connect``: comma-separated Zenoh endpoints, else a usage error
+    naming the bad one."""
+    try:
+        check_endpoints(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return value
+
+
+def endpoint_argument(value: str) -> str:
+    """argparse type of ``--listen`` where one endpoint is meant."""
+    if "," in value:
+        raise argparse.ArgumentTypeError(f"{value!r}: one endpoint, not a list")
+    return endpoints_argument(value)
+
+
 def service_arguments(service: str, argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog=f"umay service {service}")
     parser.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
     parser.add_argument(
         "--prefix", type=prefix_argument, help="Zenoh key prefix (default: umay/<id>)"
     )
-    parser.add_argument("--connect", default=None, help="Zenoh endpoint(s), comma-separated")
+    parser.add_argument(
+        "--connect",
+        type=endpoints_argument,
+        default=None,
+        help="Zenoh endpoint(s), comma-separated",
+    )
     parser.add_argument("--zenoh-config", default=None, help="Zenoh JSON5 config file")
     parser.add_argument(
         "--set",

@@ -99,6 +99,21 @@ def _base_config(
     return cfg
 
 
+def check_endpoints(value: str) -> list[str]:
+    """The comma-separated Zenoh endpoints in ``value`` (``tcp/127.0.0.1:7447,...``), each
+    checked by Zenoh's own parser; ValueError naming the first bad one and why."""
+    endpoints = [e.strip() for e in value.split(",")]
+    for endpoint in endpoints:
+        try:
+            zenoh.Config().insert_json5("connect/endpoints", json.dumps([endpoint]))
+        except zenoh.ZError:
+            raise ValueError(
+                f"invalid endpoint {endpoint!r}: expected <protocol>/<address>[?<metadata>], "
+                f"e.g. {DEFAULT_ENDPOINT}"
+            ) from None
+    return endpoints
+
+
 def open_session(
     config_path: str | None = None,
     connect: list[str] | None = None,

@@ -6,6 +6,7 @@ import argparse
 import importlib
 import json
 import logging
+import math
 import os
 import signal
 import sys
@@ -13,13 +14,32 @@ import threading
 import time
 from pathlib import Path
 
+import zenoh
+
 from common.config import ClockMode, JacobianMode, ScenarioError
 from common.keys import SERVICES, Keys, default_prefix
-from common.runtime import prefix_argument
-from common.transport import DEFAULT_ENDPOINT, open_session, open_zenoh, setup_logging
+from common.runtime import endpoint_argument, endpoints_argument, prefix_argument
+from common.transport import (
+    DEFAULT_ENDPOINT,
+    open_session,
+    open_zenoh,
+    setup_logging,
+    zenoh_reason,
+)
 from deploy.paths import FIGURE_SUFFIXES, OutputPathError, check_output_dir, check_output_file
 
 EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def _positive_seconds(value: str) -> float:
+    """argparse type of a duration: a finite number of seconds above 0."""
+    try:
+        seconds = float(value)
+    except ValueError:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise argparse.ArgumentTypeError(f"{value!r}: seconds, a finite number above 0")
+    return seconds
 
 
 def _scenario_options(p: argparse.ArgumentParser, clock_default: str) -> None:
@@ -29,7 +49,12 @@ def _scenario_options(p: argparse.ArgumentParser, clock_default: str) -> None:
     )
     p.add_argument("--clock", default=clock_default, help="lockstep|realtime")
     p.add_argument("--prefix", type=prefix_argument, help="Zenoh key prefix (default: umay/<id>)")
-    p.add_argument("--listen", default=None, help="Zenoh endpoint the services connect to")
+    p.add_argument(
+        "--listen",
+        type=endpoint_argument,
+        default=None,
+        help="Zenoh endpoint the services connect to",
+    )
     p.add_argument("--log-dir", default="out/logs", help="per-service log files")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
 
@@ -146,7 +171,6 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 def cmd_router(args: argparse.Namespace) -> int:
     """A Zenoh router for multi-host setups, for users without zenohd."""
-    import zenoh
 
     if args.config:
         try:
@@ -172,7 +196,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     try:
         session = open_zenoh(cfg)
     except Exception as exc:
-        print(f"umay router: cannot start: {exc}", file=sys.stderr)
+        print(f"umay router: cannot start: {zenoh_reason(exc)}", file=sys.stderr)
         return 1
     endpoints = listen or ",".join(json.loads(cfg.get_json("listen/endpoints")))
     print(f"umay router: listening on {endpoints}", flush=True)
@@ -248,9 +272,12 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     from deploy.recording import Recorder, run_metadata
 
-    if args.duration is not None and args.duration <= 0:
-        print("umay record: --duration must be positive", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    if args.keys is not None:
+        try:
+            zenoh.KeyExpr(args.keys)
+        except zenoh.ZError as exc:
+            print(f"umay record: --keys {args.keys!r}: {zenoh_reason(exc)}", file=sys.stderr)
+            return EXIT_BAD_INPUT
     check_output_file("OUT.mcap", args.out)
     keys = Keys(args.prefix or default_prefix())
     metadata = {"prefix": keys.prefix, "recorded_by": "umay record"}
@@ -313,7 +340,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             speed = float(args.speed)
         except ValueError:
             speed = -1.0
-        if not speed > 0:
+        if not (math.isfinite(speed) and speed > 0):
             print(f"umay replay: --speed {args.speed!r}: a positive number or max", file=sys.stderr)
             return EXIT_BAD_INPUT
     try:
@@ -456,7 +483,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("up", help="launch the four services and keep them running")
     _scenario_options(p, clock_default="realtime")
-    p.add_argument("--connect", default=None, help="Zenoh endpoint(s) to join as well")
+    p.add_argument(
+        "--connect",
+        type=endpoints_argument,
+        default=None,
+        help="Zenoh endpoint(s) to join as well",
+    )
     p.set_defaults(func=cmd_up)
 
     p = sub.add_parser("plot", help="figures of a recorded run (PNG)")
@@ -504,6 +536,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("router", help="run a Zenoh router (multi-host setups)")
     p.add_argument(
         "--listen",
+        type=endpoints_argument,
         default=None,
         help="endpoint(s), comma-separated (default: the config's, else tcp/0.0.0.0:7447)",
     )
@@ -526,8 +559,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("status", help="ask every service for its status over Zenoh")
     p.add_argument("--prefix", type=prefix_argument)
-    p.add_argument("--connect", default=None, help="Zenoh endpoint(s) of the running system")
-    p.add_argument("--timeout", type=float, default=1.0)
+    p.add_argument(
+        "--connect",
+        type=endpoints_argument,
+        default=None,
+        help="Zenoh endpoint(s) of the running system",
+    )
+    p.add_argument(
+        "--timeout", type=_positive_seconds, default=1.0, help="seconds to wait for replies"
+    )
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--watch", action="store_true", help="refresh every second until Ctrl-C")
     p.set_defaults(func=cmd_status)
@@ -535,9 +575,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("record", help="record the running system's messages to an MCAP file")
     p.add_argument("out", metavar="OUT.mcap")
     p.add_argument("--keys", default=None, help="key expression (default: <prefix>/**)")
-    p.add_argument("--duration", type=float, default=None, help="seconds (default: Ctrl-C)")
+    p.add_argument(
+        "--duration", type=_positive_seconds, default=None, help="seconds (default: Ctrl-C)"
+    )
     p.add_argument("--prefix", type=prefix_argument)
-    p.add_argument("--connect", default=None, help="Zenoh endpoint(s) of the running system")
+    p.add_argument(
+        "--connect",
+        type=endpoints_argument,
+        default=None,
+        help="Zenoh endpoint(s) of the running system",
+    )
     p.add_argument("--scenario", default=None, help="scenario the system runs (for a replay)")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_record)
@@ -580,3 +627,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"umay {args.command}: interrupted; what it started is stopped", file=sys.stderr)
         return 130
+    except zenoh.ZError as exc:  # a session that cannot open: endpoint unusable, port taken
+        logging.getLogger("umay").debug("Zenoh error", exc_info=True)
+        print(f"umay {args.command}: Zenoh: {zenoh_reason(exc)}", file=sys.stderr)
+        return 1

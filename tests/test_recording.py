@@ -166,6 +166,7 @@ def test_replay_and_info_refuse_bad_input_with_exit_2(tmp_path: Path) -> None:
         (["replay", str(tmp_path / "none.mcap"), "--service", "vision"], "no such file"),
         (["replay", str(REFERENCE), "--service", "sim"], "unknown service"),
         (["replay", str(REFERENCE), "--service", "vision", "--speed", "fast"], "--speed"),
+        (["replay", str(REFERENCE), "--service", "vision", "--speed", "inf"], "--speed 'inf'"),
         (["replay", str(junk), "--service", "vision"], "not a readable MCAP"),
         (["replay", str(REFERENCE), "--service", "controller", "--set", "controller.gain=-1"],
          "controller.gain"),
@@ -256,14 +257,16 @@ def test_umay_plot_refuses_a_file_that_is_not_mcap(tmp_path: Path) -> None:
     assert "Traceback" not in proc.stderr
 
 
-def test_plot_and_record_refuse_an_unwritable_output_naming_it(tmp_path: Path) -> None:
+def test_plot_and_record_refuse_bad_output_or_keys_naming_them(tmp_path: Path) -> None:
     (tmp_path / "file").write_text("x")
     blocked = tmp_path / "file" / "inside"  # under a file: no folder can be made there
     cases = [
         (("plot", str(REFERENCE), "--out", str(blocked)), f"umay plot: --out {blocked}:"),
         (("record", str(blocked / "r.mcap"), "--duration", "1"), "umay record: OUT.mcap"),
+        (("record", str(tmp_path / "k.mcap"), "--keys", "a//b"), "umay record: --keys 'a//b': "),
     ]
     for args, message in cases:
         proc = umay(*args)
         assert proc.returncode == 2, proc.stderr
         assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "k.mcap").exists()

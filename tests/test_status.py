@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from common.keys import SERVICES, Keys
-from common.transport import free_tcp_endpoint, open_session
+from common.transport import check_endpoints, free_tcp_endpoint, open_session
 from deploy.status import collect
 from deploy.supervisor import Supervisor
 from tests.conftest import launch_umay_up
@@ -143,6 +143,57 @@ def test_a_bad_prefix_is_refused_by_name(prefix: str, reason: str) -> None:
         assert proc.returncode == 2, proc.stderr
         assert f"argument --prefix: invalid key prefix {prefix!r}" in proc.stderr
         assert reason in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_endpoints_are_checked_by_zenohs_parser() -> None:
+    assert check_endpoints("tcp/127.0.0.1:7447") == ["tcp/127.0.0.1:7447"]
+    assert check_endpoints("tcp/a:1, udp/b:2") == ["tcp/a:1", "udp/b:2"]
+    for bad, named in (("foo", "'foo'"), ("tcp/a:1,,tcp/b:2", "''"), ("", "''")):
+        with pytest.raises(ValueError, match=f"invalid endpoint {named}: expected <protocol>/"):
+            check_endpoints(bad)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["status", "--connect", "foo"], "argument --connect: invalid endpoint 'foo'"),
+        (["record", "x.mcap", "--connect", "tcp/a:1,nope"], "invalid endpoint 'nope'"),
+        (["service", "vision", "--connect", "foo"], "argument --connect: invalid endpoint"),
+        (["up", "--connect", "foo"], "argument --connect: invalid endpoint 'foo'"),
+        (["run", "--listen", "tcp/a:1,tcp/b:2"], "one endpoint, not a list"),
+        (["router", "--listen", "7447"], "argument --listen: invalid endpoint '7447'"),
+        (["status", "--timeout", "-1"], "argument --timeout: '-1': seconds"),
+        (["status", "--timeout", "nan"], "argument --timeout: 'nan': seconds"),
+        (["record", "x.mcap", "--duration", "inf"], "argument --duration: 'inf': seconds"),
+    ],
+)
+def test_bad_endpoints_and_durations_are_refused_by_name(
+    args: list[str], message: str, tmp_path: Path
+) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "deploy", *args],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])},
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert not list(tmp_path.iterdir())  # nothing written, nothing started
+
+
+def test_a_session_that_cannot_open_is_reported_without_a_traceback() -> None:
+    # Well formed, so argparse lets it through; Zenoh refuses it when the session opens.
+    proc = subprocess.run(
+        [sys.executable, "-m", "deploy", "status", "--connect", "nolink/127.0.0.1:1"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert proc.returncode == 1, proc.stderr
+    assert "umay status: Zenoh: Unicast not supported for nolink protocol" in proc.stderr
+    assert "Traceback" not in proc.stderr
 
 
 def test_good_prefixes_pass() -> None:
