@@ -370,11 +370,9 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     from common.config import load_scenario
     from common.runtime import parse_overrides
 
-    if args.frames < 1:
-        print("umay accuracy: --frames must be at least 1", file=sys.stderr)
+    if args.frames < 1 or args.seed < 0:
+        print("umay accuracy: --frames must be at least 1, --seed 0 or more", file=sys.stderr)
         return EXIT_BAD_INPUT
-    from deploy.accuracy import default_conditions, evaluate, format_table  # loads pybullet
-
     try:
         overrides = parse_overrides(args.set)
         scenarios = [load_scenario(p, overrides) for p in (args.scenario or [None])]
@@ -383,6 +381,8 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     if args.json:
         check_output_file("--json", args.json)
+    from deploy.accuracy import default_conditions, evaluate, format_table  # loads pybullet
+
     conditions = default_conditions(args.seed)
     with Progress(transient=True) as bar:
         task = bar.add_task("postures", total=args.frames * len(scenarios))
