@@ -149,7 +149,8 @@ def cmd_up(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from deploy.plots import NotARecordingError, plot_recording
+    from deploy.plots import plot_recording
+    from deploy.recording import NotARecordingError
 
     path = Path(args.file)
     if not path.is_file():
@@ -306,12 +307,15 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from deploy.recording import format_info, read_info
+    from deploy.recording import NotARecordingError, format_info, read_info
 
     try:
         info = read_info(args.file)
     except FileNotFoundError:
         print(f"umay info: {args.file}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except NotARecordingError as exc:
+        print(f"umay info: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as exc:  # the mcap reader raises several types for a bad file
         print(f"umay info: {args.file}: not a readable MCAP file ({exc})", file=sys.stderr)

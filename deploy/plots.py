@@ -27,15 +27,13 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO, TypeVar
+from typing import TypeVar
 
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from mcap.reader import NonSeekingReader, make_reader
-from mcap.writer import MCAP0_MAGIC
 from pydantic import BaseModel
 
 from common import keys as data_keys
@@ -44,7 +42,7 @@ from common.messages import (
     EndEffectorTwist,
     Features,
 )
-from deploy.recording import DATA_SUFFIXES
+from deploy.recording import DATA_SUFFIXES, RecordingReader
 
 log = logging.getLogger(__name__)
 
@@ -120,44 +118,18 @@ def _suffix_of(topic: str) -> str | None:
     return None
 
 
-def _wanted_topics(f: BinaryIO) -> list[str] | None:
-    """Topics of the wanted channels from the summary; None when there is none (a recording
-    cut short) or it cannot be read."""
-    try:
-        summary = make_reader(f).get_summary()
-    except Exception:  # damaged footer/summary: fall back to a linear scan
-        return None
-    if summary is None:
-        return None
-    return sorted({c.topic for c in summary.channels.values() if _suffix_of(c.topic)})
-
-
-class NotARecordingError(ValueError):
-    """The file is not MCAP at all (a recording cut short still starts as one)."""
+def _is_plotted(topic: str) -> bool:
+    return _suffix_of(topic) is not None
 
 
 def _iter_payloads(path: Path) -> Iterator[tuple[str, bytes]]:
-    """(suffix, payload) of every message on a wanted channel. With a summary only the
-    wanted channels' chunks are read; without one (a recording cut short) the file is scanned
-    linearly and whatever precedes the damage is kept."""
-    with path.open("rb") as f:
-        if f.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
-            raise NotARecordingError(f"{path}: not an MCAP recording (no MCAP magic at its start)")
-        topics = _wanted_topics(f)
-        if topics == []:
-            return
-        f.seek(0)
-        if topics is None:
-            messages = NonSeekingReader(f).iter_messages(log_time_order=False)
-        else:
-            messages = make_reader(f).iter_messages(topics=topics)
-        try:
-            for _schema, channel, message in messages:
-                suffix = _suffix_of(channel.topic)
-                if suffix is not None:
-                    yield suffix, message.data
-        except Exception as exc:  # mcap raises several types on a damaged record
-            log.warning("%s: stopped reading at a damaged record (%s)", path, exc)
+    """(suffix, payload) of every message on a wanted channel; of a recording cut short, what
+    precedes the damage (with a warning)."""
+    reader = RecordingReader(path)
+    for _schema, channel, message in reader.messages(_is_plotted, log_time_order=False):
+        yield _suffix_of(channel.topic) or "", message.data
+    if reader.damage:
+        log.warning("%s: %s", path, reader.damage)
 
 
 def _decoded(path: Path) -> tuple[dict[str, list[BaseModel]], dict[str, int]]:

@@ -52,7 +52,7 @@ from common.keys import Keys
 from common.runtime import parse_overrides
 from common.transport import alive_services, free_tcp_endpoint, open_session
 from deploy.paths import check_output_dir
-from deploy.recording import iter_messages, read_metadata, split_data_key, topics
+from deploy.recording import NotARecordingError, RecordingReader, split_data_key
 from deploy.supervisor import Supervisor
 
 JOINT_STATE = "sim/joint_state"
@@ -137,23 +137,26 @@ def frame_seq_of(payload: bytes) -> int | None:
         return None
 
 
-def source_prefix(path: str | Path, metadata: dict[str, str]) -> str:
+def source_prefix(recording: RecordingReader, metadata: dict[str, str]) -> str:
     if metadata.get("prefix"):
         return metadata["prefix"]
-    prefixes = {s[0] for s in map(split_data_key, topics(path)) if s is not None}
+    prefixes = {s[0] for s in map(split_data_key, recording.topics()) if s is not None}
     if len(prefixes) != 1:
         found = ", ".join(sorted(prefixes)) or "none"
-        raise ReplayError(f"{path}: cannot tell the recording's key prefix (found: {found})")
+        raise ReplayError(
+            f"{recording.path}: cannot tell the recording's key prefix (found: {found})"
+        )
     return prefixes.pop()
 
 
-def load_recorded(path: str | Path, prefix: str, suffixes: set[str]) -> list[Recorded]:
-    wanted = [f"{prefix}/{s}" for s in sorted(suffixes)]
+def load_recorded(recording: RecordingReader, prefix: str, suffixes: set[str]) -> list[Recorded]:
+    wanted = {f"{prefix}/{s}" for s in suffixes}
     out = []
-    for topic, log_time, _publish_time, data in iter_messages(path, wanted):
-        seq = frame_seq_of(data)
+    for _schema, channel, message in recording.messages(wanted.__contains__):
+        seq = frame_seq_of(message.data)
         if seq is not None:
-            out.append(Recorded(topic[len(prefix) + 1 :], log_time, seq, data))
+            suffix = channel.topic[len(prefix) + 1 :]
+            out.append(Recorded(suffix, message.log_time, seq, message.data))
     return out
 
 
@@ -354,16 +357,21 @@ def replay_service(
     io = SERVICE_IO[service]
     notes: list[str] = []
     try:
-        metadata = read_metadata(path).get("umay", {})
-        old_prefix = source_prefix(path, metadata)
-        recorded_inputs = load_recorded(path, old_prefix, set(io.inputs))
+        recording = RecordingReader(path)
+        metadata = recording.metadata().get("umay", {})
+        old_prefix = source_prefix(recording, metadata)
+        recorded_inputs = load_recorded(recording, old_prefix, set(io.inputs))
         recorded_outputs = first_by_frame(
-            (r.frame_seq, r.payload) for r in load_recorded(path, old_prefix, {io.output})
+            (r.frame_seq, r.payload) for r in load_recorded(recording, old_prefix, {io.output})
         )
     except ReplayError:
         raise
+    except NotARecordingError as exc:
+        raise ReplayError(str(exc)) from exc
     except Exception as exc:  # the mcap reader raises several types for a bad file
         raise ReplayError(f"{path}: not a readable MCAP recording ({exc})") from exc
+    if recording.damage:  # a recording cut short: what precedes the damage is replayed
+        notes.append(f"recording {recording.damage}")
     if not any(r.suffix == io.trigger for r in recorded_inputs):
         raise ReplayError(f"{path}: no {io.trigger} messages to replay into {service}")
 

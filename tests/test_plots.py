@@ -20,7 +20,8 @@ from common.messages import (
     MarkerFeatures,
     SimTruth,
 )
-from deploy.plots import NotARecordingError, load_series, plot_recording
+from deploy.plots import load_series, plot_recording
+from deploy.recording import NotARecordingError
 
 PREFIX = "umay/test"
 K = CameraIntrinsics.from_fov(640, 480, 57.0)

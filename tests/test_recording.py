@@ -10,6 +10,7 @@ vision and controller must reproduce it bit for bit.
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -109,7 +110,7 @@ def test_run_record_writes_an_indexed_zstd_mcap_with_every_data_key(
         assert by_topic[summary.channels[cid].topic].count == n
     assert info.message_count == sum(counts.values())
     assert info.compression == ["zstd"] and info.chunk_count == len(summary.chunk_indexes)
-    assert info.metadata["umay"]["prefix"] == prefix
+    assert info.metadata["umay"]["prefix"] == prefix and info.damage is None
     assert 0.0 < info.duration_s < 60.0
     for frames_key in (keys.rgb, keys.depth):
         rate = by_topic[frames_key].rate_hz
@@ -167,11 +168,11 @@ def test_replay_and_info_refuse_bad_input_with_exit_2(tmp_path: Path) -> None:
         (["replay", str(REFERENCE), "--service", "sim"], "unknown service"),
         (["replay", str(REFERENCE), "--service", "vision", "--speed", "fast"], "--speed"),
         (["replay", str(REFERENCE), "--service", "vision", "--speed", "inf"], "--speed 'inf'"),
-        (["replay", str(junk), "--service", "vision"], "not a readable MCAP"),
+        (["replay", str(junk), "--service", "vision"], "junk.mcap: not an MCAP recording"),
         (["replay", str(REFERENCE), "--service", "controller", "--set", "controller.gain=-1"],
          "controller.gain"),
         (["info", str(tmp_path / "none.mcap")], "no such file"),
-        (["info", str(junk)], "not a readable MCAP"),
+        (["info", str(junk)], "junk.mcap: not an MCAP recording"),
         (["replay", str(REFERENCE), "--service", "vision", "--log-dir", "/proc/no/logs"],
          "umay replay: --log-dir /proc/no/logs: cannot write"),
     ]  # fmt: skip
@@ -222,6 +223,33 @@ def test_recorder_writes_concurrent_messages_safely(tmp_path: Path) -> None:
     assert {t: sorted(s) for t, s in per_frame.items()} == {
         t: list(range(per_thread)) for t in range(threads)
     }
+
+
+def test_a_recording_cut_short_is_read_and_replayed_up_to_the_damage(tmp_path: Path) -> None:
+    # A recorder killed mid-run leaves no summary, no footer and a last chunk half written.
+    full = read_info(REFERENCE)
+    cut = tmp_path / "cut.mcap"
+    data = REFERENCE.read_bytes()
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    info = read_info(cut)
+    assert info.damage is not None and info.damage.startswith("cut short (no summary)")
+    assert 0 < info.message_count < full.message_count
+    assert info.metadata == full.metadata  # written first, so kept: a replay needs it
+    assert sorted(c.topic for c in info.channels) == sorted(c.topic for c in full.channels)
+    log_times = [t for _topic, t, _pub, _data in iter_messages(cut)]
+    assert log_times == sorted(log_times) and len(log_times) == info.message_count
+
+    shown = umay("info", str(cut))
+    assert shown.returncode == 0, shown.stderr
+    assert f"messages     {info.message_count} in 7 channels" in shown.stdout
+    assert "warning      cut short (no summary)" in shown.stdout
+
+    replayed = umay("replay", str(cut), "--service", "controller", "--check",
+                    "--log-dir", str(tmp_path / "logs"))  # fmt: skip
+    assert replayed.returncode == 0, replayed.stdout + replayed.stderr
+    assert "note: recording cut short (no summary)" in replayed.stdout
+    matched = re.search(r"matched (\d+)  differing 0  missing 0  extra 0", replayed.stdout)
+    assert matched and int(matched.group(1)) >= 5, replayed.stdout
 
 
 def test_compare_ignores_seq_and_send_time_and_names_field_paths() -> None:
