@@ -16,13 +16,12 @@ function per figure draws from those arrays; :func:`plot_recording` writes them 
 Drawing uses :class:`matplotlib.figure.Figure` on the Agg canvas directly, never pyplot, so
 it needs no display, touches no global backend state and is safe to call from any thread.
 
-Usage: ``python -m deploy.plots RUN.mcap [OUT_DIR]``.
+Usage: ``umay plot RUN.mcap --out DIR`` (:func:`deploy.cli.cmd_plot`).
 """
 
 from __future__ import annotations
 
 import logging
-import sys
 from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -494,19 +493,3 @@ def write_bench_figure(result: dict, path: Path) -> bool:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=DPI)
     return True
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    if not args or len(args) > 2 or args[0] in ("-h", "--help"):
-        print("usage: python -m deploy.plots RUN.mcap [OUT_DIR]", file=sys.stderr)
-        return 2
-    rec = Path(args[0])
-    out_dir = Path(args[1]) if len(args) > 1 else rec.with_suffix("")
-    for p in plot_recording(rec, out_dir):
-        print(p)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
