@@ -293,6 +293,13 @@ class SupervisorConfig(_Strict):
     max_restarts: int = Field(5, ge=0, description="in restart_window_s; then give up")
     restart_window_s: float = Field(60.0, gt=0.0)
     stop_grace_s: float = Field(2.0, gt=0.0, le=30.0, description="SIGTERM → SIGKILL")
+    hang_timeout_s: float = Field(
+        5.0,
+        ge=0.0,
+        le=300.0,
+        description="a service whose event loop is stuck in one step, or that stops answering "
+        "status queries, this long is killed (then restarted by its policy); 0: never",
+    )
 
     def policy(self, service: str) -> RestartPolicy:
         return self.restart.get(service, self.default_restart)  # type: ignore[call-overload]

@@ -282,6 +282,10 @@ class Node:
         self.last_rejection = ""
         self._last_reject_log = 0.0
         self._closed = False
+        # When the event loop last left next_event (None: it has not called it yet) and
+        # whether it is inside it now: the status's loop_busy_s, read by the supervisor.
+        self._loop_left_s: float | None = None
+        self._loop_waiting = False
         self._queryable = session.declare_queryable(keys.status(service), self._answer_status)
         self._token: Any = None
 
@@ -357,15 +361,20 @@ class Node:
         """The next ``(key, message)``, or None after ``timeout_s`` or when closed."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         with self._cond:
-            while not self._inbox and not self._closed:
-                remaining = None if deadline is None else deadline - time.monotonic()
-                if remaining is not None and remaining <= 0:
+            self._loop_waiting = True
+            try:
+                while not self._inbox and not self._closed:
+                    remaining = None if deadline is None else deadline - time.monotonic()
+                    if remaining is not None and remaining <= 0:
+                        return None
+                    self._cond.wait(remaining)
+                if not self._inbox:
                     return None
-                self._cond.wait(remaining)
-            if not self._inbox:
-                return None
-            key, message, self.event_recv_time_s = self._inbox.popleft()
-            return key, message
+                key, message, self.event_recv_time_s = self._inbox.popleft()
+                return key, message
+            finally:
+                self._loop_waiting = False
+                self._loop_left_s = time.monotonic()
 
     def _reject(self, key: str, reason: str) -> None:
         with self._cond:
@@ -396,8 +405,16 @@ class Node:
             last_rejection=self.last_rejection,
             processing_ms_p50=p50,
             processing_ms_p99=p99,
+            loop_busy_s=self.loop_busy_s(now),
             fields=self._status_fields(),
         )
+
+    def loop_busy_s(self, now_s: float) -> float | None:
+        """Seconds since the event loop left :meth:`next_event` (0 while it is inside)."""
+        left = self._loop_left_s
+        if left is None:
+            return None
+        return 0.0 if self._loop_waiting else max(0.0, now_s - left)
 
     def _answer_status(self, query: zenoh.Query) -> None:
         try:

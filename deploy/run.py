@@ -131,7 +131,10 @@ def run_once(
         session.declare_subscriber(keys.truth, monitor.on_truth),
         session.declare_subscriber(keys.twist, monitor.on_twist),
     ]
-    sup = Supervisor(scenario_path, prefix, endpoint, log_dir, overrides)
+    sup = Supervisor(
+        scenario_path, prefix, endpoint, log_dir, overrides, config=scenario.supervisor,
+        session=session,
+    )  # fmt: skip
     started = time.monotonic()
     # Lockstep speed depends on the machine (rendering dominates): allow generously.
     wall_limit = wall_timeout_s or max(120.0, 20.0 * scenario.run.timeout_s)
@@ -149,9 +152,11 @@ def run_once(
             if stop is not None and stop.is_set():
                 detail = "interrupted"
                 break
+            for event in sup.check_hangs():  # a run does not restart: a hang ends it
+                log.warning("%s", event)
             dead = sup.exited()
             if dead:
-                names = ", ".join(f"{c.name} (exit {c.exit_codes[-1]})" for c in dead)
+                names = ", ".join(c.describe_exit() for c in dead)
                 detail = f"service exited: {names}; see {log_dir}"
                 break
             elapsed = time.monotonic() - started

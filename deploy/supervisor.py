@@ -6,6 +6,12 @@ talk directly. Each child appends its output to ``<log_dir>/<service>.log``.
 
 Restart policy per service (``always`` / ``on-failure`` / ``never``) with exponential backoff
 and at most ``max_restarts`` restarts in ``restart_window_s``, as in systemd or supervisord.
+
+A process can also hang without exiting: a deadlock, a native call that never returns, a
+``SIGSTOP``. Given a session, the supervisor asks every service for its status each second
+and kills (SIGKILL) a child whose event loop has been busy in one step, or that has not
+answered, for ``hang_timeout_s``; its restart policy then applies as to any other death.
+A child is judged only once it has answered, so a slow start is never taken for a hang.
 """
 
 from __future__ import annotations
@@ -19,8 +25,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import zenoh
+
+from common.codec import DEFAULT_MAX_BYTES, MessageError, decode
 from common.config import RestartPolicy, SupervisorConfig
-from common.keys import SERVICES
+from common.keys import SERVICES, Keys
+from common.messages import ServiceStatus
 from common.runtime import ENV_SUPERVISOR_PID
 from common.transport import ENV_CONFIG, ENV_CONNECT
 
@@ -39,6 +49,33 @@ def backoff_s(recent_restarts: int, config: SupervisorConfig) -> float:
     return min(config.backoff_initial_s * 2.0**recent_restarts, config.backoff_max_s)
 
 
+HEALTH_CHECK_S = 1.0  # how often the supervisor asks the services for their status
+
+
+@dataclass(frozen=True)
+class Heard:
+    """A child's last status answer: its pid, when it came (monotonic s), its loop_busy_s."""
+
+    pid: int
+    at_s: float
+    loop_busy_s: float | None
+
+
+def hang_reason(
+    heard: Heard | None, unanswered_since_s: float | None, now_s: float, hang_timeout_s: float
+) -> str | None:
+    """Why a running child counts as hung, else None. ``unanswered_since_s``: when the first
+    status query it has not answered was sent (None: it answered the last one). A child that
+    has never answered is still starting and is not judged."""
+    if heard is None or hang_timeout_s <= 0:
+        return None
+    if unanswered_since_s is not None and now_s - unanswered_since_s > hang_timeout_s:
+        return f"no status answer for {now_s - unanswered_since_s:.1f} s"
+    if heard.loop_busy_s is not None and heard.loop_busy_s > hang_timeout_s:
+        return f"event loop stuck in one step for {heard.loop_busy_s:.1f} s"
+    return None
+
+
 @dataclass
 class Child:
     name: str
@@ -51,6 +88,14 @@ class Child:
     restart_due_s: float | None = None  # monotonic time of a scheduled restart
     given_up: bool = False
     started_s: float = 0.0
+    hang_kills: int = 0
+    last_hang: str = ""  # why it was last killed as hung
+    killed_as_hung: bool = False  # its current or last process was
+
+    def describe_exit(self) -> str:
+        """``vision (exit -9, hung: ...)``: its last exit, and the hang that caused it."""
+        hung = f", hung: {self.last_hang}" if self.killed_as_hung else ""
+        return f"{self.name} (exit {self.exit_codes[-1]}{hung})"
 
 
 class Supervisor:
@@ -65,9 +110,15 @@ class Supervisor:
         zenoh_config: str | None = None,
         config: SupervisorConfig | None = None,
         env: dict[str, str] | None = None,
+        session: zenoh.Session | None = None,
     ) -> None:
-        """``env``: extra environment variables for the children (e.g. ``UMAY_ZENOH_SHM``)."""
+        """``env``: extra environment variables for the children (e.g. ``UMAY_ZENOH_SHM``).
+        ``session``: one the children reach, for the hang checks (none without it)."""
         self.endpoint = endpoint
+        self.session = session
+        self.keys = Keys(prefix)
+        self._heard: dict[str, Heard] = {}  # written by Zenoh's reply thread
+        self._queries_s: list[float] = []  # send times of the status queries, oldest first
         self.extra_env = dict(env or {})
         self.zenoh_config = zenoh_config
         self.config = config or SupervisorConfig()
@@ -103,6 +154,7 @@ class Supervisor:
             )
         child.started_s = time.monotonic()
         child.restart_due_s = None
+        child.killed_as_hung = False
         log.info("started %s (pid %d)", child.name, child.process.pid)
 
     def start(self) -> None:
@@ -122,10 +174,48 @@ class Supervisor:
                 out.append(child)
         return out
 
-    def tick(self, now_s: float | None = None) -> list[str]:
-        """Apply the restart policy once; returns what happened, for the log."""
+    def check_hangs(self, now_s: float | None = None) -> list[str]:
+        """Kill the children that :func:`hang_reason` finds hung, and ask every service for
+        its status again if it is time; returns what happened, for the log."""
+        if self.session is None:
+            return []
         now = time.monotonic() if now_s is None else now_s
         events = []
+        for child in self.children.values():
+            if child.process is None or child.process.poll() is not None:
+                continue
+            heard = self._heard.get(child.name)
+            if heard is not None and heard.pid != child.process.pid:
+                heard = None  # an answer from the process before a restart
+            after = heard.at_s if heard else now
+            unanswered = next((t for t in self._queries_s if t > after), None)
+            reason = hang_reason(heard, unanswered, now, self.config.hang_timeout_s)
+            if reason is not None:
+                child.hang_kills += 1
+                child.last_hang = reason
+                child.killed_as_hung = True
+                child.process.kill()  # works on a stopped process too; exited() sees it
+                events.append(f"{child.name} hung ({reason}); killed")
+        if not self._queries_s or now - self._queries_s[-1] >= HEALTH_CHECK_S:
+            self._queries_s = [*self._queries_s[-100:], now]
+            # A late answer still shows the process alive: wait for it as long as a hang.
+            timeout_s = max(HEALTH_CHECK_S, self.config.hang_timeout_s)
+            self.session.get(self.keys.all_status, self._on_status, timeout=timeout_s)
+        return events
+
+    def _on_status(self, reply: zenoh.Reply) -> None:
+        if reply.ok is None:  # an error reply
+            return
+        try:
+            status = decode(reply.ok.payload.to_bytes(), ServiceStatus, DEFAULT_MAX_BYTES)
+        except MessageError:  # not a status: the service judges it, not the supervisor
+            return
+        self._heard[status.service] = Heard(status.pid, time.monotonic(), status.loop_busy_s)
+
+    def tick(self, now_s: float | None = None) -> list[str]:
+        """Apply the hang checks and the restart policy once; returns what happened."""
+        now = time.monotonic() if now_s is None else now_s
+        events = self.check_hangs(now)
         for child in self.exited():
             code = child.exit_codes[-1]
             window = self.config.restart_window_s
@@ -181,6 +271,8 @@ class Supervisor:
                 "last_exit_codes": c.exit_codes[-5:],
                 "policy": self.config.policy(name).value,
                 "given_up": c.given_up,
+                "hang_kills": c.hang_kills,
+                "last_hang": c.last_hang,
                 "log": str(c.log_path),
             }
             for name, c in self.children.items()

@@ -36,7 +36,10 @@ def run_up(
         session.close()
         print(f"umay up: a supervisor is already running under {prefix}", file=sys.stderr)
         return EXIT_ALREADY_RUNNING
-    sup = Supervisor(scenario_path, prefix, listen, log_dir, overrides, config=scenario.supervisor)
+    sup = Supervisor(
+        scenario_path, prefix, listen, log_dir, overrides, config=scenario.supervisor,
+        session=session,
+    )  # fmt: skip
     node = Node("supervisor", keys, session, lambda: {"children": sup.summary()})
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():

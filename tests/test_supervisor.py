@@ -7,18 +7,21 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 import pytest
 from zenoh import SampleKind
 
+from common.codec import encode
 from common.config import RestartPolicy, SupervisorConfig
-from common.keys import SERVICES
+from common.keys import SERVICES, Keys
+from common.messages import ServiceStatus
 from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
-from common.transport import free_tcp_endpoint, open_session
+from common.transport import Node, free_tcp_endpoint, open_session
 from deploy.status import collect
-from deploy.supervisor import Supervisor, backoff_s, wants_restart
+from deploy.supervisor import Heard, Supervisor, backoff_s, hang_reason, wants_restart
 from tests.conftest import launch_umay_up, processes_mentioning
 
 
@@ -47,6 +50,77 @@ def test_tick_restarts_with_a_cap(tmp_path: Path) -> None:
     assert child.given_up and child.restarts == 2, events
     assert child.exit_codes == [3, 3, 3]
     assert any("giving up" in e for e in events)
+
+
+def test_hang_reason_judges_only_a_child_that_has_answered() -> None:
+    assert hang_reason(None, 0.0, 100.0, 5.0) is None  # never answered: still starting
+    idle = Heard(pid=1, at_s=10.0, loop_busy_s=0.0)
+    assert hang_reason(idle, None, 11.0, 5.0) is None
+    assert hang_reason(idle, 11.0, 15.9, 5.0) is None  # one query unanswered for 4.9 s
+    assert hang_reason(idle, 11.0, 16.5, 5.0) == "no status answer for 5.5 s"
+    assert hang_reason(idle, 11.0, 16.5, 0.0) is None  # 0: hang checks off
+    stuck = Heard(pid=1, at_s=10.0, loop_busy_s=6.25)
+    assert hang_reason(stuck, None, 10.1, 5.0) == "event loop stuck in one step for 6.2 s"
+    assert hang_reason(Heard(1, 10.0, 4.0), None, 10.1, 5.0) is None  # a long step, not a hang
+    assert hang_reason(Heard(1, 10.0, None), None, 10.1, 5.0) is None  # loop not started
+
+
+def test_a_child_stuck_in_one_step_is_killed_and_its_run_says_why(tmp_path: Path) -> None:
+    # A stand-in child (it sleeps) and a queryable answering for it, as a service whose event
+    # loop is stuck in a handler would: alive, answering, loop_busy_s growing.
+    session = open_session(connect=[], listen=[free_tcp_endpoint()])
+    keys = Keys(f"test/{os.getpid()}stuck")
+    cfg = SupervisorConfig(hang_timeout_s=1.0)
+    sup = Supervisor(
+        None, keys.prefix, "tcp/127.0.0.1:1", tmp_path, services=("vision",), config=cfg,
+        session=session,
+    )  # fmt: skip
+    child = sup.children["vision"]
+    child.argv = [sys.executable, "-c", "import time; time.sleep(60)"]
+    started = time.monotonic()
+
+    def answer(query) -> None:
+        busy = time.monotonic() - started
+        status = ServiceStatus(
+            service="vision", pid=child.process.pid, host="h", uptime_s=busy, state="running",
+            loop_busy_s=busy,
+        )  # fmt: skip
+        query.reply(keys.status("vision"), encode(status))
+
+    queryable = session.declare_queryable(keys.status("vision"), answer)
+    try:
+        sup.start()
+        events: list[str] = []
+        deadline = time.monotonic() + 20
+        while not child.exit_codes and time.monotonic() < deadline:
+            events += sup.check_hangs()
+            sup.exited()
+            time.sleep(0.05)
+        assert child.exit_codes == [-signal.SIGKILL], events
+        assert child.hang_kills == 1 and child.last_hang.startswith("event loop stuck"), events
+        assert child.describe_exit().startswith("vision (exit -9, hung: event loop stuck in")
+    finally:
+        sup.stop()
+        queryable.undeclare()
+        session.close()
+
+
+def test_loop_busy_s_is_zero_while_the_loop_waits_and_grows_while_it_works() -> None:
+    session = open_session(connect=[], listen=[free_tcp_endpoint()])
+    node = Node("vision", Keys(f"test/{os.getpid()}busy"), session)
+    try:
+        assert node.status().loop_busy_s is None  # the loop has not started
+        node.next_event(0.0)
+        time.sleep(0.3)  # "handling" an event
+        assert 0.3 <= node.status().loop_busy_s < 5.0
+        waiting = threading.Thread(target=node.next_event, args=(1.0,))
+        waiting.start()
+        time.sleep(0.2)
+        assert node.status().loop_busy_s == 0.0  # blocked in next_event: idle, not stuck
+        waiting.join()
+        assert node.status().loop_busy_s < 0.2
+    finally:
+        node.close()
 
 
 def wait_for(predicate, timeout_s: float, step_s: float = 0.05):
@@ -112,6 +186,23 @@ def test_kill_each_service_it_comes_back_and_the_hand_still_converges(umay_up) -
     sup_status = views()["supervisor"].status
     children = sup_status.fields["children"]
     assert all(children[n]["restarts"] == 1 for n in SERVICES), children
+
+    # A process that hangs without exiting (here frozen by SIGSTOP: it answers nothing) is
+    # killed after supervisor.hang_timeout_s (5 s) and restarted like one that died.
+    frozen_pid = views()["vision"].status.pid
+    os.kill(frozen_pid, signal.SIGSTOP)
+    frozen = time.monotonic()
+
+    def thawed():
+        s = views().get("vision")
+        return s is not None and s.alive and s.status and s.status.pid != frozen_pid
+
+    assert wait_for(thawed, 30, 0.1), "a frozen vision was not replaced"
+    print(f"frozen vision replaced after {time.monotonic() - frozen:.1f} s")
+    vision = views()["supervisor"].status.fields["children"]["vision"]
+    assert vision["hang_kills"] == 1 and vision["restarts"] == 2, vision
+    assert vision["last_hang"].startswith("no status answer for "), vision
+    assert vision["last_exit_codes"][-1] == -signal.SIGKILL, vision
 
     def converged():
         c = views().get("controller")
