@@ -117,7 +117,7 @@ class Supervisor:
         self.endpoint = endpoint
         self.session = session
         self.keys = Keys(prefix)
-        self._heard: dict[str, Heard] = {}  # written by Zenoh's reply thread
+        self._heard: dict[tuple[str, int], Heard] = {}  # by (service, pid); Zenoh's thread
         self._queries_s: list[float] = []  # send times of the status queries, oldest first
         self.extra_env = dict(env or {})
         self.zenoh_config = zenoh_config
@@ -184,9 +184,7 @@ class Supervisor:
         for child in self.children.values():
             if child.process is None or child.process.poll() is not None:
                 continue
-            heard = self._heard.get(child.name)
-            if heard is not None and heard.pid != child.process.pid:
-                heard = None  # an answer from the process before a restart
+            heard = self._heard.get((child.name, child.process.pid))  # this process's
             after = heard.at_s if heard else now
             unanswered = next((t for t in self._queries_s if t > after), None)
             reason = hang_reason(heard, unanswered, now, self.config.hang_timeout_s)
@@ -210,7 +208,8 @@ class Supervisor:
             status = decode(reply.ok.payload.to_bytes(), ServiceStatus, DEFAULT_MAX_BYTES)
         except MessageError:  # not a status: the service judges it, not the supervisor
             return
-        self._heard[status.service] = Heard(status.pid, time.monotonic(), status.loop_busy_s)
+        heard = Heard(status.pid, time.monotonic(), status.loop_busy_s)
+        self._heard[(status.service, status.pid)] = heard
 
     def tick(self, now_s: float | None = None) -> list[str]:
         """Apply the hang checks and the restart policy once; returns what happened."""
