@@ -33,21 +33,20 @@ def prefix_argument(value: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def endpoints_argument(value: str) -> str:
-    """argparse type of ``--connect``: comma-separated Zenoh endpoints, else a usage error
-    naming the bad one."""
+def endpoints_argument(value: str) -> list[str]:
+    """argparse type of ``--connect``: comma-separated Zenoh endpoints, as a list, else a
+    usage error naming the bad one."""
     try:
-        check_endpoints(value)
+        return check_endpoints(value)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-    return value
 
 
 def endpoint_argument(value: str) -> str:
     """argparse type of ``--listen`` where one endpoint is meant."""
     if "," in value:
         raise argparse.ArgumentTypeError(f"{value!r}: one endpoint, not a list")
-    return endpoints_argument(value)
+    return endpoints_argument(value)[0]
 
 
 def service_arguments(service: str, argv: list[str] | None) -> argparse.Namespace:
@@ -119,9 +118,8 @@ class ServiceContext:
             print(exc, file=sys.stderr)
             raise SystemExit(2) from exc
         self.keys = Keys(args.prefix or default_prefix())
-        connect = args.connect.split(",") if args.connect else None
         try:
-            self.session = open_session(args.zenoh_config, connect)
+            self.session = open_session(args.zenoh_config, args.connect)
         except ZenohConfigError as exc:
             print(exc, file=sys.stderr)
             raise SystemExit(2) from exc

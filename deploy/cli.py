@@ -142,7 +142,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     listen = args.listen or default_listen_endpoint()
     # Also join the well-known endpoint (or --connect), so a supervisor already running on
     # this prefix is seen even when this one had to listen elsewhere.
-    connect = args.connect.split(",") if args.connect else [DEFAULT_ENDPOINT]
+    connect = args.connect or [DEFAULT_ENDPOINT]
     connect = [e for e in connect if e != listen]
     prefix = args.prefix or default_prefix()
     return run_up(args.scenario, scenario, overrides, prefix, listen, connect, Path(args.log_dir))
@@ -188,9 +188,9 @@ def cmd_router(args: argparse.Namespace) -> int:
         cfg = zenoh.Config()
         cfg.insert_json5("mode", '"router"')
         cfg.insert_json5("scouting/multicast/enabled", "false")
-    listen = args.listen or (None if args.config else "tcp/0.0.0.0:7447")
+    listen = args.listen or (None if args.config else ["tcp/0.0.0.0:7447"])
     if listen:
-        cfg.insert_json5("listen/endpoints", json.dumps(listen.split(",")))
+        cfg.insert_json5("listen/endpoints", json.dumps(listen))
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -199,7 +199,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     except Exception as exc:
         print(f"umay router: cannot start: {zenoh_reason(exc)}", file=sys.stderr)
         return 1
-    endpoints = listen or ",".join(json.loads(cfg.get_json("listen/endpoints")))
+    endpoints = ",".join(listen or json.loads(cfg.get_json("listen/endpoints")))
     print(f"umay router: listening on {endpoints}", flush=True)
     try:
         stop.wait()
@@ -246,8 +246,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     from deploy.status import as_json, collect, table
 
     keys = Keys(args.prefix or default_prefix())
-    connect = args.connect.split(",") if args.connect else None
-    session = open_session(connect=connect)
+    session = open_session(connect=args.connect)
     try:
         time.sleep(0.3)  # let the session connect and learn the peers
         if args.json:
@@ -288,11 +287,10 @@ def cmd_record(args: argparse.Namespace) -> int:
         except OSError as exc:
             print(f"umay record: {args.scenario}: {exc.strerror}", file=sys.stderr)
             return EXIT_BAD_INPUT
-    connect = args.connect.split(",") if args.connect else None
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    session = open_session(connect=connect)
+    session = open_session(connect=args.connect)
     try:
         with Recorder(args.out, session, keys, args.keys, metadata) as recorder:
             print(f"recording {recorder.key_expr} to {args.out} (Ctrl-C to stop)", file=sys.stderr)

@@ -267,11 +267,6 @@ class RecordingReader:
                 self.summary = None
         self.damage: str | None = None  # why a scan stopped before the end, once one has
 
-    @property
-    def complete(self) -> bool:
-        """Whether the file has its summary (its recorder closed it)."""
-        return self.summary is not None
-
     def messages(
         self, select: Callable[[str], bool] | None = None, log_time_order: bool = True
     ) -> Iterator[tuple[Schema | None, Channel, Message]]:
@@ -297,13 +292,14 @@ class RecordingReader:
             for record in records:
                 count += 1
                 yield record
+        except EndOfFile:
+            self._damaged(count, "then the file ends inside a record")
         except Exception as exc:  # mcap raises several types on a damaged record
-            if isinstance(exc, EndOfFile):
-                then = "then the file ends inside a record"
-            else:
-                then = f"then a damaged record ({type(exc).__name__}: {exc})"
-            where = "cut short (no summary)" if self.summary is None else "damaged"
-            self.damage = f"{where}: {count} messages read, {then}"
+            self._damaged(count, f"then a damaged record ({type(exc).__name__}: {exc})")
+
+    def _damaged(self, count: int, then: str) -> None:
+        where = "cut short (no summary)" if self.summary is None else "damaged"
+        self.damage = f"{where}: {count} messages read, {then}"
 
     def metadata(self) -> dict[str, dict[str, str]]:
         """The metadata records (the recorder writes them first, so a cut file keeps them)."""
@@ -319,10 +315,6 @@ class RecordingReader:
         if self.summary is not None:
             return sorted(c.topic for c in self.summary.channels.values())
         return sorted({channel.topic for _s, channel, _m in self.messages(log_time_order=False)})
-
-
-def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
-    return RecordingReader(path).metadata()
 
 
 def read_info(path: str | Path) -> RecordingInfo:
@@ -421,10 +413,6 @@ def iter_messages(
     wanted = None if topics is None else set(topics).__contains__
     for _schema, channel, message in RecordingReader(path).messages(wanted):
         yield channel.topic, message.log_time, message.publish_time, message.data
-
-
-def topics(path: str | Path) -> list[str]:
-    return RecordingReader(path).topics()
 
 
 def unpack(payload: bytes) -> dict[str, Any]:

@@ -360,9 +360,10 @@ def replay_service(
         recording = RecordingReader(path)
         metadata = recording.metadata().get("umay", {})
         old_prefix = source_prefix(recording, metadata)
-        recorded_inputs = load_recorded(recording, old_prefix, set(io.inputs))
+        recorded = load_recorded(recording, old_prefix, {*io.inputs, io.output})  # one pass
+        recorded_inputs = [r for r in recorded if r.suffix in io.inputs]
         recorded_outputs = first_by_frame(
-            (r.frame_seq, r.payload) for r in load_recorded(recording, old_prefix, {io.output})
+            (r.frame_seq, r.payload) for r in recorded if r.suffix == io.output
         )
     except ReplayError:
         raise
