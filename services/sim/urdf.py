@@ -1,4 +1,7 @@
-"""URDF of the UMay robot (torso + right arm + hand), generated from the DH table.
+"""URDF of the UMay robot (right arm and hand), generated from the DH table.
+
+The torso they hang from never moves, so the world draws it as scenery (cut to what the
+camera sees, :mod:`services.sim.scenery`) from :data:`TORSO_SIZE_M` and :data:`TORSO_CENTRE_M`.
 
 Each arm link frame *is* the DH frame of the same index: the modified DH transform
 ``Rx(α)·Tx(a)·Rz(θ)·Tz(d)`` equals ``[Rx(α)·Tx(a)·Tz(d)]·Rz(θ)`` (rotation and translation
@@ -13,7 +16,11 @@ import numpy as np
 from common import kinematics as kin
 
 GREY = "0.75 0.75 0.78 1"
-DARK = "0.35 0.37 0.42 1"
+TORSO_COLOUR = (0.35, 0.37, 0.42, 1.0)
+# The torso, in the base frame: the right shoulder (DH frame 0) sits near its upper right
+# corner, 6 cm below the top; its front face (x = 0.01) carries the camera at mid-width.
+TORSO_SIZE_M = (0.14, 0.48, 0.26)
+TORSO_CENTRE_M = (-0.06, -0.14, -0.13)
 SKIN = "0.92 0.90 0.86 1"
 GREEN = "0.10 0.75 0.15 1"
 
@@ -59,15 +66,13 @@ def _inertial(mass: float) -> str:
 
 
 def robot_urdf(marker_size_m: float) -> str:
-    """The URDF text. Torso geometry is in the base frame (x forward, y up, z right)."""
+    """The URDF text. ``base_link`` (the shoulder) is in the base frame (x forward, y up,
+    z right)."""
     dh = kin.UMAY_DH
     links: list[str] = []
     joints: list[str] = []
-    # Torso: the right shoulder (DH frame 0) sits near its upper right corner, 6 cm below the
-    # top; its front face (x = 0.01) carries the camera at mid-width.
-    torso = _box_visual((0.14, 0.48, 0.26), np.array([-0.06, -0.14, -0.13]), DARK, False)
     shoulder = _box_visual((0.05, 0.04, 0.05), np.array([0.0, 0.0, 0.0]), GREY, False)
-    links.append(f'<link name="base_link">{_inertial(0.0)}{torso}{shoulder}</link>')
+    links.append(f'<link name="base_link">{_inertial(0.0)}{shoulder}</link>')
 
     # Where the next joint's origin is, expressed in link i's frame (for drawing the limbs).
     names = ["link_1", "link_2", "link_3", "link_4", "link_5", "ee_link"]

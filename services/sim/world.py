@@ -19,8 +19,9 @@ from common import kinematics as kin
 from common.camera import CameraIntrinsics, project
 from common.config import Scenario
 from services.sim.events import SceneState, scene_state
+from services.sim.scenery import view_frustum, visible_box
 from services.sim.sensor_model import exposed_rgb, noisy_depth
-from services.sim.urdf import robot_urdf
+from services.sim.urdf import TORSO_CENTRE_M, TORSO_COLOUR, TORSO_SIZE_M, robot_urdf
 
 FloatArray = np.ndarray
 
@@ -172,10 +173,16 @@ class Truth:
 
 
 class World:
-    """One pybullet simulation of the scenario, in DIRECT mode (no GUI)."""
+    """One pybullet simulation of the scenario, in DIRECT mode (no GUI).
 
-    def __init__(self, scenario: Scenario) -> None:
+    ``clip_scenery=False`` draws the torso, table and floor as whole boxes instead of the parts
+    of them the camera sees (:mod:`services.sim.scenery`, TinyRenderer only): the same images,
+    rendered slower; a reference for tests and measurements."""
+
+    def __init__(self, scenario: Scenario, clip_scenery: bool = True) -> None:
         self.scenario = scenario
+        # The EGL plugin draws no vertex-list mesh ("issue extracting mesh"), nor needs the cut.
+        self.clip_scenery = clip_scenery and scenario.sim.renderer == "tiny"
         self.intrinsics = scenario.camera.intrinsics()
         self.camera_pose = scenario.camera.pose()
         self._view = opengl_view_matrix(self.camera_pose)
@@ -250,13 +257,47 @@ class World:
             baseOrientation=list(orientation),
         )
 
+    def _scenery_box(
+        self,
+        half_extents: tuple[float, float, float],
+        centre: FloatArray,
+        rgba: tuple[float, ...],
+        collide: bool = True,
+    ) -> int:
+        """A box that never moves, drawn as the part of it the camera sees (see
+        :meth:`__init__`)."""
+        c = self.client
+        if not self.clip_scenery:
+            return self._box(half_extents, centre, rgba, collide)
+        frustum = view_frustum(self.camera_pose, self.intrinsics, self.scenario.camera.near_m)
+        mesh = visible_box(half_extents, centre, self.camera_pose[:3, 3], frustum)
+        visual = -1  # out of view: nothing to draw
+        if mesh is not None:
+            visual = c.createVisualShape(
+                pybullet.GEOM_MESH,
+                vertices=mesh.vertices,
+                indices=mesh.indices,
+                normals=mesh.normals,
+                rgbaColor=rgba,
+            )
+        collision = (
+            c.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half_extents) if collide else -1
+        )
+        return c.createMultiBody(
+            baseMass=0.0,
+            baseCollisionShapeIndex=collision,
+            baseVisualShapeIndex=visual,
+            basePosition=list(centre),
+        )
+
     def _build_scene(self) -> None:
-        """The object and its marker, then the table, then the floor: nearest first.
+        """The object and its marker, then the torso, the table and the floor: nearest first.
 
         TinyRenderer draws bodies in the order they were made and shades every pixel that is
         nearer than what is drawn there already. Drawn last, the floor behind the table and
         the arm fails the depth test before it is shaded: at 640×480, 168 ms a frame instead
-        of 204 (medians of 8, interleaved), with bit-identical images."""
+        of 204 (medians of 8, interleaved), with bit-identical images; cutting the torso,
+        table and floor to the view (:mod:`services.sim.scenery`) then takes it to 135-138."""
         # The object: a box from the table top up to the red marker, which lies on its top face.
         size = self.scenario.marker.size_m
         top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M
@@ -280,9 +321,12 @@ class World:
             False,
             self._target_quat,
         )
-        top = np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0])
-        self._box((0.28, 0.02, 0.45), top, TABLE_COLOUR, True)
-        self._box((1.5, 0.01, 1.5), np.array([0.3, -0.76, 0.0]), FLOOR_COLOUR, True)
+        tx, ty, tz = TORSO_SIZE_M  # visual only, as the robot's own links do not collide
+        self._scenery_box((tx / 2, ty / 2, tz / 2), np.array(TORSO_CENTRE_M), TORSO_COLOUR, False)
+        self._scenery_box(
+            (0.28, 0.02, 0.45), np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0]), TABLE_COLOUR
+        )
+        self._scenery_box((1.5, 0.01, 1.5), np.array([0.3, -0.76, 0.0]), FLOOR_COLOUR)
 
     def _marker_centre(self) -> FloatArray:
         return self.target_pose[:3, 3] - self.target_pose[:3, 2] * kin.MARKER_THICKNESS_M / 2
