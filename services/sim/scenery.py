@@ -111,6 +111,6 @@ def visible_box(
         pairs = zip(polygon, polygon[1:] + polygon[:1], strict=True)
         turn = sum(np.cross(a, b) for a, b in pairs) @ normal
         for i in range(1, len(polygon) - 1):  # a fan; the polygon is convex
-            j, k = (i, i + 1) if turn > 0 else (i + 1, i)
-            mesh.indices.extend((first, first + j, first + k))
+            second, third = (i, i + 1) if turn > 0 else (i + 1, i)
+            mesh.indices.extend((first, first + second, first + third))
     return mesh if mesh.indices else None

@@ -264,8 +264,8 @@ class World:
         rgba: tuple[float, ...],
         collide: bool = True,
     ) -> int:
-        """A box that never moves, drawn as the part of it the camera sees (see
-        :meth:`__init__`)."""
+        """A box that never moves, drawn as the part of it the camera sees (``clip_scenery``:
+        see :class:`World`)."""
         c = self.client
         if not self.clip_scenery:
             return self._box(half_extents, centre, rgba, collide)
