@@ -463,15 +463,25 @@ class Node:
         self.session.close()
 
 
+def status_from_reply(reply: zenoh.Reply) -> ServiceStatus | None:
+    """The status in a reply to a status query; None for an error reply. MessageError when
+    the payload is not a valid status."""
+    if reply.ok is None:
+        return None
+    return decode(reply.ok.payload.to_bytes(), ServiceStatus, DEFAULT_MAX_BYTES)
+
+
 def query_status(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -> list[ServiceStatus]:
     """Ask every service under ``keys.prefix`` for its status."""
     out = []
     for reply in session.get(keys.all_status, timeout=timeout_s):
-        if reply.ok is not None:
-            try:
-                out.append(decode(reply.ok.payload.to_bytes(), ServiceStatus, DEFAULT_MAX_BYTES))
-            except MessageError as exc:
-                log.warning("bad status reply: %s", exc)
+        try:
+            status = status_from_reply(reply)
+        except MessageError as exc:
+            log.warning("bad status reply: %s", exc)
+            continue
+        if status is not None:
+            out.append(status)
     return out
 
 

@@ -27,12 +27,11 @@ from pathlib import Path
 
 import zenoh
 
-from common.codec import DEFAULT_MAX_BYTES, MessageError, decode
+from common.codec import MessageError
 from common.config import RestartPolicy, SupervisorConfig
 from common.keys import SERVICES, Keys
-from common.messages import ServiceStatus
 from common.runtime import ENV_SUPERVISOR_PID
-from common.transport import ENV_CONFIG, ENV_CONNECT
+from common.transport import ENV_CONFIG, ENV_CONNECT, status_from_reply
 
 log = logging.getLogger("umay.supervisor")
 
@@ -202,11 +201,11 @@ class Supervisor:
         return events
 
     def _on_status(self, reply: zenoh.Reply) -> None:
-        if reply.ok is None:  # an error reply
-            return
         try:
-            status = decode(reply.ok.payload.to_bytes(), ServiceStatus, DEFAULT_MAX_BYTES)
+            status = status_from_reply(reply)
         except MessageError:  # not a status: the service judges it, not the supervisor
+            return
+        if status is None:  # an error reply
             return
         heard = Heard(status.pid, time.monotonic(), status.loop_busy_s)
         self._heard[(status.service, status.pid)] = heard

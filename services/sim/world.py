@@ -19,7 +19,7 @@ from common import kinematics as kin
 from common.camera import CameraIntrinsics, project
 from common.config import Scenario
 from services.sim.events import SceneState, scene_state
-from services.sim.scenery import view_frustum, visible_box
+from services.sim.scenery import HalfSpace, view_frustum, visible_box
 from services.sim.sensor_model import exposed_rgb, noisy_depth
 from services.sim.urdf import TORSO_CENTRE_M, TORSO_COLOUR, TORSO_SIZE_M, robot_urdf
 
@@ -243,9 +243,14 @@ class World:
         rgba: tuple[float, ...],
         collide: bool,
         orientation: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0),
+        visual: int | None = None,
     ) -> int:
+        """A static box; ``visual``: its visual shape (-1: none), else a box of ``rgba``."""
         c = self.client
-        visual = c.createVisualShape(pybullet.GEOM_BOX, halfExtents=half_extents, rgbaColor=rgba)
+        if visual is None:
+            visual = c.createVisualShape(
+                pybullet.GEOM_BOX, halfExtents=half_extents, rgbaColor=rgba
+            )
         collision = (
             c.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half_extents) if collide else -1
         )
@@ -262,33 +267,24 @@ class World:
         half_extents: tuple[float, float, float],
         centre: FloatArray,
         rgba: tuple[float, ...],
+        frustum: list[HalfSpace] | None,
         collide: bool = True,
     ) -> int:
-        """A box that never moves, drawn as the part of it the camera sees (``clip_scenery``:
-        see :class:`World`)."""
-        c = self.client
-        if not self.clip_scenery:
+        """A box that never moves, drawn as the part of it inside ``frustum`` (None: whole;
+        ``clip_scenery``: see :class:`World`)."""
+        if frustum is None:
             return self._box(half_extents, centre, rgba, collide)
-        frustum = view_frustum(self.camera_pose, self.intrinsics, self.scenario.camera.near_m)
         mesh = visible_box(half_extents, centre, self.camera_pose[:3, 3], frustum)
         visual = -1  # out of view: nothing to draw
         if mesh is not None:
-            visual = c.createVisualShape(
+            visual = self.client.createVisualShape(
                 pybullet.GEOM_MESH,
                 vertices=mesh.vertices,
                 indices=mesh.indices,
                 normals=mesh.normals,
                 rgbaColor=rgba,
             )
-        collision = (
-            c.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half_extents) if collide else -1
-        )
-        return c.createMultiBody(
-            baseMass=0.0,
-            baseCollisionShapeIndex=collision,
-            baseVisualShapeIndex=visual,
-            basePosition=list(centre),
-        )
+        return self._box(half_extents, centre, rgba, collide, visual=visual)
 
     def _build_scene(self) -> None:
         """The object and its marker, then the torso, the table and the floor: nearest first.
@@ -321,12 +317,17 @@ class World:
             False,
             self._target_quat,
         )
-        tx, ty, tz = TORSO_SIZE_M  # visual only, as the robot's own links do not collide
-        self._scenery_box((tx / 2, ty / 2, tz / 2), np.array(TORSO_CENTRE_M), TORSO_COLOUR, False)
-        self._scenery_box(
-            (0.28, 0.02, 0.45), np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0]), TABLE_COLOUR
+        frustum = (
+            view_frustum(self.camera_pose, self.intrinsics, self.scenario.camera.near_m)
+            if self.clip_scenery
+            else None
         )
-        self._scenery_box((1.5, 0.01, 1.5), np.array([0.3, -0.76, 0.0]), FLOOR_COLOUR)
+        tx, ty, tz = TORSO_SIZE_M  # visual only, as the robot's own links do not collide
+        torso = (tx / 2, ty / 2, tz / 2)
+        self._scenery_box(torso, np.array(TORSO_CENTRE_M), TORSO_COLOUR, frustum, collide=False)
+        table = np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0])
+        self._scenery_box((0.28, 0.02, 0.45), table, TABLE_COLOUR, frustum)
+        self._scenery_box((1.5, 0.01, 1.5), np.array([0.3, -0.76, 0.0]), FLOOR_COLOUR, frustum)
 
     def _marker_centre(self) -> FloatArray:
         return self.target_pose[:3, 3] - self.target_pose[:3, 2] * kin.MARKER_THICKNESS_M / 2
