@@ -13,6 +13,7 @@ import pytest
 
 from common.messages import AppliedCommand, Header, SimTiming
 from deploy.bench import (
+    INPROCESS_STAGES,
     LATENCY_STAGES,
     PIPELINE,
     STAGES,
@@ -131,6 +132,11 @@ def test_bench_json_is_complete_and_sane(bench: dict) -> None:
     check_summary(i["per_frame_ms"], FRAMES)
     check_summary(i["per_frame_with_codec_ms"], FRAMES)
     assert i["per_frame_with_codec_ms"]["mean"] >= i["per_frame_ms"]["mean"]
+    # Vision's second, warm call on each frame is timed apart, outside the frame's time.
+    check_summary(i["stages_ms"]["vision_warm"], FRAMES)
+    assert sum(i["stages_ms"][s]["mean"] for s in INPROCESS_STAGES) == pytest.approx(
+        i["per_frame_ms"]["mean"], rel=1e-3, abs=0.01
+    )
     # Same frames, same functions: the in-process loop computes the distributed commands.
     assert i["same_commands_max_abs_diff_rad_s"] is not None
     assert i["same_commands_max_abs_diff_rad_s"] <= 1e-9
