@@ -604,7 +604,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--tolerance",
         type=float,
         default=None,
-        help="default: 1e-12, actuation 1e-9; 0 = bit-identical",
+        help="default: controller 1e-12, vision and actuation 1e-9; 0 = bit-identical",
     )
     p.add_argument("--log-dir", default="out/logs/replay", help="the service's log file")
     p.add_argument("--scenario", default=None, help="instead of the recorded scenario")

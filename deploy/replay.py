@@ -24,10 +24,13 @@ With ``check``, only the frames the service answered in the recording are replay
 never processed, e.g. cut off when the run stopped, cannot be compared and would change its
 state), outputs are matched by ``header.frame_seq`` (the actuation deadman's ``frame_seq`` -1
 commands are ignored on both sides) and compared field by field, ignoring ``header.seq`` and
-``header.send_time_s``. Vision and controller are allowed 1e-12: on the machine that recorded
-they are bit-identical, but on another CPU numpy's BLAS/LAPACK kernels (least squares, pseudo-
-inverses) may differ in the last bit (differences of 1e-17 to 1e-15 were seen), which is not a
-change in behaviour. Actuation is allowed 1e-9. ``--tolerance 0`` asks for bit-identity.
+``header.send_time_s``. On the machine that recorded, the outputs are bit-identical; on
+another CPU numpy's BLAS/LAPACK kernels (least squares, pseudo-inverses) may round the last bit
+differently, which is not a change in behaviour. The controller's and actuation's twists and
+velocities then differ by about 1e-15; vision's corners of a partly hidden target, fitted by
+Gauss-Newton from least-squares steps, by up to 5e-12 px (an AVX-512 CPU replaying a recording
+made on one without). So the controller is allowed 1e-12, vision and actuation 1e-9 (px, m,
+rad/s: far below any change in behaviour). ``--tolerance 0`` asks for bit-identity.
 """
 
 from __future__ import annotations
@@ -69,7 +72,7 @@ class ServiceIO:
 
 
 SERVICE_IO: dict[str, ServiceIO] = {
-    "vision": ServiceIO(("sim/depth", "sim/rgb"), "sim/rgb", "vision/features", 1e-12),
+    "vision": ServiceIO(("sim/depth", "sim/rgb"), "sim/rgb", "vision/features", 1e-9),
     "controller": ServiceIO(
         (JOINT_STATE, "vision/features"), "vision/features", "controller/twist", 1e-12
     ),

@@ -153,11 +153,23 @@ def test_replay_check_fails_on_a_changed_controller_gain_and_names_the_fields(
 def test_reference_recording_replays_to_the_last_bits(service: str, tmp_path: Path) -> None:
     """The regression check for perception and control: if this fails after an intended
     change, regenerate the reference (tests/data/make_reference.py). The reference may have
-    been recorded on another CPU, hence 1e-12 rather than bit-identity."""
+    been recorded on another CPU, hence the default tolerances (vision 1e-9, controller 1e-12)
+    rather than bit-identity."""
     assert REFERENCE.exists() and REFERENCE.stat().st_size < 2_000_000
     proc = replay(REFERENCE, service, tmp_path, "--check")
     assert proc.returncode == 0, f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
-    assert "tolerance 1e-12" in proc.stdout and "result: OK" in proc.stdout
+    tolerance = {"vision": "1e-09", "controller": "1e-12"}[service]
+    assert f"tolerance {tolerance}" in proc.stdout and "result: OK" in proc.stdout
+
+
+def test_reference_check_catches_a_sub_pixel_change_in_vision(tmp_path: Path) -> None:
+    """Vision's 1e-9 still catches a small change: the marker 0.1 mm larger moves the fitted
+    corners of the partly hidden target by hundredths of a pixel."""
+    proc = replay(REFERENCE, "vision", tmp_path, "--check", "--set", "marker.size_m=0.0601")
+    assert proc.returncode == 1, f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
+    assert "result: FAILED" in proc.stdout
+    fields = proc.stdout.split("differing fields", 1)[1].split("first differences", 1)[0]
+    assert "target.corners_px[" in fields and "hand." not in fields
 
 
 def test_replay_and_info_refuse_bad_input_with_exit_2(tmp_path: Path) -> None:
