@@ -28,10 +28,11 @@ import math
 import statistics
 import threading
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from pydantic import BaseModel
 
@@ -266,19 +267,50 @@ def rows_from_json(text: str) -> list[CompareRow]:
     return [CompareRow.model_validate(r) for r in json.loads(text)]
 
 
-def differences(a: Sequence[CompareRow], b: Sequence[CompareRow]) -> list[str]:
-    """What differs between two comparisons, run by run and field by field (exact: lockstep
-    runs repeat bit for bit); the wall time and the scenario file's path are ignored."""
-    key = lambda r: (r.scenario, r.mode)  # noqa: E731
-    left, right = {key(r): r for r in a}, {key(r): r for r in b}
-    out = [f"{s} · {m}: only in the first" for s, m in left.keys() - right.keys()]
-    out += [f"{s} · {m}: only in the second" for s, m in right.keys() - left.keys()]
+def _relative_difference(x: float, y: float) -> float:
+    return abs(x - y) / max(abs(x), abs(y)) if x != y else 0.0
+
+
+def _by_run(rows: Sequence[CompareRow]) -> dict[tuple[str, str], CompareRow]:
+    return {(r.scenario, r.mode): r for r in rows}
+
+
+def _pairs(a: Sequence[CompareRow], b: Sequence[CompareRow]) -> Iterator[tuple[str, Any, Any]]:
+    """(label, value in a, value in b) of every result field of the runs in both."""
+    left, right = _by_run(a), _by_run(b)
     for k in sorted(left.keys() & right.keys()):
         x, y = left[k].model_dump(), right[k].model_dump()
         for field in CSV_COLUMNS:
-            if field not in NOT_RESULTS and x[field] != y[field]:
-                out.append(f"{k[0]} · {k[1]}: {field} {x[field]!r} != {y[field]!r}")
+            if field not in NOT_RESULTS:
+                yield f"{k[0]} · {k[1]}: {field}", x[field], y[field]
+
+
+def differences(
+    a: Sequence[CompareRow], b: Sequence[CompareRow], rel_tol: float = 0.0
+) -> list[str]:
+    """What differs between two comparisons, run by run and field by field: exactly, except
+    that floats within ``rel_tol`` of each other (relative) count as equal (see
+    :data:`deploy.compare_cli.REFERENCE_REL_TOL`); the wall time and the scenario file's path
+    are ignored."""
+    left, right = _by_run(a), _by_run(b)
+    out = [f"{s} · {m}: only in the first" for s, m in left.keys() - right.keys()]
+    out += [f"{s} · {m}: only in the second" for s, m in right.keys() - left.keys()]
+    for label, x, y in _pairs(a, b):
+        close = isinstance(x, float) and isinstance(y, float)
+        if x != y and not (close and _relative_difference(x, y) <= rel_tol):
+            out.append(f"{label} {x!r} != {y!r}")
     return sorted(out)
+
+
+def largest_float_difference(a: Sequence[CompareRow], b: Sequence[CompareRow]) -> tuple[int, float]:
+    """How many float results of the runs in both differ at all, and the largest relative
+    difference among them (0 when every one is the same to the bit)."""
+    changes = [
+        _relative_difference(x, y)
+        for _, x, y in _pairs(a, b)
+        if isinstance(x, float) and isinstance(y, float) and x != y
+    ]
+    return len(changes), max(changes, default=0.0)
 
 
 def same_runs(reference: Sequence[CompareRow], rows: Sequence[CompareRow]) -> list[CompareRow]:

@@ -20,6 +20,7 @@ from deploy.compare import (
     CompareRow,
     best_per_metric,
     differences,
+    largest_float_difference,
     paired_medians,
     parse_modes,
     plan,
@@ -151,6 +152,28 @@ def test_differences_ignore_only_the_wall_time_and_the_file_path() -> None:
     ]
 
 
+def test_differences_allow_floats_a_relative_tolerance_and_nothing_else() -> None:
+    """Another CPU changes the last digits of float results, never counts, flags or reasons."""
+    rows = synthetic_rows()
+    again = list(rows)
+    pixel = rows[2].final_pixel_rms
+    again[2] = rows[2].model_copy(update={"final_pixel_rms": pixel * (1 + 2e-5)})
+    assert largest_float_difference(rows, rows) == (0, 0.0)
+    changed, largest = largest_float_difference(rows, again)
+    assert changed == 1 and largest == pytest.approx(2e-5, rel=1e-3)
+    assert differences(rows, again, rel_tol=1e-4) == []
+    assert differences(rows, again) == [
+        f"a · points3d: final_pixel_rms {pixel!r} != {pixel * (1 + 2e-5)!r}"
+    ]
+    assert len(differences(rows, again, rel_tol=1e-5)) == 1
+    again[1] = again[1].model_copy(update={"frames": 161})  # an int: exact at any tolerance
+    again[3] = again[3].model_copy(update={"final_pixel_rms": 0.2})  # None before: exact too
+    assert differences(rows, again, rel_tol=0.5) == [
+        "a · dynamic: frames 160 != 161",
+        "b · constant: final_pixel_rms None != 0.2",
+    ]
+
+
 def test_parse_modes() -> None:
     assert parse_modes(None) == MODES
     assert parse_modes(["mpj,constant", "mpj"]) == ("mpj", "constant")
@@ -227,6 +250,8 @@ def test_overlay_figure_is_a_png(tmp_path: Path) -> None:
         (["--modes", "dynamic", "warp"], "unknown strategy 'warp'"),
         (["--scenarios", "/nonexistent/suite"], "no such directory"),
         (["--jobs", "0"], "--jobs"),
+        (["--tolerance", "-1e-4"], "--tolerance"),
+        (["--tolerance", "nan"], "--tolerance"),
         (["--set", "controller.gain=-3"], "controller.gain"),
         (["--out", "/proc/no-such-dir/out"], "--out /proc/no-such-dir/out: cannot write"),
     ],
