@@ -197,8 +197,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if changed:
             console.print(
                 f"the same as {args.reference} within relative {args.tolerance:g} (wall time "
-                f"aside): {len(rows)} runs; {changed} float result(s) differ in their last "
-                f"digits, by {largest:.1e} at most (relative)"
+                f"aside): {len(rows)} runs; {changed} float result(s) differ, by {largest:.1e} "
+                "at most (relative)"
             )
         else:
             console.print(f"identical to {args.reference} (wall time aside): {len(rows)} runs")
