@@ -313,6 +313,25 @@ def largest_float_difference(a: Sequence[CompareRow], b: Sequence[CompareRow]) -
     return len(changes), max(changes, default=0.0)
 
 
+def check_against(
+    reference: Sequence[CompareRow], rows: Sequence[CompareRow], name: str, rel_tol: float
+) -> tuple[bool, list[str]]:
+    """Whether ``rows`` match the runs of ``reference`` (a previous comparison, ``name`` in the
+    messages) that they repeat, within ``rel_tol`` for floats (see :func:`differences`), and
+    the lines that say so."""
+    before = same_runs(reference, rows)
+    diffs = differences(before, rows, rel_tol)
+    if diffs:
+        return False, [f"{len(diffs)} difference(s) from {name}:", *("  " + d for d in diffs)]
+    changed, largest = largest_float_difference(before, rows)
+    if not changed:
+        return True, [f"identical to {name} (wall time aside): {len(rows)} runs"]
+    return True, [
+        f"the same as {name} within relative {rel_tol:g} (wall time aside): {len(rows)} runs; "
+        f"{changed} float result(s) differ, by {largest:.1e} at most (relative)"
+    ]
+
+
 def same_runs(reference: Sequence[CompareRow], rows: Sequence[CompareRow]) -> list[CompareRow]:
     """The reference's rows for the (scenario, mode) pairs of ``rows``: a subset of a suite can
     be checked against the whole suite's results."""

@@ -86,16 +86,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
         CompareError,
         CompareRow,
         Job,
-        differences,
+        check_against,
         format_cell,
         job_label,
-        largest_float_difference,
         make_figures,
         parse_modes,
         plan,
         rows_from_json,
         run_all,
-        same_runs,
         write_outputs,
     )
     from deploy.paths import OutputPathError, check_output_dir
@@ -186,20 +184,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     converged = sum(r.converged for r in rows)
     console.print(f"{converged}/{len(rows)} runs converged in {wall_s / 60:.1f} min")
     if reference is not None:
-        before = same_runs(reference, rows)
-        diffs = differences(before, rows, args.tolerance)
-        if diffs:
-            console.print(f"[red]{len(diffs)} difference(s) from {args.reference}[/]:")
-            for d in diffs:
-                console.print("  " + d)
-            return EXIT_FAILED
-        changed, largest = largest_float_difference(before, rows)
-        if changed:
-            console.print(
-                f"the same as {args.reference} within relative {args.tolerance:g} (wall time "
-                f"aside): {len(rows)} runs; {changed} float result(s) differ, by {largest:.1e} "
-                "at most (relative)"
-            )
-        else:
-            console.print(f"identical to {args.reference} (wall time aside): {len(rows)} runs")
+        same, lines = check_against(reference, rows, args.reference, args.tolerance)
+        console.print(lines[0] if same else f"[red]{lines[0]}[/]", *lines[1:], sep="\n")
+        return EXIT_OK if same else EXIT_FAILED
     return EXIT_OK

@@ -19,6 +19,7 @@ from deploy.compare import (
     CompareError,
     CompareRow,
     best_per_metric,
+    check_against,
     differences,
     largest_float_difference,
     paired_medians,
@@ -172,6 +173,21 @@ def test_differences_allow_floats_a_relative_tolerance_and_nothing_else() -> Non
         "a · dynamic: frames 160 != 161",
         "b · constant: final_pixel_rms None != 0.2",
     ]
+
+
+def test_check_against_a_reference_says_identical_close_or_what_differs() -> None:
+    rows = synthetic_rows()
+    same, lines = check_against(rows, rows[:3], "old.json", 1e-4)  # a subset of its runs
+    assert same and lines == ["identical to old.json (wall time aside): 3 runs"]
+    close = [rows[0].model_copy(update={"path_ratio": rows[0].path_ratio * (1 + 1e-5)})]
+    same, lines = check_against(rows, close, "old.json", 1e-4)
+    assert same and len(lines) == 1
+    assert (
+        "within relative 0.0001" in lines[0] and "1 float result(s) differ, by 1.0e-05" in lines[0]
+    )
+    same, lines = check_against(rows, close, "old.json", 0.0)
+    assert not same and lines[0] == "1 difference(s) from old.json:"
+    assert lines[1].startswith("  a · constant: path_ratio 1.2 != 1.2000")
 
 
 def test_parse_modes() -> None:
