@@ -267,22 +267,24 @@ def rows_from_json(text: str) -> list[CompareRow]:
     return [CompareRow.model_validate(r) for r in json.loads(text)]
 
 
-def _relative_difference(x: float, y: float) -> float:
-    return abs(x - y) / max(abs(x), abs(y)) if x != y else 0.0
-
-
 def _by_run(rows: Sequence[CompareRow]) -> dict[tuple[str, str], CompareRow]:
     return {(r.scenario, r.mode): r for r in rows}
 
 
-def _pairs(a: Sequence[CompareRow], b: Sequence[CompareRow]) -> Iterator[tuple[str, Any, Any]]:
-    """(label, value in a, value in b) of every result field of the runs in both."""
-    left, right = _by_run(a), _by_run(b)
+def _compared(
+    left: dict[tuple[str, str], CompareRow], right: dict[tuple[str, str], CompareRow]
+) -> Iterator[tuple[str, Any, Any, float | None]]:
+    """(label, value in left, value in right, their relative difference when both are floats,
+    else None) of every result field of the runs in both."""
     for k in sorted(left.keys() & right.keys()):
         x, y = left[k].model_dump(), right[k].model_dump()
         for field in CSV_COLUMNS:
-            if field not in NOT_RESULTS:
-                yield f"{k[0]} · {k[1]}: {field}", x[field], y[field]
+            if field in NOT_RESULTS:
+                continue
+            a, b = x[field], y[field]
+            floats = isinstance(a, float) and isinstance(b, float)
+            relative = (abs(a - b) / max(abs(a), abs(b)) if a != b else 0.0) if floats else None
+            yield f"{k[0]} · {k[1]}: {field}", a, b, relative
 
 
 def differences(
@@ -295,9 +297,8 @@ def differences(
     left, right = _by_run(a), _by_run(b)
     out = [f"{s} · {m}: only in the first" for s, m in left.keys() - right.keys()]
     out += [f"{s} · {m}: only in the second" for s, m in right.keys() - left.keys()]
-    for label, x, y in _pairs(a, b):
-        close = isinstance(x, float) and isinstance(y, float)
-        if x != y and not (close and _relative_difference(x, y) <= rel_tol):
+    for label, x, y, relative in _compared(left, right):
+        if x != y and not (relative is not None and relative <= rel_tol):
             out.append(f"{label} {x!r} != {y!r}")
     return sorted(out)
 
@@ -305,11 +306,7 @@ def differences(
 def largest_float_difference(a: Sequence[CompareRow], b: Sequence[CompareRow]) -> tuple[int, float]:
     """How many float results of the runs in both differ at all, and the largest relative
     difference among them (0 when every one is the same to the bit)."""
-    changes = [
-        _relative_difference(x, y)
-        for _, x, y in _pairs(a, b)
-        if isinstance(x, float) and isinstance(y, float) and x != y
-    ]
+    changes = [r for *_, r in _compared(_by_run(a), _by_run(b)) if r]
     return len(changes), max(changes, default=0.0)
 
 
