@@ -282,9 +282,14 @@ def _compared(
             if field in NOT_RESULTS:
                 continue
             a, b = x[field], y[field]
-            floats = isinstance(a, float) and isinstance(b, float)
-            relative = (abs(a - b) / max(abs(a), abs(b)) if a != b else 0.0) if floats else None
-            yield f"{k[0]} · {k[1]}: {field}", a, b, relative
+            yield f"{k[0]} · {k[1]}: {field}", a, b, _relative_difference(a, b)
+
+
+def _relative_difference(a: Any, b: Any) -> float | None:
+    """``|a - b|`` over the larger magnitude when both are floats (0 when equal), else None."""
+    if not (isinstance(a, float) and isinstance(b, float)):
+        return None
+    return 0.0 if a == b else abs(a - b) / max(abs(a), abs(b))
 
 
 def differences(
