@@ -318,8 +318,15 @@ class OutputCapture:
 
 
 def _wait_alive(
-    session: zenoh.Session, keys: Keys, service: str, sup: Supervisor, timeout_s: float
+    session: zenoh.Session,
+    keys: Keys,
+    service: str,
+    sup: Supervisor,
+    timeout_s: float,
+    publishers: list[zenoh.Publisher],
 ) -> None:
+    """Until ``service`` is alive and its subscriptions have reached every one of
+    ``publishers`` (Zenoh's matching status): a message put before that would be lost."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         dead = sup.exited()
@@ -327,10 +334,14 @@ def _wait_alive(
             code = dead[0].exit_codes[-1]
             raise ReplayFailed(f"{service} exited (code {code}); see {dead[0].log_path}")
         if service in alive_services(session, keys, 0.5):
-            time.sleep(0.2)  # let its subscriptions reach this session too
-            return
+            break
         time.sleep(0.05)
-    raise ReplayFailed(f"{service} did not come up within {timeout_s:.0f} s")
+    else:
+        raise ReplayFailed(f"{service} did not come up within {timeout_s:.0f} s")
+    while not all(p.matching_status.matching for p in publishers):
+        if time.monotonic() > deadline:
+            raise ReplayFailed(f"{service} did not subscribe within {timeout_s:.0f} s")
+        time.sleep(0.02)
 
 
 def replay_service(
@@ -478,7 +489,7 @@ def _run(
     published = no_answer = frames = 0
     try:
         sup.start()
-        _wait_alive(session, keys, service, sup, startup_timeout_s)
+        _wait_alive(session, keys, service, sup, startup_timeout_s, list(publishers.values()))
         if speed is None:
             for step in lockstep_steps(inputs, io):
                 seq = step[-1].frame_seq
