@@ -93,6 +93,14 @@ class Keys:
     def status(self, service: str) -> str:
         return f"{self.prefix}/{service}/status"
 
+    def stamps(self, service: str) -> str:
+        """Queryable: the header stamps of what ``service`` published last (``umay bench``)."""
+        return f"{self.prefix}/{service}/stamps"
+
+    def relative(self, key: str) -> str:
+        """``key`` without the prefix (``vision/features``)."""
+        return key.removeprefix(f"{self.prefix}/")
+
     def alive(self, service: str) -> str:
         return f"{self.prefix}/alive/{service}"
 

@@ -271,6 +271,9 @@ class AppliedCommand(Message):
     send_time_s: float = Field(ge=0.0, le=1e11, description="the command's header.send_time_s")
     recv_time_s: float = Field(ge=0.0, le=1e11, description="wall clock, Unix s")
     applied_time_s: float = Field(ge=0.0, le=1e11, description="wall clock, Unix s")
+    velocity_rad_s: JointRates | None = Field(
+        None, description="the command's joint velocities, before the motors' own limit"
+    )
 
 
 class SimTiming(Message):
@@ -289,6 +292,21 @@ class SimTiming(Message):
     dropped_frames: int = Field(0, ge=0, description="camera ticks missed so far (realtime)")
     resends: int = Field(0, ge=0, description="lockstep re-publications so far")
     applied: Annotated[list[AppliedCommand], Field(max_length=64)] = []
+
+
+# One published message's stamps: (header.frame_seq, header.recv_time_s, header.send_time_s).
+Stamp = tuple[int, float, float]
+
+
+class PublishedStamps(Message):
+    """Answer of ``<prefix>/<service>/stamps``: the header stamps of the last messages the
+    service published, per key (relative to the prefix), oldest first. ``umay bench`` asks for
+    them after a run to split each frame into stages, instead of subscribing to every hop while
+    the loop runs (an extra subscriber is one more send on each publisher's path and one more
+    process woken per message)."""
+
+    service: str
+    stamps: dict[str, list[Stamp]] = {}
 
 
 class TopicStats(Message):

@@ -32,7 +32,7 @@ from common.codec import (
     image_field,
 )
 from common.keys import Keys
-from common.messages import Header, ServiceStatus
+from common.messages import Header, PublishedStamps, ServiceStatus, Stamp
 from common.metrics import DurationMeter, TopicMeter
 
 M = TypeVar("M", bound=BaseModel)
@@ -221,12 +221,18 @@ def shm_enabled() -> bool:
     return os.environ.get(ENV_SHM, "").strip() != "0"
 
 
+STAMPS_KEPT = 4096  # per key: about 2 min of a 30 Hz stream
+STAMPS_MAX_BYTES = 1 << 20  # a stamps reply: the sim has 5 keys × 4096 stamps × ≤ 24 bytes
+
+
 @dataclass
 class TypedPublisher(Generic[M]):
     key: str
     publisher: Any
     meter: TopicMeter = field(default_factory=TopicMeter)
     frames: ShmFrameWriter | None = None  # camera frames through a pool of their own
+    # The header stamps of the last messages put, for the service's stamps queryable.
+    stamps: deque[Stamp] = field(default_factory=lambda: deque(maxlen=STAMPS_KEPT))
 
     def put(self, message: M) -> None:
         if self.frames is not None and image_field(type(message)) is not None:
@@ -234,6 +240,9 @@ class TypedPublisher(Generic[M]):
         else:
             self.publisher.put(encode(message))
         self.meter.tick()
+        header = getattr(message, "header", None)
+        if isinstance(header, Header):
+            self.stamps.append((header.frame_seq, header.recv_time_s, header.send_time_s))
 
 
 def typed_publisher(
@@ -287,6 +296,9 @@ class Node:
         self._loop_left_s: float | None = None
         self._loop_waiting = False
         self._queryable = session.declare_queryable(keys.status(service), self._answer_status)
+        self._stamps_queryable = session.declare_queryable(
+            keys.stamps(service), self._answer_stamps
+        )
         self._token: Any = None
 
     def ready(self) -> None:
@@ -422,6 +434,18 @@ class Node:
         except Exception:  # a status reply must never take the service down
             log.exception("%s: status reply failed", self.service)
 
+    def published_stamps(self) -> PublishedStamps:
+        return PublishedStamps(
+            service=self.service,
+            stamps={self.keys.relative(k): list(p.stamps) for k, p in self._publishers.items()},
+        )
+
+    def _answer_stamps(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(self.keys.stamps(self.service), encode(self.published_stamps()))
+        except Exception:  # as for status: a diagnostic must never take the service down
+            log.exception("%s: stamps reply failed", self.service)
+
     def spin(
         self,
         stop: threading.Event,
@@ -458,6 +482,7 @@ class Node:
         for s in self._subscribers:
             s.undeclare()
         self._queryable.undeclare()
+        self._stamps_queryable.undeclare()
         if self._token is not None:
             self._token.undeclare()
         self.session.close()
@@ -483,6 +508,16 @@ def query_status(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -> 
         if status is not None:
             out.append(status)
     return out
+
+
+def query_stamps(
+    session: zenoh.Session, keys: Keys, service: str, timeout_s: float = 2.0
+) -> PublishedStamps | None:
+    """``service``'s :class:`PublishedStamps`, or None when it does not answer in time."""
+    for reply in session.get(keys.stamps(service), timeout=timeout_s):
+        if reply.ok is not None:
+            return decode(reply.ok.payload.to_bytes(), PublishedStamps, STAMPS_MAX_BYTES)
+    return None
 
 
 def setup_logging(service: str) -> None:

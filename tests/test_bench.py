@@ -11,13 +11,14 @@ from pathlib import Path
 
 import pytest
 
-from common.messages import AppliedCommand, Header, SimTiming
+from common.messages import AppliedCommand, Header, PublishedStamps, SimTiming
 from deploy.bench import (
     INPROCESS_STAGES,
     LATENCY_STAGES,
     PIPELINE,
     STAGES,
     SYNTHETIC_STAGES,
+    HopStamp,
     Trace,
     analyse_trace,
     median_of_runs,
@@ -57,9 +58,9 @@ def test_stages_add_up_to_the_latency_and_missing_answers_count_as_drops() -> No
             trace.applied[a.frame_seq] = a
         if k == 2:
             continue  # vision never answered frame 2
-        trace.features[k] = header(k, t0 + 0.110, t0 + 0.102)
-        trace.twists[k] = header(k, t0 + 0.115, t0 + 0.111)
-        trace.commands[k] = header(k, t0 + 0.120, t0 + 0.116)
+        trace.features[k] = HopStamp(recv_time_s=t0 + 0.102, send_time_s=t0 + 0.110)
+        trace.twists[k] = HopStamp(recv_time_s=t0 + 0.111, send_time_s=t0 + 0.115)
+        trace.commands[k] = HopStamp(recv_time_s=t0 + 0.116, send_time_s=t0 + 0.120)
     r = analyse_trace(trace, [0, 1, 2])
     assert r["frames"] == 3 and r["frames_complete"] == 2
     assert r["dropped"]["vision"] == 1
@@ -69,9 +70,62 @@ def test_stages_add_up_to_the_latency_and_missing_answers_count_as_drops() -> No
     assert r["latency_ms"]["p50"] == pytest.approx(22.0)
     assert [row["frame_seq"] for row in r["frames_ms"]] == [0, 1]  # the complete ones
     assert all(row["latency_ms"] == pytest.approx(22.0) for row in r["frames_ms"])
+    assert r["frames_over_goal"] == 2  # both complete frames took 22 ms, over 10
     assert all(row["vision"] == pytest.approx(8.0) for row in r["frames_ms"])
     total = sum(r["stages_ms"][s]["mean"] for s in LATENCY_STAGES)
     assert total == pytest.approx(r["latency_ms"]["mean"], abs=1e-3)
+
+
+def test_the_services_stamps_fill_the_hops_first_message_per_frame() -> None:
+    """A service's stamps go to the hop of their key; a frame's first message counts (a lockstep
+    resend answers the same frame again), and stamps of no frame (-1) or of other keys none."""
+    trace = Trace()
+    trace.add_stamps(
+        PublishedStamps(
+            service="vision",
+            stamps={
+                "vision/features": [(3, 1.0, 1.5), (3, 2.0, 2.5), (-1, 3.0, 3.5), (4, 4.0, 4.5)]
+            },
+        )
+    )
+    trace.add_stamps(PublishedStamps(service="sim", stamps={"sim/rgb": [(5, 0.0, 1.0)]}))
+    trace.add_stamps(
+        PublishedStamps(
+            service="actuation",
+            stamps={"actuation/joint_command": [(3, 7.0, 7.5)]},
+        )
+    )
+    assert trace.features == {3: HopStamp(1.0, 1.5), 4: HopStamp(4.0, 4.5)}
+    assert trace.commands == {3: HopStamp(7.0, 7.5)} and trace.twists == {}
+
+
+def test_the_applied_commands_velocities_come_with_the_sims_timing() -> None:
+    """The commands the bench compares with the in-process ones are those the sim applied."""
+    from common.codec import encode
+
+    class Sample:
+        def __init__(self, message) -> None:
+            self.payload = type("Payload", (), {"to_bytes": lambda _: encode(message)})()
+
+    applied = [
+        AppliedCommand(
+            frame_seq=k, send_time_s=1.0, recv_time_s=1.1, applied_time_s=1.2, velocity_rad_s=v
+        )
+        for k, v in ((6, [0.1] * 6), (-1, [0.0] * 6), (7, None))
+    ]
+    trace = Trace()
+    timing = SimTiming(
+        header=header(8, 1.3),
+        render_start_s=1.0,
+        capture_time_s=1.1,
+        frame_send_time_s=1.2,
+        with_depth=True,
+        applied=applied,
+    )
+    trace.on_timing(Sample(timing))
+    assert set(trace.applied) == {6, 7} and trace.velocities == {6: [0.1] * 6}
+    trace.on_timing(type("Bad", (), {"payload": type("P", (), {"to_bytes": lambda _: b"x"})()}))
+    assert trace.rejected == 1
 
 
 def check_summary(s: dict, n: int | None = None) -> None:
@@ -115,6 +169,7 @@ def test_bench_json_is_complete_and_sane(bench: dict) -> None:
     for stage in STAGES:
         check_summary(d["stages_ms"][stage], FRAMES)
     check_summary(d["latency_ms"], FRAMES)
+    assert 0 <= d["frames_over_goal"] <= FRAMES
     # The stages after the render add up to the latency, frame by frame, hence in the mean.
     total = sum(d["stages_ms"][s]["mean"] for s in LATENCY_STAGES)
     assert total == pytest.approx(d["latency_ms"]["mean"], rel=1e-3, abs=0.01)
@@ -196,7 +251,11 @@ def test_the_figure_stacks_the_stages_and_shows_the_baseline_only_in_lockstep(cl
 
 def test_medians_of_runs_leave_the_frame_rows_to_each_run() -> None:
     run = {
-        "distributed": {"latency_ms": {"p50": 10.0}, "dropped": {"vision": 0}, "frames_ms": [{}]},
+        "distributed": {
+            "latency_ms": {"p50": 10.0},
+            "dropped": {"vision": 0},
+            "frames_ms": [{"latency_ms": 9.0}, {"latency_ms": 11.0}],
+        },
         "inprocess": {"per_frame_ms": {"p50": 8.0}, "frames_ms": [{}]},
     }
     other = {
@@ -204,6 +263,7 @@ def test_medians_of_runs_leave_the_frame_rows_to_each_run() -> None:
             **run["distributed"],
             "latency_ms": {"p50": 14.0},
             "dropped": {"vision": 2},
+            "frames_ms": [{"latency_ms": 12.0}, {"latency_ms": 14.0}, {"latency_ms": 7.0}],
         },
         "inprocess": {**run["inprocess"], "per_frame_ms": {"p50": 6.0}},
     }
@@ -214,6 +274,11 @@ def test_medians_of_runs_leave_the_frame_rows_to_each_run() -> None:
     )
     assert "frames_ms" not in m["distributed"] and "frames_ms" not in m["inprocess"]
     assert m["dropped_max"]["distributed"]["vision"] == 2 and m["runs"] == 2
+    # The tail over every frame of the runs, not a median of each run's.
+    pooled = m["distributed"]["pooled"]
+    assert pooled["latency_ms"]["n"] == 5 and pooled["latency_ms"]["max"] == pytest.approx(14.0)
+    assert pooled["latency_ms"]["p50"] == pytest.approx(11.0)
+    assert pooled["frames_over_goal"] == 3  # 11, 12 and 14 ms
 
 
 def test_bench_refuses_bad_options_with_exit_2(tmp_path: Path) -> None:

@@ -200,6 +200,7 @@ class SimService:
                 send_time_s=command.header.send_time_s,
                 recv_time_s=recv_time_s,
                 applied_time_s=time.time(),
+                velocity_rad_s=command.velocity_rad_s,
             )
         )
 

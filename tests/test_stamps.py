@@ -1,0 +1,45 @@
+"""Every service keeps the header stamps of what it published and answers for them over Zenoh
+(``<prefix>/<service>/stamps``), so a benchmark can split the loop into stages after a run
+without listening to every hop while it runs."""
+
+from __future__ import annotations
+
+import uuid
+
+from common.keys import Keys
+from common.messages import Header, JointVelocityCommand, ServiceStatus
+from common.transport import STAMPS_KEPT, Node, free_tcp_endpoint, open_session, query_stamps
+
+
+def command(frame_seq: int, send_s: float, recv_s: float) -> JointVelocityCommand:
+    header = Header(
+        seq=0, sim_time_s=0.0, send_time_s=send_s, frame_seq=frame_seq, recv_time_s=recv_s
+    )
+    return JointVelocityCommand(header=header, velocity_rad_s=[0.0] * 6)
+
+
+def test_a_service_answers_for_the_stamps_of_what_it_published_last() -> None:
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    service_session = open_session(connect=[], listen=[endpoint])
+    node = Node("actuation", keys, service_session)
+    pub = node.publisher(keys.joint_command)
+    status = node.publisher(keys.status("actuation"))  # a message without a header
+    tool = open_session(connect=[endpoint])
+    try:
+        for k in range(STAMPS_KEPT + 3):
+            pub.put(command(k - 1, 100.0 + k, 99.5 + k))  # the first answers no frame (-1)
+        status.put(ServiceStatus(service="actuation", pid=1, host="h", uptime_s=1, state="running"))
+        stamps = query_stamps(tool, keys, "actuation", timeout_s=5.0)
+        assert stamps is not None and stamps.service == "actuation"
+        assert set(stamps.stamps) == {"actuation/joint_command", "actuation/status"}
+        assert stamps.stamps["actuation/status"] == []
+        kept = stamps.stamps["actuation/joint_command"]
+        assert len(kept) == STAMPS_KEPT  # the newest, oldest first
+        # (frame_seq, recv_time_s, send_time_s) of each
+        last = STAMPS_KEPT + 2
+        assert kept[0] == (2, 102.5, 103.0) and kept[-1] == (last - 1, 99.5 + last, 100.0 + last)
+        assert query_stamps(tool, keys, "vision", timeout_s=0.5) is None  # nobody answers
+    finally:
+        tool.close()
+        node.close()
