@@ -7,10 +7,12 @@ import json
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
+from common.codec import encode
 from common.messages import AppliedCommand, Header, PublishedStamps, SimTiming
 from deploy.bench import (
     INPROCESS_STAGES,
@@ -101,11 +103,17 @@ def test_the_services_stamps_fill_the_hops_first_message_per_frame() -> None:
 
 def test_the_applied_commands_velocities_come_with_the_sims_timing() -> None:
     """The commands the bench compares with the in-process ones are those the sim applied."""
-    from common.codec import encode
 
-    class Sample:
-        def __init__(self, message) -> None:
-            self.payload = type("Payload", (), {"to_bytes": lambda _: encode(message)})()
+    @dataclass
+    class Payload:
+        data: bytes
+
+        def to_bytes(self) -> bytes:
+            return self.data
+
+    @dataclass
+    class Sample:  # what Trace.on_timing reads of a zenoh.Sample
+        payload: Payload
 
     applied = [
         AppliedCommand(
@@ -122,9 +130,9 @@ def test_the_applied_commands_velocities_come_with_the_sims_timing() -> None:
         with_depth=True,
         applied=applied,
     )
-    trace.on_timing(Sample(timing))
+    trace.on_timing(Sample(Payload(encode(timing))))
     assert set(trace.applied) == {6, 7} and trace.velocities == {6: [0.1] * 6}
-    trace.on_timing(type("Bad", (), {"payload": type("P", (), {"to_bytes": lambda _: b"x"})()}))
+    trace.on_timing(Sample(Payload(b"x")))  # not a message
     assert trace.rejected == 1
 
 
