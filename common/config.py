@@ -236,6 +236,30 @@ class ControllerConfig(_Strict):
         description="estimate the target's velocity from its recent views, feed it forward, "
         "and carry a hidden target along it",
     )
+    acquire: bool = Field(
+        True,
+        description="when the target cannot be used because something (the hand) is in front "
+        "of it, move the hand's image away to uncover it (services/controller/acquisition.py)",
+    )
+    acquire_after_s: float = Field(
+        0.5, ge=0.0, le=60.0, description="hold this long (sim s) before acquiring"
+    )
+    acquire_attempts: int = Field(
+        4, ge=1, le=20, description="image directions tried before acquisition fails"
+    )
+    acquire_attempt_s: float = Field(
+        4.0, gt=0.0, le=60.0, description="sim s one attempt may take at most"
+    )
+    acquire_max_linear_m_s: float = Field(
+        0.06, gt=0.0, le=0.5, description="twist clamp while acquiring, linear (m/s)"
+    )
+    stuck_after_s: float = Field(
+        4.0,
+        gt=0.0,
+        le=3600.0,
+        description="a hold this long (sim s) is reported as stuck: umay run ends with it, "
+        "umay status shows what it waits for",
+    )
 
 
 class ActuationConfig(_Strict):

@@ -19,7 +19,8 @@ class RunResult(BaseModel):
     mode: str
     clock: str
     converged: bool
-    reason: str  # converged / timeout / error
+    # converged / timeout / stuck / acquisition_failed / error (detail says which and why)
+    reason: str
     frames: int
     sim_time_s: float
     wall_time_s: float
@@ -135,6 +136,8 @@ def summarize(
     """Result at ``last_frame`` (the frame whose twist decided the outcome). Errors compare the
     green marker with its goal: the red marker raised by ``approach_height_m``. ``period_s``:
     the camera period; ``moving``: (start, end) sim times of the target's moves."""
+    if reason != "converged" and not detail:
+        raise ValueError(f"a {reason!r} result needs a detail saying why it did not converge")
     truth = truths.get(last_frame) if last_frame is not None else None
     twist = twists.get(last_frame) if last_frame is not None else None
     hand = pose(truth.hand_marker_pose) if truth else None

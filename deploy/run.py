@@ -28,6 +28,7 @@ from common.transport import DEFAULT_ENDPOINT, free_tcp_endpoint, open_session
 from deploy.evaluate import RunResult, pose, summarize
 from deploy.reachability import check_scenario
 from deploy.supervisor import Supervisor
+from services.controller.ibvs import ACQUIRING, ACQUISITION_FAILED
 
 M = TypeVar("M", bound=BaseModel)
 log = logging.getLogger("umay.run")
@@ -64,7 +65,13 @@ class RunMonitor:
     timeout_frame: int | None = None
     timeout_s: float = 30.0
     not_before_s: float = 0.0  # convergence counts once the scenario's events are over
+    stuck_after_s: float = 4.0  # a hold this long (sim s) ends the run: stuck
     rejected: int = 0
+    hold_since_s: float | None = None  # sim time the current run of holding twists began
+    hold_reason: str = ""  # of the latest holding twist
+    ended: str = ""  # why the run ended before converging or timing out: stuck, ...
+    ended_detail: str = ""
+    ended_frame: int | None = None
 
     def _decode(self, sample, model: type[M]) -> M | None:
         try:
@@ -88,15 +95,51 @@ class RunMonitor:
         self.twists[seq] = tw
         if self.decided.is_set():
             return
-        if tw.converged and tw.header.sim_time_s >= self.not_before_s:
+        t = tw.header.sim_time_s
+        if tw.valid:
+            self.hold_since_s = None
+        else:
+            self.hold_since_s = t if self.hold_since_s is None else self.hold_since_s
+            self.hold_reason = tw.hold_reason
+        if tw.converged and t >= self.not_before_s:
             self.converged_frame = seq
             self.decided.set()
         elif tw.header.sim_time_s >= self.timeout_s:
             self.timeout_frame = seq
             self.decided.set()
+        elif not tw.valid and tw.hold_reason.startswith(ACQUISITION_FAILED):
+            self.end("acquisition_failed", f"{tw.hold_reason} (held at {t:.2f} s)", seq)
+        elif self.hold_since_s is not None and t - self.hold_since_s >= self.stuck_after_s:
+            self.end("stuck", stuck_detail(self.hold_reason, self.hold_since_s, t), seq)
+
+    def end(self, reason: str, detail: str, frame: int) -> None:
+        self.ended, self.ended_detail, self.ended_frame = reason, detail, frame
+        self.decided.set()
 
     def latest(self) -> EndEffectorTwist | None:
         return self.twists[max(self.twists)] if self.twists else None
+
+
+def stuck_detail(hold_reason: str, since_s: float, now_s: float) -> str:
+    """What a stuck run waited for and since when (sim time)."""
+    return (
+        f"held {now_s - since_s:.2f} s waiting for the {hold_reason or 'features'} to change "
+        f"(holding since sim time {since_s:.2f} s)"
+    )
+
+
+def timeout_detail(monitor: RunMonitor, timeout_s: float) -> str:
+    """Why a run that timed out had not converged, from the controller's last output."""
+    tw = monitor.latest()
+    if tw is None:
+        return f"no controller output within {timeout_s:g} s simulated"
+    if not tw.valid:
+        return f"{timeout_s:g} s simulated; last holding: {tw.hold_reason}"
+    phase = tw.hold_reason or "servoing"
+    return (
+        f"{timeout_s:g} s simulated; still {phase}, image error {tw.error_px_rms:.3f} px "
+        "above the convergence threshold"
+    )
 
 
 def run_once(
@@ -119,7 +162,11 @@ def run_once(
     """
     endpoint = listen or default_listen_endpoint()
     keys = Keys(prefix)
-    monitor = RunMonitor(timeout_s=scenario.run.timeout_s, not_before_s=scenario.events_end_s)
+    monitor = RunMonitor(
+        timeout_s=scenario.run.timeout_s,
+        not_before_s=scenario.events_end_s,
+        stuck_after_s=scenario.controller.stuck_after_s,
+    )
     session = open_session(connect=[], listen=[endpoint])
     recorder = None
     if record is not None:
@@ -147,7 +194,12 @@ def run_once(
         sup.start()
         while True:
             if monitor.decided.wait(0.2):
-                reason = "converged" if monitor.converged_frame is not None else "timeout"
+                if monitor.converged_frame is not None:
+                    reason = "converged"
+                elif monitor.ended:
+                    reason, detail = monitor.ended, monitor.ended_detail
+                else:
+                    reason, detail = "timeout", timeout_detail(monitor, scenario.run.timeout_s)
                 break
             if stop is not None and stop.is_set():
                 detail = "interrupted"
@@ -180,6 +232,8 @@ def run_once(
         last = monitor.converged_frame
     elif reason == "timeout" and monitor.timeout_frame is not None:
         last = monitor.timeout_frame
+    elif monitor.ended and reason == monitor.ended:
+        last = monitor.ended_frame
     else:
         last = max(monitor.twists) if monitor.twists else None
     if last is not None and last not in monitor.truths:
@@ -215,11 +269,20 @@ def progress_line(monitor: RunMonitor, scenario: Scenario, elapsed_s: float) -> 
         )
         gap = np.linalg.norm(pose(truth.hand_marker_pose)[:3, 3] - goal[:3, 3])
         distance = f"{1000 * gap:6.1f} mm"
-    state = "converged" if tw.converged else ("holding" if not tw.valid else "servoing")
+    state = twist_phase(tw)
     return Text(
         f"frame {seq:5d}  {tw.mode:8s}  error {tw.error_px_rms:8.3f} px  "
         f"to goal {distance}  {(seq + 1) / max(elapsed_s, 1e-9):5.1f} frames/s  {state}"
     )
+
+
+def twist_phase(tw: EndEffectorTwist) -> str:
+    """``converged``, ``servoing``, ``acquiring: ...`` or ``holding: why``."""
+    if tw.converged:
+        return "converged"
+    if not tw.valid:
+        return f"holding: {tw.hold_reason}"
+    return tw.hold_reason if tw.hold_reason.startswith(ACQUIRING) else "servoing"
 
 
 def result_table(result: RunResult) -> Table:

@@ -28,6 +28,7 @@ from common.config import ControllerConfig, JacobianMode
 from common.kinematics import cross, skew
 from common.messages import is_usable
 from common.motion import MarkerMotion
+from services.controller import acquisition as acq
 
 FloatArray = NDArray[np.float64]
 
@@ -220,7 +221,28 @@ class ControlOutput:
     error_px_rms: float
     converged: bool
     target_remembered: bool = False  # s* from memory: the hand hides the target
-    hold_reason: str = ""  # why the twist is zero, when not valid
+    # Why the twist is zero, when not valid; while acquiring (valid), what the motion is for
+    # (``acquiring: ...``): the wire format's ``hold_reason`` carries both.
+    hold_reason: str = ""
+    phase: str = "servoing"  # servoing / acquiring / holding
+    hold_since_s: float | None = None  # sim time the current hold began
+
+    @property
+    def status(self) -> str:
+        """``servoing``, ``acquiring: why, attempt i/n`` or ``holding: why``."""
+        if self.phase == "holding":
+            return f"holding: {self.hold_reason}"
+        return self.hold_reason if self.phase == "acquiring" else self.phase
+
+
+ACQUIRING = "acquiring"
+ACQUISITION_FAILED = "acquisition failed"
+
+
+def may_be_behind_the_hand(target: MarkerObservation) -> bool:
+    """Seen partly, or with something in front: what moving the hand away can uncover (a
+    target simply gone, with nothing in front of it, cannot be)."""
+    return target.state == "partial" or target.occluded
 
 
 def rolled(observation: MarkerObservation, shift: int) -> MarkerObservation:
@@ -303,6 +325,11 @@ class IbvsController:
     motion: MarkerMotion = field(default_factory=MarkerMotion)  # the target's
     # The hidden target is where its motion predicts, unconfirmed since: not a goal to stop on.
     predicted: bool = False
+    hold_since_s: float | None = None  # sim time the current hold began
+    acquisition: acq.Acquisition | None = None
+    acquisitions: int = 0  # attempts made since the last convergence
+    acquisition_failed: str = ""  # what acquisition could not uncover (then it holds)
+    frames_on_prediction: int = 0  # frames the hand has sat on an unconfirmed prediction
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
 
     def step(
@@ -312,10 +339,13 @@ class IbvsController:
         k: CameraIntrinsics,
         p_ee_base_m: FloatArray,
         t_s: float = 0.0,
+        elbow_base_m: FloatArray | None = None,
     ) -> ControlOutput:
         """One control step on the markers seen in the camera frame taken at sim time ``t_s``
-        with the end effector (encoders, forward kinematics) at ``p_ee_base_m``."""
+        with the end effector (encoders, forward kinematics) at ``p_ee_base_m`` and the elbow
+        at ``elbow_base_m`` (for acquisition's directions; None: image directions alone)."""
         remembered = False
+        seen = target
         if target.usable:
             self.last_target = target
             self.motion = self.motion.seen(t_s, target.points_m)
@@ -326,11 +356,33 @@ class IbvsController:
             if hand_hides_target(hand, expected):
                 target, remembered = expected, True
                 self.predicted = self.predicted or bool(np.any(shift))
+        if self.acquisition is not None:
+            if seen.usable or not hand.visible or not self.config.acquire:
+                self.acquisition = None  # uncovered (or the hand lost): back to the rules
+            else:
+                return self._acquire(hand, k, p_ee_base_m, t_s)
         if not (hand.visible and target.usable):
             self.frames_below = 0
+            self.frames_on_prediction = 0
             which = "hand" if not hand.visible else "target"
             state = hand.state if not hand.visible else target.state
-            return ControlOutput(self._zero.copy(), False, 0.0, False, False, f"{which} {state}")
+            if self.hold_since_s is None:
+                self.hold_since_s = t_s
+            reason = f"{which} {state}"
+            if hand.visible and may_be_behind_the_hand(seen) and self.config.acquire:
+                if self.acquisition_failed:
+                    reason = self.acquisition_failed
+                elif t_s - self.hold_since_s >= self.config.acquire_after_s:
+                    started = self._start_acquisition(
+                        reason, hand, k, p_ee_base_m, t_s, elbow_base_m
+                    )
+                    if started is not None:
+                        return started
+                    reason = self.acquisition_failed
+            return ControlOutput(
+                self._zero.copy(), False, 0.0, False, False, reason, "holding", self.hold_since_s
+            )
+        self.hold_since_s = None
         target = desired_observation(target, self.approach_height_m, k)
         if self.l_constant is None:
             # One depth for all points, taken once at the start: the target's mean depth.
@@ -361,7 +413,88 @@ class IbvsController:
         below = err_px < self.config.converged_px and still and not self.predicted
         self.frames_below = self.frames_below + 1 if below else 0
         converged = self.frames_below >= self.config.converged_frames
+        if converged:
+            self.acquisitions, self.acquisition_failed = 0, ""
+        # On a prediction the hand can sit forever: once it is there and the target is believed
+        # still, uncover it to see whether it is really there.
+        on_prediction = self.predicted and err_px < self.config.converged_px and still
+        self.frames_on_prediction = self.frames_on_prediction + 1 if on_prediction else 0
+        if self.frames_on_prediction >= self.config.converged_frames and self.config.acquire:
+            self.frames_on_prediction = 0
+            why = "predicted target unconfirmed"
+            started = self._start_acquisition(why, hand, k, p_ee_base_m, t_s, elbow_base_m)
+            if started is not None:
+                return started
         return ControlOutput(twist, True, err_px, converged, remembered)
+
+    def _start_acquisition(
+        self,
+        why: str,
+        hand: MarkerObservation,
+        k: CameraIntrinsics,
+        p_ee_base_m: FloatArray,
+        t_s: float,
+        elbow_base_m: FloatArray | None,
+    ) -> ControlOutput | None:
+        """Begin uncovering the target (None, with ``acquisition_failed`` set, when no
+        attempt is left or no image direction is open)."""
+        left = self.config.acquire_attempts - self.acquisitions
+        started = None
+        if left > 0:
+            started = acq.start(why, t_s, hand.corners_px, self._elbow_px(elbow_base_m, k), k)
+        if started is None:
+            self.acquisition_failed = (
+                f"{ACQUISITION_FAILED}: {why} after {self.acquisitions} attempt(s)"
+            )
+            return None
+        self.acquisition = started
+        self.acquisitions += 1
+        self.hold_since_s = None
+        self.frames_below = 0
+        return self._acquire(hand, k, p_ee_base_m, t_s)
+
+    def _elbow_px(self, elbow_base_m: FloatArray | None, k: CameraIntrinsics) -> FloatArray | None:
+        """The elbow's image through the assumed camera pose (None: unknown or behind)."""
+        if elbow_base_m is None:
+            return None
+        rot, origin = self.t_base_cam[:3, :3], self.t_base_cam[:3, 3]
+        p_cam = rot.T @ (np.asarray(elbow_base_m, dtype=float) - origin)
+        if p_cam[2] <= 1e-3:
+            return None
+        return project(p_cam[None, :], k)[0]
+
+    def _acquire(
+        self, hand: MarkerObservation, k: CameraIntrinsics, p_ee_base_m: FloatArray, t_s: float
+    ) -> ControlOutput:
+        """One step of the acquisition under way: its twist, or a hold once it has failed."""
+        assert self.acquisition is not None
+        cfg = self.config
+        before = self.acquisition
+        after = acq.advance(before, hand.corners_px, t_s, cfg.acquire_attempt_s, k)
+        if after is not None and after.attempt != before.attempt:
+            self.acquisitions += 1
+        if after is None or self.acquisitions > cfg.acquire_attempts:
+            self.acquisition = None
+            self.acquisitions = min(self.acquisitions, cfg.acquire_attempts)
+            self.acquisition_failed = (
+                f"{ACQUISITION_FAILED}: {before.why} after {self.acquisitions} attempt(s) "
+                f"from {before.started_s:.2f} s"
+            )
+            self.hold_since_s = t_s
+            return ControlOutput(
+                self._zero.copy(), False, 0.0, False, False, self.acquisition_failed,
+                "holding", t_s,
+            )  # fmt: skip
+        self.acquisition = after
+        twist_cam = acq.acquisition_twist_cam(
+            hand.corners_px, hand.depth_m, after.goal_px, k, cfg.gain
+        )
+        twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
+        twist = clamp_twist(
+            twist, min(cfg.acquire_max_linear_m_s, cfg.max_linear_m_s), cfg.max_angular_rad_s
+        )
+        reason = after.describe(self.acquisitions, cfg.acquire_attempts)
+        return ControlOutput(twist, True, 0.0, False, False, reason, ACQUIRING)
 
     def _image_law(
         self, hand: MarkerObservation, target: MarkerObservation, k: CameraIntrinsics

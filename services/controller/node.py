@@ -15,6 +15,8 @@ from common.runtime import ServiceContext
 from common.transport import Node
 from services.controller.ibvs import IbvsController, MarkerObservation
 
+ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
+
 
 def observation(m: MarkerFeatures) -> MarkerObservation:
     return MarkerObservation(
@@ -44,6 +46,9 @@ class ControllerService:
         self.converged = False
         self.holding = False
         self.hold_reason = ""
+        self.phase = "servoing"  # servoing / acquiring / holding (ControlOutput.phase)
+        self.hold_since_s: float | None = None  # sim time the current hold began
+        self.sim_time_s = 0.0  # of the last frame stepped
         self.target_speed_m_s = 0.0  # estimated; set by the event loop, read by status queries
         self.last_output: EndEffectorTwist | None = None
         self.target_remembered = False
@@ -55,27 +60,49 @@ class ControllerService:
             "converged": self.converged,
             "holding": self.holding,
             "hold_reason": self.hold_reason,
+            "phase": self.phase,
+            # what a hold waits for and since when (sim s): umay status shows a stuck system
+            "hold_since_s": self.hold_since_s,
+            "holding_for_s": (
+                None if self.hold_since_s is None else self.sim_time_s - self.hold_since_s
+            ),
+            "stuck": self.stuck(),
             "target_remembered": self.target_remembered,
             # servoing on where its motion says a hidden target went, not yet seen there
             "target_predicted": self.controller.predicted,
             "target_speed_m_s": self.target_speed_m_s,
         }
 
+    def stuck(self) -> bool:
+        """Held longer than the scenario's ``controller.stuck_after_s`` (sim time)."""
+        if self.hold_since_s is None:
+            return False
+        return self.sim_time_s - self.hold_since_s >= self.controller.config.stuck_after_s
+
     def degraded(self) -> str:
-        return f"holding: {self.hold_reason}" if self.holding else ""
+        if not self.holding:
+            return ""
+        since = self.hold_since_s if self.hold_since_s is not None else self.sim_time_s
+        stuck = "stuck, " if self.stuck() else ""
+        return (
+            f"holding: {self.hold_reason} ({stuck}for {self.sim_time_s - since:.1f} s, "
+            f"since sim time {since:.2f} s)"
+        )
 
     def on_pair(self, features: Features, joints: JointState) -> None:
-        p_ee = kin.forward_kinematics(np.array(joints.position_rad))[:3, 3]
+        frames = kin.frame_transforms(np.array(joints.position_rad))
         out = self.controller.step(
             observation(features.hand),
             observation(features.target),
             features.intrinsics,
-            p_ee,
+            frames[-1][:3, 3],
             features.header.sim_time_s,
+            elbow_base_m=frames[ELBOW_FRAME][:3, 3],
         )
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
-        self.hold_reason = out.hold_reason
+        self.hold_reason, self.phase = out.hold_reason, out.phase
+        self.hold_since_s, self.sim_time_s = out.hold_since_s, features.header.sim_time_s
         self.last_output = EndEffectorTwist(
             header=self.node.header(features.header.sim_time_s, features.header.frame_seq),
             linear_m_s=out.twist_base_ee[:3].tolist(),

@@ -1,0 +1,171 @@
+"""Target acquisition: move the hand out of the camera's line of sight to the target. Pure.
+
+Eye-to-hand, the hand can stand between the fixed camera and the target: vision then sees the
+red square only partly, cannot fit it (its plane is known only once it has been seen whole),
+and there is nothing to servo on. Or the hand sits on a *prediction* of where a hidden,
+moving target went, which no view has confirmed. No motion towards the target can help; a
+motion of the hand's own image away from where it is can.
+
+The law uses only the camera (the hand marker's corners and depths) and the encoders (forward
+kinematics and the assumed camera pose give the elbow's image): it asks the hand marker's four
+image points to slide, unchanged in shape, by a clearance of a few marker diagonals along one
+image direction, through the same interaction-matrix machinery as the servo
+(``(v, ω) = λ · L⁺ · (s − s_goal)``, L at the current points and depths), so the twist goes to
+actuation like any other and meets its whole safety chain (deadman, joint limits, speed and
+acceleration limits). Directions, in order:
+
+1. towards the elbow's image: the hand slides back along its own forearm, so the image area
+   it leaves is not covered by the forearm following it;
+2. and 3. across the forearm, both ways;
+4. away from the elbow.
+
+Each attempt ends when the hand reaches its goal or after ``acquire_attempt_s``; the next one
+starts from wherever the hand is. After ``acquire_attempts`` the acquisition has failed. A goal
+is pulled in so that the hand marker stays inside the image (a margin), and a direction that
+leaves less than half the clearance is skipped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from common.camera import CameraIntrinsics, pixel_to_normalized
+
+FloatArray = NDArray[np.float64]
+
+# How far the hand marker's image slides in one attempt, in its own image diagonals: the hand
+# box (9 × 8 cm) around the 6 cm marker reaches about 0.7 diagonals from the marker's centre,
+# a target of the same size another 0.5 at most; the rest is margin.
+CLEARANCE_DIAGONALS = 1.6
+IMAGE_MARGIN_PX = 10.0  # the hand marker's goal stays this far inside the image
+REACHED_PX = 3.0  # an attempt is over when every corner is this close to its goal
+MIN_SHARE = 0.5  # a direction allowing less than this share of the clearance is skipped
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """One acquisition in progress: why it started (what the target was, e.g. ``target
+    partial``), when (sim s), its attempt (0-based), when that attempt started, the goal of
+    the hand marker's corners (4×2 px) and the image directions left to try (unit, px)."""
+
+    why: str
+    started_s: float
+    attempt: int
+    attempt_started_s: float
+    goal_px: FloatArray
+    directions: tuple[tuple[float, float], ...]
+
+    def describe(self, attempt: int, attempts: int) -> str:
+        """For the status and the twist's reason: ``acquiring: target partial, attempt 1/4``
+        (``attempt`` counted over the run, 1-based)."""
+        return f"acquiring: {self.why}, attempt {attempt}/{attempts}"
+
+
+def uncover_directions(hand_centre_px: FloatArray, elbow_px: FloatArray | None) -> list[FloatArray]:
+    """Unit image directions to try, best first (see the module doc). Without the elbow's
+    image (behind the camera, or too close to the hand), up, left, right, down."""
+    if elbow_px is not None:
+        back = np.asarray(elbow_px, dtype=float) - np.asarray(hand_centre_px, dtype=float)
+        norm = float(np.linalg.norm(back))
+        if norm > 1.0:
+            back = back / norm
+            across = np.array([-back[1], back[0]])
+            return [back, across, -across, -back]
+    return [np.array(d, dtype=float) for d in ((0.0, -1.0), (-1.0, 0.0), (1.0, 0.0), (0.0, 1.0))]
+
+
+def diagonal_px(corners_px: FloatArray) -> float:
+    """Mean length of the square's two image diagonals."""
+    c = np.asarray(corners_px, dtype=float)
+    return 0.5 * float(np.linalg.norm(c[0] - c[2]) + np.linalg.norm(c[1] - c[3]))
+
+
+def goal_corners(
+    corners_px: FloatArray, direction: FloatArray, distance_px: float, k: CameraIntrinsics
+) -> FloatArray | None:
+    """``corners_px`` slid along ``direction`` by ``distance_px``, or less so that every corner
+    stays :data:`IMAGE_MARGIN_PX` inside the image; None when less than :data:`MIN_SHARE` of
+    the distance is left."""
+    c = np.asarray(corners_px, dtype=float)
+    d = np.asarray(direction, dtype=float)
+    low = np.array([IMAGE_MARGIN_PX, IMAGE_MARGIN_PX])
+    high = np.array([k.width_px - 1 - IMAGE_MARGIN_PX, k.height_px - 1 - IMAGE_MARGIN_PX])
+    allowed = distance_px
+    for axis in range(2):
+        if d[axis] > 1e-9:
+            allowed = min(allowed, float(np.min(high[axis] - c[:, axis])) / d[axis])
+        elif d[axis] < -1e-9:
+            allowed = min(allowed, float(np.min(c[:, axis] - low[axis])) / -d[axis])
+    if allowed < MIN_SHARE * distance_px:
+        return None
+    return c + allowed * d
+
+
+def start(
+    why: str,
+    t_s: float,
+    corners_px: FloatArray,
+    elbow_px: FloatArray | None,
+    k: CameraIntrinsics,
+) -> Acquisition | None:
+    """A new acquisition from the hand's corners now, or None when no direction is open."""
+    directions = uncover_directions(np.asarray(corners_px).mean(axis=0), elbow_px)
+    return _next_attempt(why, t_s, t_s, -1, corners_px, [tuple(d) for d in directions], k)
+
+
+def _next_attempt(
+    why: str,
+    started_s: float,
+    t_s: float,
+    attempt: int,
+    corners_px: FloatArray,
+    directions: list[tuple[float, float]],
+    k: CameraIntrinsics,
+) -> Acquisition | None:
+    distance = CLEARANCE_DIAGONALS * diagonal_px(corners_px)
+    while directions:
+        d = directions.pop(0)
+        goal = goal_corners(corners_px, np.array(d), distance, k)
+        if goal is not None:
+            return Acquisition(why, started_s, attempt + 1, t_s, goal, tuple(directions))
+    return None
+
+
+def advance(
+    acq: Acquisition,
+    corners_px: FloatArray,
+    t_s: float,
+    attempt_s: float,
+    k: CameraIntrinsics,
+) -> Acquisition | None:
+    """The acquisition at ``t_s`` with the hand's corners there: the same attempt, the next
+    one when this one reached its goal or ran out of time, or None when no direction is left
+    (it failed). The caller bounds the number of attempts."""
+    reached = bool(np.all(np.linalg.norm(corners_px - acq.goal_px, axis=1) < REACHED_PX))
+    if not reached and t_s - acq.attempt_started_s < attempt_s:
+        return acq
+    return _next_attempt(
+        acq.why, acq.started_s, t_s, acq.attempt, corners_px, list(acq.directions), k
+    )
+
+
+def acquisition_twist_cam(
+    corners_px: FloatArray,
+    depth_m: FloatArray,
+    goal_px: FloatArray,
+    k: CameraIntrinsics,
+    gain: float,
+) -> FloatArray:
+    """The hand twist (camera frame, at the camera origin) that slides the hand marker's image
+    towards ``goal_px``: ``(v, ω) = λ · L⁺ · (s − s_goal)`` on normalized points, with L at the
+    current points and measured depths (the eye-to-hand sign, as in
+    :mod:`services.controller.ibvs`)."""
+    from services.controller.ibvs import interaction_matrix
+
+    s = pixel_to_normalized(np.asarray(corners_px, dtype=float), k)
+    s_goal = pixel_to_normalized(np.asarray(goal_px, dtype=float), k)
+    error = (s - s_goal).reshape(-1)
+    return gain * np.linalg.pinv(interaction_matrix(s, np.asarray(depth_m, dtype=float))) @ error

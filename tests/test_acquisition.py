@@ -1,0 +1,107 @@
+"""Target acquisition: the hand moves its image off a target it hides, then the servo resumes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common.camera import CameraIntrinsics, project
+from common.config import ControllerConfig
+from services.controller import acquisition as acq
+from services.controller.ibvs import ACQUISITION_FAILED, IbvsController, MarkerObservation
+from tests.test_ibvs import moved, not_seen, observe, square_points
+
+K = CameraIntrinsics.from_fov(640, 480, 57.0)
+DT_S = 1 / 30
+
+
+def test_directions_start_back_along_the_forearm_then_across_then_away() -> None:
+    hand, elbow = np.array([300.0, 200.0]), np.array([300.0, 50.0])
+    dirs = acq.uncover_directions(hand, elbow)
+    np.testing.assert_allclose(dirs[0], [0.0, -1.0])  # towards the elbow (up here)
+    assert abs(dirs[1] @ dirs[0]) < 1e-12 and abs(dirs[2] @ dirs[0]) < 1e-12
+    np.testing.assert_allclose(dirs[1], -dirs[2])
+    np.testing.assert_allclose(dirs[3], -dirs[0])
+    assert all(abs(np.linalg.norm(d) - 1.0) < 1e-12 for d in dirs)
+    assert len(acq.uncover_directions(hand, None)) == 4  # no elbow: image directions
+
+
+def test_goal_slides_the_square_and_stays_inside_the_image() -> None:
+    corners = np.array([[300.0, 200.0], [340.0, 200.0], [340.0, 240.0], [300.0, 240.0]])
+    goal = acq.goal_corners(corners, np.array([1.0, 0.0]), 100.0, K)
+    np.testing.assert_allclose(goal - corners, np.tile([100.0, 0.0], (4, 1)))
+    # Towards the top border, 200 px away: only 200 - 10 px margin are allowed.
+    up = acq.goal_corners(corners, np.array([0.0, -1.0]), 250.0, K)
+    assert up is not None and np.isclose(up[:, 1].min(), acq.IMAGE_MARGIN_PX)
+    # Less than half the clearance left: that direction is skipped.
+    assert acq.goal_corners(corners, np.array([0.0, -1.0]), 500.0, K) is None
+
+
+def test_the_law_slides_the_hand_image_to_its_goal_without_turning_it() -> None:
+    """Kinematic loop, the hand's points moved by the commanded twist (eye-to-hand)."""
+    points = square_points(np.array([0.02, 0.03, 0.5]))
+    corners = project(points, K)
+    goal = corners + np.array([-120.0, 40.0])
+    for _ in range(200):
+        obs = observe(points)
+        twist = acq.acquisition_twist_cam(obs.corners_px, obs.depth_m, goal, K, gain=1.0)
+        points = moved(points, twist, DT_S)
+    np.testing.assert_allclose(project(points, K), goal, atol=0.5)
+    assert np.ptp(points[:, 2]) < 1e-3  # still facing the camera as before
+
+
+def start_covering(config: ControllerConfig) -> tuple[IbvsController, MarkerObservation]:
+    hand = observe(square_points(np.array([0.0, 0.05, 0.45])))
+    return IbvsController(config, np.eye(4)), hand
+
+
+def test_hold_then_acquire_then_servo_once_the_target_is_seen() -> None:
+    cfg = ControllerConfig(acquire_after_s=0.5)
+    ctrl, hand = start_covering(cfg)
+    hidden = not_seen("partial", occluded=True)
+    t = 0.0
+    out = ctrl.step(hand, hidden, K, np.zeros(3), t)
+    assert not out.valid and out.phase == "holding" and out.hold_reason == "target partial"
+    for _ in range(16):  # holds 0.5 s, then acquires
+        t += DT_S
+        out = ctrl.step(hand, hidden, K, np.zeros(3), t)
+    assert out.valid and out.phase == "acquiring", out
+    assert out.hold_reason == "acquiring: target partial, attempt 1/4"
+    assert out.status.startswith("acquiring: target partial")
+    assert 0 < np.linalg.norm(out.twist_base_ee[:3]) <= cfg.acquire_max_linear_m_s + 1e-12
+    target = observe(square_points(np.array([0.0, 0.07, 0.55])))
+    out = ctrl.step(hand, target, K, np.zeros(3), t + DT_S)  # uncovered: servo on it
+    assert out.valid and out.phase == "servoing" and out.error_px_rms > 1.0
+    assert ctrl.acquisition is None and ctrl.hold_since_s is None
+
+
+def test_acquisition_is_bounded_and_then_holds_naming_the_failure() -> None:
+    cfg = ControllerConfig(acquire_after_s=0.2, acquire_attempts=2, acquire_attempt_s=1.0)
+    ctrl, hand = start_covering(cfg)  # the hand never moves: no attempt reaches its goal
+    hidden = not_seen("lost", occluded=True)
+    phases = []
+    t = 0.0
+    while t < 5.0:
+        out = ctrl.step(hand, hidden, K, np.zeros(3), t)
+        phases.append(out.phase)
+        t += DT_S
+    assert "acquiring" in phases and phases[-1] == "holding"
+    assert out.hold_reason.startswith(f"{ACQUISITION_FAILED}: target lost after 2 attempt(s)")
+    acquiring_s = DT_S * phases.count("acquiring")
+    assert acquiring_s == pytest.approx(2 * cfg.acquire_attempt_s, abs=2 * DT_S)
+    assert not np.any(out.twist_base_ee) and out.hold_since_s is not None
+
+
+def test_a_target_gone_with_nothing_in_front_is_not_acquired() -> None:
+    ctrl, hand = start_covering(ControllerConfig(acquire_after_s=0.1))
+    for i in range(30):
+        out = ctrl.step(hand, not_seen("lost"), K, np.zeros(3), i * DT_S)
+    assert out.phase == "holding" and out.hold_reason == "target lost"
+    assert out.hold_since_s == 0.0
+
+
+def test_acquisition_can_be_switched_off() -> None:
+    ctrl, hand = start_covering(ControllerConfig(acquire=False))
+    for i in range(60):
+        out = ctrl.step(hand, not_seen("partial", occluded=True), K, np.zeros(3), i * DT_S)
+    assert out.phase == "holding" and out.hold_since_s == 0.0
