@@ -275,12 +275,12 @@ class ActuationConfig(_Strict):
 
 class SimConfig(_Strict):
     physics_hz: float = Field(240.0, ge=30.0, le=2000.0)
-    renderer: Literal["tiny", "egl"] = Field(
-        "tiny",
-        description="tiny: pybullet's TinyRenderer (CPU, deterministic, what the vision "
-        "thresholds and the reference recording were made with); egl: pybullet's EGL plugin "
-        "(headless OpenGL: a GPU, or Mesa's llvmpipe on CPU), faster at 640×480 but shaded "
-        "differently and about 470 MiB resident (see README, Performance)",
+    renderer: Literal["gl", "tiny"] = Field(
+        "gl",
+        description="gl: OpenGL through a headless EGL context (a GPU's driver, else Mesa's "
+        "llvmpipe on the CPU), exact float32 depth; falls back to tiny, saying why, where no "
+        "EGL context can be made. tiny: pybullet's TinyRenderer, the reference it is tested "
+        "against",
     )
     command_watchdog_s: float = Field(
         0.3, gt=0.0, le=5.0, description="realtime: motors stop when commands stop this long"

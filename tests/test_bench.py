@@ -165,7 +165,7 @@ def test_bench_json_is_complete_and_sane(bench: dict) -> None:
     r = bench
     assert r["config"]["width_px"] == 320 and r["config"]["height_px"] == 240
     assert r["config"]["clock"] == "lockstep" and r["config"]["transport"] == "shm"
-    assert r["config"]["renderer"] in ("tiny", "egl") and r["config"]["frames"] == FRAMES
+    assert r["config"]["renderer"] in ("gl", "tiny") and r["config"]["frames"] == FRAMES
     assert len(r["machine"]["load_start"]) == 3 and r["machine"]["cpus"] >= 1
 
     d = r["distributed"]

@@ -1,74 +1,164 @@
-"""``sim.renderer``: TinyRenderer stays the default; the EGL plugin, where it loads, renders the
-same geometry (depth to a fraction of a millimetre, markers found at the same corners)."""
+"""``sim.renderer``: the OpenGL renderer (the default) against the analytic geometry, against
+pybullet's TinyRenderer (the reference) and against pybullet's segmentation; the fallback to
+TinyRenderer where no OpenGL context can be made."""
 
 from __future__ import annotations
+
+import logging
 
 import numpy as np
 import pytest
 
-from common.config import load_scenario
+from common.config import Scenario, load_scenario
 from common.runtime import parse_overrides
+from deploy.accuracy import WHOLE, sample_postures
+from services.sim import world as world_module
+from services.sim.gl_renderer import GlUnavailable, depth_uniforms, pinhole_uniforms
+from services.sim.shapes import box_mesh, cylinder_mesh
 from services.sim.world import (
-    FLOOR_COLOUR,
-    TABLE_COLOUR,
-    RendererError,
+    FLOOR_TOP_Y_M,
+    TABLE_TOP_Y_M,
     World,
     opengl_projection_matrix,
 )
-from services.vision.tracking import DepthImage, TrackerState, observe
+from services.vision.features import measure_markers
 
 SIZE = ["camera.width_px=320", "camera.height_px=240"]
+TINY = ["sim.renderer='tiny'"]
 
 
-def test_tinyrenderer_is_the_default_and_its_projection_is_unchanged() -> None:
+def test_gl_is_the_default_and_tinyrenderer_projection_is_unchanged() -> None:
     scenario = load_scenario()
-    assert scenario.sim.renderer == "tiny"
+    assert scenario.sim.renderer == "gl"
     k = scenario.camera.intrinsics()
     p = np.array(opengl_projection_matrix(k, 0.05, 5.0)).reshape(4, 4, order="F")
     assert p[0, 2] == pytest.approx(-(2.0 * k.cx_px / k.width_px - 1.0))
     assert p[1, 2] == pytest.approx(2.0 * (k.cy_px + 1.0) / k.height_px - 1.0)
-    egl = np.array(opengl_projection_matrix(k, 0.05, 5.0, "egl")).reshape(4, 4, order="F")
-    assert egl[0, 2] == pytest.approx(-(2.0 * (k.cx_px + 0.5) / k.width_px - 1.0))
 
 
-def test_the_table_then_the_floor_are_made_last_so_tinyrenderer_draws_them_last() -> None:
-    """TinyRenderer draws bodies in the order they were made and shades whatever passes the
-    depth test when drawn: the floor drawn before the table and the arm is shaded where they
-    hide it, 36 ms more a 640×480 frame (README, Performance). Images are the same either way."""
-    world = World(load_scenario())
+def test_pinhole_uniforms_put_pixel_centres_on_the_pinhole_model() -> None:
+    k = load_scenario().camera.intrinsics()
+    a, b, c, d = pinhole_uniforms(k)
+    for u, v in ((0, 0), (k.cx_px, k.cy_px), (k.width_px - 1, k.height_px - 1)):
+        x, y = (u - k.cx_px) / k.fx_px, (v - k.cy_px) / k.fy_px
+        # OpenGL samples pixel j at window x = j + 0.5, x_ndc = 2·x_w/W − 1.
+        assert (a * x + b + 1) / 2 * k.width_px == pytest.approx(u + 0.5)
+        assert (c * y + d + 1) / 2 * k.height_px == pytest.approx(v + 0.5)
+    big_a, big_b = depth_uniforms(0.05, 5.0)
+    assert big_a + big_b / 0.05 == pytest.approx(-1.0) and big_a + big_b / 5.0 == pytest.approx(1)
+
+
+def test_meshes_are_closed_with_outward_normals_at_the_true_size() -> None:
+    vertices, normals = box_mesh((0.2, 0.4, 0.6))
+    assert vertices.shape == normals.shape == (36, 3)
+    np.testing.assert_allclose(np.abs(vertices).max(axis=0), [0.1, 0.2, 0.3], rtol=1e-6)
+    assert np.all(np.sum(vertices * normals, axis=1) > 0)  # outward
+    vertices, normals = cylinder_mesh(0.264, 0.022)
+    side = normals[:, 2] == 0
+    np.testing.assert_allclose(np.hypot(*vertices[side, :2].T), 0.022, rtol=1e-6)
+    np.testing.assert_allclose(np.abs(vertices[:, 2]).max(), 0.132, rtol=1e-6)
+    assert np.all(np.sum(vertices * normals, axis=1) > 0)
+
+
+@pytest.fixture(scope="module")
+def gl_world():
+    w = World(load_scenario())
+    if w.renderer != "gl":
+        w.close()
+        pytest.fail(f"no OpenGL renderer on this machine: {w.renderer_detail}")
+    yield w
+    w.close()
+
+
+def ray_hits(
+    scenario: Scenario, rows: np.ndarray, cols: np.ndarray, face: tuple
+) -> tuple[np.ndarray, np.ndarray]:
+    """Z along the optical axis where pixel rays meet the plane of a rectangular ``face``
+    (centre, unit normal, two unit in-plane axes, half extents along them), and whether the
+    hit lies inside the face with a 2 mm margin."""
+    centre, normal, axes, half = face
+    k, pose = scenario.camera.intrinsics(), scenario.camera.pose()
+    rays = np.stack([(cols - k.cx_px) / k.fx_px, (rows - k.cy_px) / k.fy_px, np.ones(len(rows))])
+    rays_world = pose[:3, :3] @ rays  # unit optical-axis component: the factor is Z
+    z = (normal @ (centre - pose[:3, 3])) / (normal @ rays_world)
+    hits = pose[:3, 3, None] + rays_world * z
+    inside = np.ones(len(rows), bool)
+    for axis, h in zip(axes, half, strict=True):
+        inside &= np.abs(axis @ (hits - centre[:, None])) < h - 0.002
+    return z, inside
+
+
+def test_gl_depth_is_the_analytic_geometry(gl_world: World) -> None:
+    """Table top, floor and the red marker's face: every pixel within 1e-6 m of the ray's hit."""
+    ids = gl_world.segmentation(gl_world.intrinsics)
+    _, depth = gl_world.render_perfect(gl_world.intrinsics)
+    x, up, z = np.eye(3)
+    target, half_marker = gl_world.target_pose, gl_world.scenario.marker.size_m / 2
+    faces = {
+        gl_world.table_body: (np.array([0.42, TABLE_TOP_Y_M, 0.0]), up, (x, z), (0.28, 0.45)),
+        gl_world.floor_body: (np.array([0.3, FLOOR_TOP_Y_M, 0.0]), up, (x, z), (1.5, 1.5)),
+        gl_world.target_body: (
+            target[:3, 3],
+            target[:3, 2],
+            (target[:3, 0], target[:3, 1]),
+            (half_marker, half_marker),
+        ),
+    }
+    for body, face in faces.items():
+        rows, cols = np.nonzero(ids == body)
+        expected, inside = ray_hits(gl_world.scenario, rows, cols, face)
+        assert inside.sum() > 1000, body
+        assert np.abs(depth[rows, cols][inside] - expected[inside]).max() < 1e-6, body
+
+
+def test_gl_agrees_with_tinyrenderer_on_the_accuracy_postures(gl_world: World) -> None:
+    """Vision's corners and depths from both renderers, on ``umay accuracy``'s postures with
+    both markers wholly in view: within 0.05 px and 0.05 mm. Their id images agree on each
+    marker's pixels."""
+    scenario = gl_world.scenario
+    tiny = World(load_scenario(None, parse_overrides(TINY)))
+    compared = 0
     try:
-        c = world.client
-        colours = [tuple(c.getVisualShapeData(b)[0][7]) for b in range(c.getNumBodies())]
+        for q in sample_postures(scenario, 40, np.random.default_rng(0)):
+            for w in (gl_world, tiny):
+                w.reset(q)
+                w.update_scene()
+            seen = tiny.marker_visibility()
+            if any(v.fraction < WHOLE or v.touched for v in seen.values()):
+                continue
+            images = [w.render_perfect(w.intrinsics) for w in (gl_world, tiny)]
+            gl, ref = (measure_markers(rgb, d, w.intrinsics, scenario.vision) for rgb, d in images)
+            for name in ("hand", "target"):
+                assert gl[name].visible and ref[name].visible, name
+                np.testing.assert_allclose(gl[name].corners_px, ref[name].corners_px, atol=0.05)
+                np.testing.assert_allclose(gl[name].depths_m, ref[name].depths_m, atol=5e-5)
+            ids_gl, ids_ref = (w.segmentation(w.intrinsics) for w in (gl_world, tiny))
+            assert (ids_gl == ids_ref).mean() > 0.99  # limbs differ: Bullet's fat hull
+            hand_id = gl_world.robot + ((gl_world.ee_link + 1) << 24)
+            for marker in (gl_world.target_body, hand_id):
+                a, b = ids_gl == marker, ids_ref == marker
+                assert np.count_nonzero(a ^ b) <= 0.01 * np.count_nonzero(b), marker
+            compared += 1
+            if compared == 4:
+                break
     finally:
-        world.close()
-    assert colours[-2:] == [pytest.approx(TABLE_COLOUR), pytest.approx(FLOOR_COLOUR)]
-    assert colours[0] != pytest.approx(FLOOR_COLOUR)  # body 0, the robot, is drawn first
+        tiny.close()
+    assert compared == 4
 
 
-def render_and_measure(renderer: str) -> tuple[np.ndarray, dict]:
-    scenario = load_scenario(None, parse_overrides([*SIZE, f"sim.renderer='{renderer}'"]))
-    world = World(scenario)
+def test_no_opengl_falls_back_to_tinyrenderer_and_says_why(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    def refuse() -> None:
+        raise GlUnavailable("no EGL OpenGL context (test: no driver)")
+
+    monkeypatch.setattr(world_module, "GlRenderer", refuse)
+    with caplog.at_level(logging.WARNING):
+        w = World(load_scenario(None, parse_overrides(SIZE)))
     try:
-        rgb, depth = world.render()
+        assert w.renderer == "tiny" and "test: no driver" in w.renderer_detail
+        assert sum("fell back" in r.getMessage() for r in caplog.records) == 1
+        rgb, depth = w.render()
+        assert rgb.shape == (240, 320, 3) and depth is not None and depth.max() > 0
     finally:
-        world.close()
-    k = scenario.camera.intrinsics()
-    measured, _ = observe(
-        rgb, k, DepthImage(depth, k, 0.0), scenario.vision, scenario.marker.size_m, TrackerState()
-    )
-    return depth, measured
-
-
-def test_egl_renders_the_same_geometry_as_tinyrenderer() -> None:
-    try:
-        depth_egl, egl = render_and_measure("egl")
-    except RendererError as exc:  # no libEGL on this machine
-        pytest.skip(str(exc))
-    depth_tiny, tiny = render_and_measure("tiny")
-    both = (depth_tiny > 0) & (depth_egl > 0)
-    assert both.mean() > 0.99
-    assert np.median(np.abs(depth_tiny[both] - depth_egl[both])) < 2e-4  # m
-    for name in ("hand", "target"):
-        assert tiny[name].state == egl[name].state == "visible", name
-        np.testing.assert_allclose(egl[name].corners_px, tiny[name].corners_px, atol=0.2)
-        np.testing.assert_allclose(egl[name].depths_m, tiny[name].depths_m, atol=5e-4)
+        w.close()

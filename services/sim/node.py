@@ -84,6 +84,8 @@ class SimService:
             "depth_images": self.depth_images,
             "target_hidden": self.world.scene.target_hidden,
             "hand_occluded": self.world.scene.hand_occluded_since_s is not None,
+            "renderer": self.world.renderer,
+            "renderer_detail": self.world.renderer_detail,
             "render_ms": round(self.render_ms, 2),
             "dropped_frames": self.dropped_frames,
             "watchdog_stops": self.watchdog_stops,

@@ -6,9 +6,11 @@ z to the robot's right (see ``common.kinematics``); gravity points along -y.
 
 from __future__ import annotations
 
+import logging
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -19,13 +21,17 @@ from common import kinematics as kin
 from common.camera import CameraIntrinsics, project
 from common.config import Scenario
 from services.sim.events import SceneState, scene_state
+from services.sim.gl_renderer import GlRenderer, GlUnavailable
 from services.sim.scenery import HalfSpace, view_frustum, visible_box
 from services.sim.sensor_model import exposed_rgb, noisy_depth
+from services.sim.shapes import VisualShape, body_ids, shape_poses, visual_shapes
 from services.sim.urdf import TORSO_CENTRE_M, TORSO_COLOUR, TORSO_SIZE_M, robot_urdf
 
 FloatArray = np.ndarray
+log = logging.getLogger(__name__)
 
 TABLE_TOP_Y_M = -0.40  # table top height in the base frame (y up)
+FLOOR_TOP_Y_M = -0.75
 TABLE_COLOUR = (0.86, 0.84, 0.80, 1.0)
 FLOOR_COLOUR = (0.55, 0.57, 0.60, 1.0)
 RED = (0.85, 0.08, 0.08, 1.0)
@@ -47,25 +53,23 @@ def opengl_view_matrix(t_base_cam: FloatArray) -> list[float]:
     return view.flatten(order="F").tolist()
 
 
-# Where each renderer samples pixel (row i, column j) in the frustum it is given, as the shift
+# Where TinyRenderer samples pixel (row i, column j) in the frustum it is given, as the shift
 # (du, dv) of the principal point that lines its pixels up with the pinhole model. Measured
-# against projected truth: TinyRenderer samples (j - 0.5, i + 0.5); the EGL plugin samples
-# pixel centres the OpenGL way, half a pixel off TinyRenderer in each axis (with these shifts
-# their depth images agree to 0.02 mm median, 0.2 mm p99).
-PIXEL_SHIFT_PX: dict[str, tuple[float, float]] = {"tiny": (0.0, 1.0), "egl": (0.5, 0.5)}
+# against projected truth: TinyRenderer samples (j - 0.5, i + 0.5).
+TINY_PIXEL_SHIFT_PX = (0.0, 1.0)
+LIGHT_DIRECTION = (0.4, -0.3, 1.0)  # towards the light, world frame (pybullet's convention)
 
 
-def opengl_projection_matrix(
-    k: CameraIntrinsics, near_m: float, far_m: float, renderer: str = "tiny"
-) -> list[float]:
-    """Column-major OpenGL projection whose pixel centres match ``u = fx·x + cx`` exactly.
+def opengl_projection_matrix(k: CameraIntrinsics, near_m: float, far_m: float) -> list[float]:
+    """Column-major OpenGL projection for TinyRenderer whose pixel centres match
+    ``u = fx·x + cx`` exactly.
 
     The off-centre terms place the principal point so that rendered pixels line up with the
-    pinhole model of :mod:`common.camera` (pixel centres at integer coordinates), for the
-    sampling of ``renderer`` (:data:`PIXEL_SHIFT_PX`).
+    pinhole model of :mod:`common.camera` (pixel centres at integer coordinates), for
+    TinyRenderer's sampling (:data:`TINY_PIXEL_SHIFT_PX`).
     """
     w, h = k.width_px, k.height_px
-    du, dv = PIXEL_SHIFT_PX[renderer]
+    du, dv = TINY_PIXEL_SHIFT_PX
     p = np.zeros((4, 4))
     p[0, 0] = 2.0 * k.fx_px / w
     p[1, 1] = 2.0 * k.fy_px / h
@@ -90,26 +94,6 @@ def depth_buffer_to_metres(buffer: FloatArray, near_m: float, far_m: float) -> F
     z = (far * near) / (far - (far - near) * b)
     z[b >= 1.0] = 0.0
     return z
-
-
-class RendererError(RuntimeError):
-    """The renderer the scenario asks for cannot be used on this machine."""
-
-
-def load_egl_plugin(client: BulletClient) -> int:
-    """Load pybullet's EGL renderer plugin into ``client``; it then serves every
-    ``getCameraImage`` of that client. Needs libEGL and an OpenGL driver (Debian:
-    ``libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1``; Mesa's llvmpipe renders on the CPU)."""
-    import importlib.util
-
-    spec = importlib.util.find_spec("eglRenderer")  # shipped with pybullet
-    origin = None if spec is None else spec.origin
-    plugin = -1 if origin is None else client.loadPlugin(origin, "_eglRendererPlugin")
-    if plugin < 0:
-        raise RendererError(
-            "sim.renderer = 'egl': pybullet's EGL plugin did not load (is libEGL installed?)"
-        )
-    return plugin
 
 
 def quaternion_from_rotation(rot: FloatArray) -> list[float]:
@@ -172,8 +156,28 @@ class Truth:
     ee_position_m: FloatArray
 
 
+def open_renderer(requested: str) -> tuple[str, str, GlRenderer | None]:
+    """The renderer to use for ``sim.renderer = requested``: (name, detail, OpenGL renderer or
+    None). "gl" falls back to "tiny", once and loudly, where no EGL context can be made."""
+    if requested == "tiny":
+        return "tiny", "TinyRenderer (pybullet, CPU), as configured", None
+    try:
+        gl = GlRenderer()
+    except GlUnavailable as exc:
+        detail = f"TinyRenderer: OpenGL unavailable: {exc}"
+        log.warning("sim.renderer = 'gl' fell back to %s", detail)
+        return "tiny", detail, None
+    kind = "software, CPU" if gl.is_software else "GPU"
+    return "gl", f"OpenGL through EGL: {gl.description} ({kind})", gl
+
+
 class World:
     """One pybullet simulation of the scenario, in DIRECT mode (no GUI).
+
+    The camera renders through OpenGL (:mod:`services.sim.gl_renderer`) when
+    ``sim.renderer = "gl"`` and an EGL context can be made; else, or when ``sim.renderer =
+    "tiny"``, through pybullet's TinyRenderer. :attr:`renderer` is the one in use and
+    :attr:`renderer_detail` says which driver draws, or why the fallback was taken.
 
     ``clip_scenery=False`` draws the torso, table and floor as whole boxes instead of the parts
     of them the camera sees (:mod:`services.sim.scenery`, TinyRenderer only): the same images,
@@ -181,11 +185,15 @@ class World:
 
     def __init__(self, scenario: Scenario, clip_scenery: bool = True) -> None:
         self.scenario = scenario
-        # The EGL plugin draws no vertex-list mesh ("issue extracting mesh"), nor needs the cut.
-        self.clip_scenery = clip_scenery and scenario.sim.renderer == "tiny"
+        self.renderer, self.renderer_detail, self._gl = open_renderer(scenario.sim.renderer)
+        # OpenGL draws whole boxes (pybullet's mesh visuals cannot be read back), nor needs the cut.
+        self.clip_scenery = clip_scenery and self.renderer == "tiny"
         self.intrinsics = scenario.camera.intrinsics()
         self.camera_pose = scenario.camera.pose()
         self._view = opengl_view_matrix(self.camera_pose)
+        self._cam_from_world = np.linalg.inv(self.camera_pose)
+        self._gl_bodies: tuple[int, ...] = ()
+        self._gl_shapes: list[VisualShape] = []
         self._projections: dict[CameraIntrinsics, list[float]] = {}
         self.depth_intrinsics = scenario.camera.depth_intrinsics()
         self.initial_target_pose = kin.target_marker_pose(
@@ -199,12 +207,6 @@ class World:
         self.physics_dt_s = 1.0 / scenario.sim.physics_hz
         self.sim_time_s = 0.0
         self.client = BulletClient(connection_mode=pybullet.DIRECT)
-        self.renderer = scenario.sim.renderer
-        self._renderer_flag = pybullet.ER_TINY_RENDERER
-        self._egl_plugin: int | None = None
-        if self.renderer == "egl":  # before any body: bodies created earlier are not drawn
-            self._egl_plugin = load_egl_plugin(self.client)
-            self._renderer_flag = pybullet.ER_BULLET_HARDWARE_OPENGL
         self.client.setGravity(*(-9.81 * kin.BASE_UP))
         self.client.setTimeStep(self.physics_dt_s)
         self.robot = self._load_robot()
@@ -326,8 +328,9 @@ class World:
         torso = (tx / 2, ty / 2, tz / 2)
         self._scenery_box(torso, np.array(TORSO_CENTRE_M), TORSO_COLOUR, frustum, collide=False)
         table = np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0])
-        self._scenery_box((0.28, 0.02, 0.45), table, TABLE_COLOUR, frustum)
-        self._scenery_box((1.5, 0.01, 1.5), np.array([0.3, -0.76, 0.0]), FLOOR_COLOUR, frustum)
+        self.table_body = self._scenery_box((0.28, 0.02, 0.45), table, TABLE_COLOUR, frustum)
+        floor = np.array([0.3, FLOOR_TOP_Y_M - 0.01, 0.0])
+        self.floor_body = self._scenery_box((1.5, 0.01, 1.5), floor, FLOOR_COLOUR, frustum)
 
     def _marker_centre(self) -> FloatArray:
         return self.target_pose[:3, 3] - self.target_pose[:3, 2] * kin.MARKER_THICKNESS_M / 2
@@ -421,20 +424,22 @@ class World:
     def _projection(self, k: CameraIntrinsics) -> list[float]:
         if k not in self._projections:
             cam = self.scenario.camera
-            self._projections[k] = opengl_projection_matrix(k, cam.near_m, cam.far_m, self.renderer)
+            self._projections[k] = opengl_projection_matrix(k, cam.near_m, cam.far_m)
         return self._projections[k]
 
     def render_perfect(self, k: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
         """Perfect RGB uint8 (H, W, 3) and depth float32 metres (H, W) from the camera's pose,
         with intrinsics ``k`` (the same field of view at another resolution, say)."""
+        if self._gl is not None:
+            return self._gl.read_colour_depth(self._draw_gl(k))
         _, _, rgba, depth, _ = self.client.getCameraImage(
             k.width_px,
             k.height_px,
             viewMatrix=self._view,
             projectionMatrix=self._projection(k),
-            renderer=self._renderer_flag,
+            renderer=pybullet.ER_TINY_RENDERER,
             shadow=0,
-            lightDirection=[0.4, -0.3, 1.0],
+            lightDirection=list(LIGHT_DIRECTION),
             flags=pybullet.ER_NO_SEGMENTATION_MASK,
         )
         # One contiguous copy without alpha: 25× faster than slicing + ascontiguousarray.
@@ -487,17 +492,7 @@ class World:
     def marker_visibility(self, touch_px: float = 6.0) -> dict[str, MarkerView]:
         """Ground truth for evaluation: how much of each marker the camera sees, from a
         segmentation render. Keys ``hand`` and ``target``; see :class:`MarkerView`."""
-        k = self.intrinsics
-        _, _, _, _, seg = self.client.getCameraImage(
-            k.width_px,
-            k.height_px,
-            viewMatrix=self._view,
-            projectionMatrix=self._projection(k),
-            renderer=self._renderer_flag,
-            shadow=0,
-            flags=pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
-        )
-        seg = np.asarray(seg).reshape(k.height_px, k.width_px)
+        seg = self.segmentation(self.intrinsics)
         truth = self.truth()
         own = {"hand": self.robot + ((self.ee_link + 1) << 24), "target": self.target_body}
         corners = {"hand": truth.hand_corners_px, "target": truth.target_corners_px}
@@ -512,7 +507,41 @@ class World:
             out[name] = MarkerView(seen / total if total else 0.0, bool(touched))
         return out
 
+    def segmentation(self, k: CameraIntrinsics) -> np.ndarray:
+        """Id image (int32, H×W) of what each pixel sees: pybullet's segmentation value
+        ``body + ((link + 1) << 24)``, -1 for nothing; from either renderer."""
+        if self._gl is not None:
+            return self._gl.read_ids(self._draw_gl(k))
+        _, _, _, _, seg = self.client.getCameraImage(
+            k.width_px,
+            k.height_px,
+            viewMatrix=self._view,
+            projectionMatrix=self._projection(k),
+            renderer=pybullet.ER_TINY_RENDERER,
+            shadow=0,
+            flags=pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+        )
+        return np.asarray(seg, dtype=np.int32).reshape(k.height_px, k.width_px)
+
+    def _draw_gl(self, k: CameraIntrinsics) -> Any:
+        """Draw the scene as it is now through OpenGL (meshes re-read when bodies changed)."""
+        assert self._gl is not None
+        bodies = body_ids(self.client)
+        if bodies != self._gl_bodies:
+            self._gl_shapes = visual_shapes(self.client)
+            self._gl.set_shapes(self._gl_shapes)
+            self._gl_bodies = bodies
+        cam = self.scenario.camera
+        return self._gl.draw(
+            shape_poses(self.client, self._gl_shapes),
+            self._cam_from_world,
+            k,
+            cam.near_m,
+            cam.far_m,
+            np.array(LIGHT_DIRECTION),
+        )
+
     def close(self) -> None:
-        if self._egl_plugin is not None:
-            self.client.unloadPlugin(self._egl_plugin)
+        if self._gl is not None:
+            self._gl.release()
         self.client.disconnect()
