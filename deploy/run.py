@@ -123,7 +123,7 @@ class RunMonitor:
 def stuck_detail(hold_reason: str, since_s: float, now_s: float) -> str:
     """What a stuck run waited for and since when (sim time)."""
     return (
-        f"held {now_s - since_s:.2f} s waiting for the {hold_reason or 'features'} to change "
+        f"held {now_s - since_s:.2f} s waiting for: {hold_reason or 'usable features'} "
         f"(holding since sim time {since_s:.2f} s)"
     )
 

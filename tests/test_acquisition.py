@@ -15,15 +15,21 @@ K = CameraIntrinsics.from_fov(640, 480, 57.0)
 DT_S = 1 / 30
 
 
-def test_directions_start_back_along_the_forearm_then_across_then_away() -> None:
-    hand, elbow = np.array([300.0, 200.0]), np.array([300.0, 50.0])
-    dirs = acq.uncover_directions(hand, elbow)
-    np.testing.assert_allclose(dirs[0], [0.0, -1.0])  # towards the elbow (up here)
-    assert abs(dirs[1] @ dirs[0]) < 1e-12 and abs(dirs[2] @ dirs[0]) < 1e-12
-    np.testing.assert_allclose(dirs[1], -dirs[2])
-    np.testing.assert_allclose(dirs[3], -dirs[0])
-    assert all(abs(np.linalg.norm(d) - 1.0) < 1e-12 for d in dirs)
-    assert len(acq.uncover_directions(hand, None)) == 4  # no elbow: image directions
+def test_directions_go_across_the_forearm_rising_side_first_and_never_down() -> None:
+    hand, elbow = np.array([300.0, 200.0]), np.array([400.0, 250.0])  # forearm to the right
+    up = np.array([0.0, -1.0])  # the world's vertical points up in the image
+    dirs = acq.uncover_directions(hand, elbow, up)
+    back = np.array([2.0, 1.0]) / np.sqrt(5)
+    across_rising = np.array([1.0, -2.0]) / np.sqrt(5)
+    # across the other way goes mostly down (onto the table): left out
+    expected = [across_rising, up, back, -back]
+    assert len(dirs) == len(expected)
+    for d, e in zip(dirs, expected, strict=True):
+        np.testing.assert_allclose(d, e, atol=1e-12)
+    # The elbow straight above: away from it is straight down, left out.
+    dirs = acq.uncover_directions(hand, np.array([300.0, 50.0]), up)
+    assert all(d @ up >= -acq.DOWN_LIMIT for d in dirs) and len(dirs) == 3
+    assert len(acq.uncover_directions(hand, None)) == 3  # no elbow: up, left, right
 
 
 def test_goal_slides_the_square_and_stays_inside_the_image() -> None:

@@ -14,10 +14,13 @@ image direction, through the same interaction-matrix machinery as the servo
 actuation like any other and meets its whole safety chain (deadman, joint limits, speed and
 acceleration limits). Directions, in order:
 
-1. towards the elbow's image: the hand slides back along its own forearm, so the image area
-   it leaves is not covered by the forearm following it;
-2. and 3. across the forearm, both ways;
-4. away from the elbow.
+1. and 2. across the forearm's image, the side where the hand rises first: the hand and the
+   forearm behind it both leave the image area they covered;
+3. up in the image (the world's vertical at the hand, from the assumed camera pose);
+4. towards the elbow's image (the hand slides back along its own forearm).
+
+Directions more downward than sideways are left out: at constant depth they would press the
+hand onto the table the target lies on.
 
 Each attempt ends when the hand reaches its goal or after ``acquire_attempt_s``; the next one
 starts from wherever the hand is. After ``acquire_attempts`` the acquisition has failed. A goal
@@ -43,6 +46,7 @@ CLEARANCE_DIAGONALS = 1.6
 IMAGE_MARGIN_PX = 10.0  # the hand marker's goal stays this far inside the image
 REACHED_PX = 3.0  # an attempt is over when every corner is this close to its goal
 MIN_SHARE = 0.5  # a direction allowing less than this share of the clearance is skipped
+DOWN_LIMIT = 0.7  # directions more downward than this (cosine with the image's down) are left out
 
 
 @dataclass(frozen=True)
@@ -64,17 +68,36 @@ class Acquisition:
         return f"acquiring: {self.why}, attempt {attempt}/{attempts}"
 
 
-def uncover_directions(hand_centre_px: FloatArray, elbow_px: FloatArray | None) -> list[FloatArray]:
-    """Unit image directions to try, best first (see the module doc). Without the elbow's
-    image (behind the camera, or too close to the hand), up, left, right, down."""
+def uncover_directions(
+    hand_centre_px: FloatArray, elbow_px: FloatArray | None, up_px: FloatArray | None = None
+) -> list[FloatArray]:
+    """Unit image directions to try, best first (see the module doc). ``up_px``: the image
+    direction of the world's vertical at the hand; a direction going down (towards the table
+    the target lies on) more than sideways is left out, since at constant depth it would press
+    the hand onto the table. Without the elbow's image, up, left, right."""
+    up = None
+    if up_px is not None and np.linalg.norm(up_px) > 1e-9:
+        up = np.asarray(up_px, dtype=float) / np.linalg.norm(up_px)
+    candidates: list[FloatArray] = []
     if elbow_px is not None:
         back = np.asarray(elbow_px, dtype=float) - np.asarray(hand_centre_px, dtype=float)
         norm = float(np.linalg.norm(back))
         if norm > 1.0:
             back = back / norm
             across = np.array([-back[1], back[0]])
-            return [back, across, -across, -back]
-    return [np.array(d, dtype=float) for d in ((0.0, -1.0), (-1.0, 0.0), (1.0, 0.0), (0.0, 1.0))]
+            if up is not None and across @ up < 0:
+                across = -across  # the rising side first
+            candidates = [across, -across, back, -back]
+    if not candidates:
+        candidates = [np.array(d, dtype=float) for d in ((0.0, -1.0), (-1.0, 0.0), (1.0, 0.0))]
+    if up is not None:
+        candidates.insert(2, up)
+        candidates = [d for d in candidates if d @ up >= -DOWN_LIMIT]
+    distinct: list[FloatArray] = []
+    for d in candidates:
+        if all(d @ e < 0.99 for e in distinct):
+            distinct.append(d)
+    return distinct
 
 
 def diagonal_px(corners_px: FloatArray) -> float:
@@ -110,9 +133,10 @@ def start(
     corners_px: FloatArray,
     elbow_px: FloatArray | None,
     k: CameraIntrinsics,
+    up_px: FloatArray | None = None,
 ) -> Acquisition | None:
     """A new acquisition from the hand's corners now, or None when no direction is open."""
-    directions = uncover_directions(np.asarray(corners_px).mean(axis=0), elbow_px)
+    directions = uncover_directions(np.asarray(corners_px).mean(axis=0), elbow_px, up_px)
     return _next_attempt(why, t_s, t_s, -1, corners_px, [tuple(d) for d in directions], k)
 
 

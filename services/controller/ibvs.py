@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode
-from common.kinematics import cross, skew
+from common.kinematics import BASE_UP, cross, skew
 from common.messages import is_usable
 from common.motion import MarkerMotion
 from services.controller import acquisition as acq
@@ -441,7 +441,12 @@ class IbvsController:
         left = self.config.acquire_attempts - self.acquisitions
         started = None
         if left > 0:
-            started = acq.start(why, t_s, hand.corners_px, self._elbow_px(elbow_base_m, k), k)
+            elbow_px = self._image_of(elbow_base_m, k)
+            hand_centre_m = hand.points_m.mean(axis=0)
+            up_cam = self.t_base_cam[:3, :3].T @ BASE_UP
+            up_px = project((hand_centre_m + 0.02 * up_cam)[None, :], k)[0]
+            up_px = up_px - hand.corners_px.mean(axis=0)
+            started = acq.start(why, t_s, hand.corners_px, elbow_px, k, up_px)
         if started is None:
             self.acquisition_failed = (
                 f"{ACQUISITION_FAILED}: {why} after {self.acquisitions} attempt(s)"
@@ -453,12 +458,12 @@ class IbvsController:
         self.frames_below = 0
         return self._acquire(hand, k, p_ee_base_m, t_s)
 
-    def _elbow_px(self, elbow_base_m: FloatArray | None, k: CameraIntrinsics) -> FloatArray | None:
-        """The elbow's image through the assumed camera pose (None: unknown or behind)."""
-        if elbow_base_m is None:
+    def _image_of(self, point_base_m: FloatArray | None, k: CameraIntrinsics) -> FloatArray | None:
+        """A point's image through the assumed camera pose (None: unknown or behind)."""
+        if point_base_m is None:
             return None
         rot, origin = self.t_base_cam[:3, :3], self.t_base_cam[:3, 3]
-        p_cam = rot.T @ (np.asarray(elbow_base_m, dtype=float) - origin)
+        p_cam = rot.T @ (np.asarray(point_base_m, dtype=float) - origin)
         if p_cam[2] <= 1e-3:
             return None
         return project(p_cam[None, :], k)[0]
