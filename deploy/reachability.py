@@ -1,4 +1,9 @@
-"""Pre-launch check: can the hand put its green marker on the red target, seen by the camera?"""
+"""Pre-launch check: can the hand put its green marker on the red target, seen by the camera?
+
+It refuses only what no motion of the loop can fix, each with its reason: a joint outside its
+limits, the target not wholly in the image, the hand marker not wholly in the image or facing
+away from the camera, a goal out of reach. A hand that hides the target is not refused: the
+controller uncovers it (services/controller/acquisition.py)."""
 
 from __future__ import annotations
 
@@ -9,6 +14,10 @@ from common.camera import project
 from common.config import Scenario, ScenarioError
 
 IMAGE_MARGIN_PX = 8.0
+# Seen more obliquely than this, the hand's square is too thin for vision to fit its corners
+# (a 6 cm square at 0.45 m is under a third of its width across): no motion of the servo can
+# start without features, so such a start is refused.
+MAX_VIEW_ANGLE_DEG = 70.0
 
 
 def marker_in_image(corners_base: np.ndarray, scenario: Scenario) -> bool:
@@ -23,6 +32,14 @@ def marker_in_image(corners_base: np.ndarray, scenario: Scenario) -> bool:
         and np.all(uv[:, 0] <= k.width_px - 1 - IMAGE_MARGIN_PX)
         and np.all(uv[:, 1] <= k.height_px - 1 - IMAGE_MARGIN_PX)
     )
+
+
+def view_angle_deg(marker_pose: np.ndarray, scenario: Scenario) -> float:
+    """Angle between a marker's outward normal and its line of sight to the camera (0: facing
+    the camera squarely; beyond 90°: its back is turned)."""
+    to_camera = scenario.camera.pose()[:3, 3] - marker_pose[:3, 3]
+    cosine = marker_pose[:3, 2] @ to_camera / np.linalg.norm(to_camera)
+    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
 
 def goal_pose(scenario: Scenario) -> np.ndarray:
@@ -52,6 +69,12 @@ def check_scenario(scenario: Scenario, seeds: int = 12) -> np.ndarray:
     start = kin.forward_kinematics(q0) @ kin.hand_marker_in_ee()
     if not marker_in_image(kin.marker_corners(start, size), scenario):
         raise ScenarioError("robot.q0: the hand marker is not fully in the camera image at start")
+    angle = view_angle_deg(start, scenario)
+    if angle > MAX_VIEW_ANGLE_DEG:
+        raise ScenarioError(
+            f"robot.q0: the hand marker faces away from the camera at start ({angle:.0f}° "
+            f"from its line of sight; vision measures a square up to {MAX_VIEW_ANGLE_DEG:.0f}°)"
+        )
     rng = np.random.default_rng(0)
     tool = kin.hand_marker_in_ee()
     for i in range(seeds):
