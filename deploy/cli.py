@@ -531,9 +531,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_bench)
 
-    from deploy.compare_cli import add_compare_parser
+    from deploy.compare_cli import add_campaign_parser, add_compare_parser
 
     add_compare_parser(sub)  # umay compare: every strategy on every scenario of a suite
+    add_campaign_parser(sub)  # umay campaign: every strategy from random starts
 
     p = sub.add_parser("router", help="run a Zenoh router (multi-host setups)")
     p.add_argument(

@@ -87,6 +87,8 @@ CSV_COLUMNS: tuple[str, ...] = (
     "tracking_position_error_m",
     "tracking_max_position_error_m",
     "tracking_pixel_rms",
+    "final_joint_margin_deg",
+    "final_hand_border_px",
     "wall_time_s",
     "moving_target",
     "clock",

@@ -188,3 +188,89 @@ def cmd_compare(args: argparse.Namespace) -> int:
         console.print(lines[0] if same else f"[red]{lines[0]}[/]", *lines[1:], sep="\n")
         return EXIT_OK if same else EXIT_FAILED
     return EXIT_OK
+
+
+# --- umay campaign ---------------------------------------------------------------------------
+def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
+    """The ``campaign`` subcommand: random starts, every strategy, a failure taxonomy."""
+    from deploy.campaign import DEFAULT_DISTRIBUTION
+
+    p = sub.add_parser(
+        "campaign",
+        help="every strategy from N random starts: results, summary, failure taxonomy",
+    )
+    p.add_argument("--n", type=int, default=20, help="starts to draw (default 20)")
+    p.add_argument("--seed", type=int, default=None, help="instead of the distribution file's seed")
+    p.add_argument(
+        "--distribution",
+        default=str(DEFAULT_DISTRIBUTION),
+        metavar="FILE.toml",
+        help="the start distribution (default: deploy/campaigns/random_starts.toml)",
+    )
+    p.add_argument("--modes", nargs="+", default=None, metavar="MODE", help="strategies")
+    p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
+    p.add_argument("--out", default="out/campaign", metavar="DIR", help="output folder")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_campaign)
+
+
+def cmd_campaign(args: argparse.Namespace) -> int:
+    """Exit 0 when every run has a named cause (whatever it is), 2 on bad input, 130 when
+    interrupted."""
+    from rich.console import Console
+
+    from deploy.campaign import failure_cause, plan_campaign, run_campaign, write_campaign
+    from deploy.compare import CompareError, CompareRow, Job, format_cell, make_figures, parse_modes
+    from deploy.paths import OutputPathError, check_output_dir
+
+    console = Console(stderr=True)
+    try:
+        modes = parse_modes(args.modes)
+        if args.jobs < 1:
+            raise CompareError(f"--jobs: must be at least 1, not {args.jobs}")
+        cplan = plan_campaign(args.n, modes, Path(args.distribution), args.seed, args.set)
+        out_dir = check_output_dir("--out", args.out)
+    except (CompareError, OutputPathError) as exc:
+        print(f"umay campaign: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    refused = [s for s in cplan.starts if s.refused]
+    console.print(
+        f"{len(cplan.starts)} starts (seed {cplan.distribution.seed}), {len(refused)} refused "
+        f"at start; {len(cplan.plan.jobs)} runs"
+    )
+    for s in refused:
+        console.print(f"{s.name} refused: {s.refused}")
+    stop = threading.Event()
+    previous = {
+        sig: signal.signal(sig, lambda _s, _f: stop.set())
+        for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    started = time.monotonic()
+    done = [0]
+
+    def on_done(job: Job, row: CompareRow) -> None:
+        done[0] += 1
+        console.print(
+            f"[{done[0]}/{len(cplan.plan.jobs)}] {row.scenario} · {row.mode:8s} "
+            f"{failure_cause(row):28s} {row.frames:4d} frames "
+            f"{format_cell(row.final_position_error_m, 1000.0, '.2f'):>7s} mm "
+            f"{row.wall_time_s:5.1f} s"
+        )
+
+    try:
+        rows = run_campaign(cplan, args.jobs, out_dir, stop, lambda _job: None, on_done)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if stop.is_set():
+        console.print("[red]interrupted[/]: every pipeline stopped; nothing written")
+        return EXIT_INTERRUPTED
+    wall_s = time.monotonic() - started
+    figures = make_figures(cplan.plan, out_dir) if rows else []
+    note = (
+        f"Random-start campaign: {len(cplan.starts)} starts, seed {cplan.distribution.seed}; "
+        f"wall time {wall_s / 60:.1f} min with {args.jobs} job(s) at once."
+    )
+    for path in write_campaign(cplan, rows, out_dir, figures, note):
+        print(path)
+    return EXIT_OK

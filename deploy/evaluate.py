@@ -36,6 +36,10 @@ class RunResult(BaseModel):
     tracking_position_error_m: float | None = None  # median while the target moved
     tracking_max_position_error_m: float | None = None
     tracking_pixel_rms: float | None = None  # median while the target moved
+    # At the last frame (ground truth, to name why a run failed): the joint nearest its limit,
+    # and the hand marker's corner nearest the image border (negative: outside the image).
+    final_joint_margin_deg: float | None = None
+    final_hand_border_px: float | None = None
     detail: str = ""
 
 
@@ -114,6 +118,19 @@ def tracking_metrics(
     }
 
 
+def joint_margin_deg(q_rad: np.ndarray) -> float:
+    """How far (degrees) the joint nearest one of its limits is from it."""
+    margin = np.minimum(q_rad - kin.JOINT_LOWER_RAD, kin.JOINT_UPPER_RAD - q_rad)
+    return float(np.degrees(np.min(margin)))
+
+
+def border_margin_px(corners_px: np.ndarray, image_size_px: tuple[int, int]) -> float:
+    """Distance of the corner nearest the image border from it (negative: outside)."""
+    width, height = image_size_px
+    u, v = corners_px[:, 0], corners_px[:, 1]
+    return float(min(u.min(), v.min(), width - 1 - u.max(), height - 1 - v.max()))
+
+
 def held_time_s(twists: dict[int, EndEffectorTwist], last_frame: int, period_s: float) -> float:
     """Sim time the controller held because a marker was not visible."""
     return period_s * sum(1 for k, tw in twists.items() if k <= last_frame and not tw.valid)
@@ -132,10 +149,12 @@ def summarize(
     detail: str = "",
     period_s: float = 1.0 / 30.0,
     moving: list[tuple[float, float]] | None = None,
+    image_size_px: tuple[int, int] | None = None,
 ) -> RunResult:
     """Result at ``last_frame`` (the frame whose twist decided the outcome). Errors compare the
     green marker with its goal: the red marker raised by ``approach_height_m``. ``period_s``:
-    the camera period; ``moving``: (start, end) sim times of the target's moves."""
+    the camera period; ``moving``: (start, end) sim times of the target's moves;
+    ``image_size_px``: (width, height), for how far the hand is from the border."""
     if reason != "converged" and not detail:
         raise ValueError(f"a {reason!r} result needs a detail saying why it did not converge")
     truth = truths.get(last_frame) if last_frame is not None else None
@@ -149,6 +168,11 @@ def summarize(
         extra.update(motion_metrics(truths, last_frame))
         extra.update(tracking_metrics(truths, twists, last_frame, moving or [], approach_height_m))
         extra["marker_lost_s"] = held_time_s(twists, last_frame, period_s)
+        extra["final_joint_margin_deg"] = joint_margin_deg(np.array(truth.joint_position_rad))
+        if image_size_px is not None:
+            extra["final_hand_border_px"] = border_margin_px(
+                np.array(truth.hand_corners_px), image_size_px
+            )
     return RunResult(
         scenario=scenario,
         mode=mode,

@@ -36,9 +36,9 @@ def test_goal_slides_the_square_and_stays_inside_the_image() -> None:
     corners = np.array([[300.0, 200.0], [340.0, 200.0], [340.0, 240.0], [300.0, 240.0]])
     goal = acq.goal_corners(corners, np.array([1.0, 0.0]), 100.0, K)
     np.testing.assert_allclose(goal - corners, np.tile([100.0, 0.0], (4, 1)))
-    # Towards the top border, 200 px away: only 200 - 10 px margin are allowed.
+    # Towards the top border, 200 px away: only 200 px less the margin are allowed.
     up = acq.goal_corners(corners, np.array([0.0, -1.0]), 250.0, K)
-    assert up is not None and np.isclose(up[:, 1].min(), acq.IMAGE_MARGIN_PX)
+    assert up is not None and np.isclose(up[:, 1].min(), acq.image_margin_px(K))
     # Less than half the clearance left: that direction is skipped.
     assert acq.goal_corners(corners, np.array([0.0, -1.0]), 500.0, K) is None
 

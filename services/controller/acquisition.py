@@ -22,10 +22,11 @@ acceleration limits). Directions, in order:
 Directions more downward than sideways are left out: at constant depth they would press the
 hand onto the table the target lies on.
 
-Each attempt ends when the hand reaches its goal or after ``acquire_attempt_s``; the next one
-starts from wherever the hand is. After ``acquire_attempts`` the acquisition has failed. A goal
-is pulled in so that the hand marker stays inside the image (a margin), and a direction that
-leaves less than half the clearance is skipped.
+Each attempt ends when the hand reaches its goal, comes near the image border, or after
+``acquire_attempt_s``; the next one starts from wherever the hand is. After
+``acquire_attempts`` (counted over the run by the controller) the acquisition has failed. A
+goal is pulled in so that the hand marker stays inside the image (a margin), and a direction
+that leaves less than half the clearance is skipped.
 """
 
 from __future__ import annotations
@@ -43,7 +44,11 @@ FloatArray = NDArray[np.float64]
 # box (9 × 8 cm) around the 6 cm marker reaches about 0.7 diagonals from the marker's centre,
 # a target of the same size another 0.5 at most; the rest is margin.
 CLEARANCE_DIAGONALS = 1.6
-IMAGE_MARGIN_PX = 10.0  # the hand marker's goal stays this far inside the image
+# The hand marker's goal stays this far inside the image (at least, or this share of the
+# image's smaller side): the motion there is not a straight image line, and a hand marker
+# cut by the border is lost to vision.
+IMAGE_MARGIN_PX = 10.0
+IMAGE_MARGIN_FRACTION = 0.08
 REACHED_PX = 3.0  # an attempt is over when every corner is this close to its goal
 MIN_SHARE = 0.5  # a direction allowing less than this share of the clearance is skipped
 DOWN_LIMIT = 0.7  # directions more downward than this (cosine with the image's down) are left out
@@ -106,6 +111,22 @@ def diagonal_px(corners_px: FloatArray) -> float:
     return 0.5 * float(np.linalg.norm(c[0] - c[2]) + np.linalg.norm(c[1] - c[3]))
 
 
+def image_margin_px(k: CameraIntrinsics) -> float:
+    """How far inside the image border an acquisition goal stays."""
+    return max(IMAGE_MARGIN_PX, IMAGE_MARGIN_FRACTION * min(k.width_px, k.height_px))
+
+
+def near_border(corners_px: FloatArray, k: CameraIntrinsics) -> bool:
+    """A corner within half the goal margin of the border: the attempt stops there."""
+    c = np.asarray(corners_px, dtype=float)
+    edge = 0.5 * image_margin_px(k)
+    return bool(
+        np.any(c < edge)
+        or np.any(c[:, 0] > k.width_px - 1 - edge)
+        or np.any(c[:, 1] > k.height_px - 1 - edge)
+    )
+
+
 def goal_corners(
     corners_px: FloatArray, direction: FloatArray, distance_px: float, k: CameraIntrinsics
 ) -> FloatArray | None:
@@ -114,8 +135,9 @@ def goal_corners(
     the distance is left."""
     c = np.asarray(corners_px, dtype=float)
     d = np.asarray(direction, dtype=float)
-    low = np.array([IMAGE_MARGIN_PX, IMAGE_MARGIN_PX])
-    high = np.array([k.width_px - 1 - IMAGE_MARGIN_PX, k.height_px - 1 - IMAGE_MARGIN_PX])
+    margin = image_margin_px(k)
+    low = np.array([margin, margin])
+    high = np.array([k.width_px - 1 - margin, k.height_px - 1 - margin])
     allowed = distance_px
     for axis in range(2):
         if d[axis] > 1e-9:
@@ -166,10 +188,12 @@ def advance(
     k: CameraIntrinsics,
 ) -> Acquisition | None:
     """The acquisition at ``t_s`` with the hand's corners there: the same attempt, the next
-    one when this one reached its goal or ran out of time, or None when no direction is left
+    one when this one reached its goal, came near the image border (:func:`near_border`) or
+    ran out of time, or None when no direction is left
     (it failed). The caller bounds the number of attempts."""
     reached = bool(np.all(np.linalg.norm(corners_px - acq.goal_px, axis=1) < REACHED_PX))
-    if not reached and t_s - acq.attempt_started_s < attempt_s:
+    over = reached or near_border(corners_px, k) or t_s - acq.attempt_started_s >= attempt_s
+    if not over:
         return acq
     return _next_attempt(
         acq.why, acq.started_s, t_s, acq.attempt, corners_px, list(acq.directions), k

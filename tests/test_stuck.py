@@ -1,0 +1,90 @@
+"""No silent holds: a run that holds too long ends as stuck, naming what it waited for."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from common.codec import encode
+from common.messages import EndEffectorTwist, Header
+from deploy.evaluate import summarize
+from deploy.run import RunMonitor, stuck_detail, twist_phase
+
+PERIOD_S = 1 / 30
+
+
+@dataclass
+class Payload:
+    data: bytes
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
+@dataclass
+class Sample:
+    payload: Payload
+
+
+def twist(seq: int, valid: bool, reason: str = "") -> EndEffectorTwist:
+    header = Header(seq=seq, sim_time_s=seq * PERIOD_S, send_time_s=0.0, frame_seq=seq)
+    return EndEffectorTwist(
+        header=header,
+        linear_m_s=[0.01 if valid else 0.0, 0.0, 0.0],
+        angular_rad_s=[0.0, 0.0, 0.0],
+        valid=valid,
+        hold_reason=reason,
+        mode="dynamic",
+        error_px_rms=3.0 if valid else 0.0,
+        converged=False,
+    )
+
+
+def feed(monitor: RunMonitor, twists: list[EndEffectorTwist]) -> None:
+    for tw in twists:
+        monitor.on_twist(Sample(Payload(encode(tw))))
+
+
+def test_a_hold_longer_than_stuck_after_ends_the_run_naming_what_and_since_when() -> None:
+    monitor = RunMonitor(timeout_s=30.0, stuck_after_s=4.0)
+    feed(monitor, [twist(i, True) for i in range(30)])  # servoing for 1 s
+    feed(monitor, [twist(i, False, "target partial") for i in range(30, 30 + 4 * 30)])
+    assert not monitor.decided.is_set()  # 3.97 s of holding: not yet
+    feed(monitor, [twist(150, False, "target partial")])
+    assert monitor.decided.is_set() and monitor.ended == "stuck"
+    assert monitor.ended_frame == 150
+    assert monitor.ended_detail == stuck_detail("target partial", 1.0, 5.0)
+    assert "waiting for: target partial" in monitor.ended_detail
+    assert "since sim time 1.00 s" in monitor.ended_detail
+
+
+def test_motion_between_holds_restarts_the_count() -> None:
+    monitor = RunMonitor(timeout_s=30.0, stuck_after_s=1.0)
+    for start in range(0, 300, 40):  # 0.9 s holding, then one frame of motion, again and again
+        feed(monitor, [twist(start + i, False, "hand lost") for i in range(27)])
+        feed(monitor, [twist(start + i, True) for i in range(27, 40)])
+    assert not monitor.decided.is_set()
+
+
+def test_a_failed_acquisition_ends_the_run_at_once() -> None:
+    monitor = RunMonitor(timeout_s=30.0, stuck_after_s=4.0)
+    reason = "acquisition failed: target partial after 4 attempt(s) from 0.53 s"
+    feed(monitor, [twist(0, True), twist(1, False, reason)])
+    assert monitor.ended == "acquisition_failed" and reason in monitor.ended_detail
+
+
+def test_the_live_line_names_the_phase() -> None:
+    assert twist_phase(twist(0, True)) == "servoing"
+    assert twist_phase(twist(0, False, "target partial")) == "holding: target partial"
+    acquiring = "acquiring: target partial, attempt 1/4"
+    assert twist_phase(twist(0, True, acquiring)) == acquiring
+
+
+def test_a_result_that_did_not_converge_must_say_why() -> None:
+    try:
+        summarize("s", "dynamic", "lockstep", "timeout", None, {}, {}, 1.0, 0.03)
+    except ValueError as exc:
+        assert "detail" in str(exc)
+    else:
+        raise AssertionError("a timeout without a detail was accepted")
+    ok = summarize("s", "dynamic", "lockstep", "timeout", None, {}, {}, 1.0, 0.03, "why")
+    assert ok.detail == "why" and not ok.converged
