@@ -1,0 +1,147 @@
+"""Random-start campaigns: the distribution, its seeds, the failure taxonomy, and a small
+campaign run end to end twice (every run named, bit-for-bit repeatable)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common import kinematics as kin
+from common.config import load_scenario
+from deploy.campaign import (
+    CAUSES,
+    DEFAULT_DISTRIBUTION,
+    cause_family,
+    draw_start,
+    failure_cause,
+    load_distribution,
+    taxonomy_markdown,
+    waited_for,
+)
+from deploy.compare import CompareRow, differences, rows_from_json
+from deploy.reachability import check_scenario, goal_pose, marker_in_image, view_angle_deg
+
+DIST, BASE_PATH = load_distribution(DEFAULT_DISTRIBUTION)
+BASE = load_scenario(BASE_PATH)
+
+
+def test_each_start_comes_from_its_own_seed_and_lies_in_the_distribution() -> None:
+    starts = [draw_start(DIST, BASE, i) for i in range(6)]
+    assert draw_start(DIST, BASE, 4) == starts[4]  # the same whatever came before
+    other = DIST.model_copy(update={"seed": DIST.seed + 1})
+    assert draw_start(other, BASE, 4) != starts[4]
+    for s in starts:
+        assert DIST.target_x_m[0] <= s.target_position_m[0] <= DIST.target_x_m[1]
+        assert DIST.target_z_m[0] <= s.target_position_m[2] <= DIST.target_z_m[1]
+        assert -np.pi <= s.target_yaw_rad <= np.pi
+        assert np.linalg.norm(s.offset_m) <= DIST.max_offset_m and s.offset_m[1] >= 0.0
+        assert abs(s.turn_deg) <= DIST.max_turn_deg
+        if s.refused:
+            assert s.q0_rad is None or s.refused.startswith(("robot.", "target."))
+            continue
+        scenario = BASE.model_copy(
+            update={
+                "robot": BASE.robot.model_copy(update={"q0": list(s.q0_rad)}),
+                "target": BASE.target.model_copy(
+                    update={"position": list(s.target_position_m), "yaw": s.target_yaw_rad}
+                ),
+            }
+        )
+        check_scenario(scenario)  # runnable: the pre-launch check passes
+        hand = kin.forward_kinematics(np.array(s.q0_rad)) @ kin.hand_marker_in_ee()
+        assert marker_in_image(kin.marker_corners(hand, BASE.marker.size_m), scenario)
+        assert view_angle_deg(hand, scenario) <= 70.0
+        # Where IK put it: the offset from the goal (up to the square's 90° turns).
+        assert np.allclose(hand[:3, 3] - goal_pose(scenario)[:3, 3], s.offset_m, atol=1e-4)
+
+
+def row(**fields) -> CompareRow:
+    base = dict(
+        scenario="start_0001", mode="dynamic", clock="lockstep", converged=False,
+        reason="timeout", frames=100, sim_time_s=10.0, wall_time_s=5.0, final_pixel_rms=None,
+        final_position_error_m=0.05, final_orientation_error_deg=3.0, path_length_m=0.1,
+        min_manipulability=0.01, final_joint_margin_deg=20.0, final_hand_border_px=50.0,
+        detail="20 s simulated; still servoing", on_goal=False, scenario_file="x.toml",
+        moving_target=False,
+    )  # fmt: skip
+    base.update(fields)
+    return CompareRow(**base)
+
+
+@pytest.mark.parametrize(
+    "fields, cause",
+    [
+        ({"converged": True, "reason": "converged", "on_goal": True}, "converged"),
+        ({"converged": True, "reason": "converged", "on_goal": False}, "local minimum"),
+        ({"reason": "acquisition_failed"}, "acquisition failed"),
+        ({"reason": "stuck", "final_hand_border_px": -2.0}, "marker left the image"),
+        ({"final_joint_margin_deg": 0.2}, "joint limit"),
+        ({"min_manipulability": 0.0005}, "singularity"),
+        (
+            {"reason": "stuck", "detail": "held 4.00 s waiting for: hand partial (holding ...)"},
+            "stuck (hand partial)",
+        ),
+        ({}, "timeout"),
+        ({"reason": "error", "detail": "service exited"}, "error"),
+    ],
+)
+def test_every_failure_gets_one_named_cause(fields: dict, cause: str) -> None:
+    assert failure_cause(row(**fields)) == cause
+    assert cause_family(cause) in CAUSES
+
+
+def test_waited_for_reads_the_stuck_detail() -> None:
+    assert waited_for("held 4.03 s waiting for: target partial (holding since 0.00 s)") == (
+        "target partial"
+    )
+
+
+def test_taxonomy_counts_every_start_and_run() -> None:
+    starts = [draw_start(DIST, BASE, i) for i in range(3)]
+    rows = [
+        row(scenario=s.name, mode=m, converged=True, reason="converged", on_goal=True)
+        for s in starts
+        if not s.refused
+        for m in ("dynamic", "mpj")
+    ]
+    md = taxonomy_markdown(starts, rows, ("dynamic", "mpj"), DIST)
+    ok = sum(not s.refused for s in starts)
+    assert f"| dynamic | {ok} | {ok} | 100.0% |" in md
+    assert f"{len(starts)} starts drawn (seed {DIST.seed}" in md
+
+
+CHEAP = ["camera.width_px=320", "camera.height_px=240", "run.timeout_s=15.0"]
+
+
+def campaign(out: Path) -> subprocess.CompletedProcess:
+    sets = [a for item in CHEAP for a in ("--set", item)]
+    return subprocess.run(
+        [sys.executable, "-m", "deploy", "campaign", "--n", "3", "--modes", "dynamic", "mpj",
+         "--jobs", "2", "--out", str(out), *sets],
+        capture_output=True, text=True, timeout=900,
+    )  # fmt: skip
+
+
+def test_a_small_campaign_names_every_run_and_repeats_bit_for_bit(tmp_path: Path) -> None:
+    first, second = campaign(tmp_path / "a"), campaign(tmp_path / "b")
+    assert first.returncode == 0, first.stderr
+    assert second.returncode == 0, second.stderr
+    causes = json.loads((tmp_path / "a" / "causes.json").read_text())
+    starts = json.loads((tmp_path / "a" / "starts.json").read_text())
+    assert len(starts) == 3
+    assert len(causes) == 2 * 3  # every start × strategy, refused or run
+    for c in causes:
+        assert cause_family(c["cause"]) in CAUSES, c
+        if c["cause"] != "converged":
+            assert c["detail"], c  # every failure says why
+    a = rows_from_json((tmp_path / "a" / "results.json").read_text())
+    b = rows_from_json((tmp_path / "b" / "results.json").read_text())
+    assert a and differences(a, b) == []  # lockstep: the same to the bit, wall time aside
+    assert (tmp_path / "a" / "campaign.md").read_text() == (
+        tmp_path / "b" / "campaign.md"
+    ).read_text()
