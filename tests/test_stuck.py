@@ -88,3 +88,16 @@ def test_a_result_that_did_not_converge_must_say_why() -> None:
         raise AssertionError("a timeout without a detail was accepted")
     ok = summarize("s", "dynamic", "lockstep", "timeout", None, {}, {}, 1.0, 0.03, "why")
     assert ok.detail == "why" and not ok.converged
+
+
+def test_status_says_what_a_hold_waits_for_and_for_how_long() -> None:
+    from common.config import ControllerConfig
+    from services.controller.ibvs import describe_hold
+
+    cfg = ControllerConfig(stuck_after_s=4.0)
+    assert describe_hold("target partial", 1.0, 3.0, cfg) == (
+        "holding: target partial (for 2.0 s, since sim time 1.00 s)"
+    )
+    assert describe_hold("hand lost", 1.0, 6.5, cfg) == (
+        "holding: hand lost (stuck, for 5.5 s, since sim time 1.00 s)"
+    )

@@ -239,6 +239,21 @@ ACQUIRING = "acquiring"
 ACQUISITION_FAILED = "acquisition failed"
 
 
+def is_stuck(hold_since_s: float | None, now_s: float, stuck_after_s: float) -> bool:
+    """A hold that began at ``hold_since_s`` has lasted ``stuck_after_s`` by ``now_s``."""
+    return hold_since_s is not None and now_s - hold_since_s >= stuck_after_s
+
+
+def describe_hold(
+    reason: str, hold_since_s: float | None, now_s: float, config: ControllerConfig
+) -> str:
+    """What a hold waits for and for how long, for ``umay status``:
+    ``holding: target partial (stuck, for 6.0 s, since sim time 0.00 s)``."""
+    since = now_s if hold_since_s is None else hold_since_s
+    stuck = "stuck, " if is_stuck(hold_since_s, now_s, config.stuck_after_s) else ""
+    return f"holding: {reason} ({stuck}for {now_s - since:.1f} s, since sim time {since:.2f} s)"
+
+
 def may_be_behind_the_hand(target: MarkerObservation) -> bool:
     """Seen partly, or with something in front: what moving the hand away can uncover (a
     target simply gone, with nothing in front of it, cannot be)."""

@@ -13,7 +13,7 @@ from common.messages import EndEffectorTwist, Features, JointState, MarkerFeatur
 from common.pairing import FramePairer
 from common.runtime import ServiceContext
 from common.transport import Node
-from services.controller.ibvs import IbvsController, MarkerObservation
+from services.controller.ibvs import IbvsController, MarkerObservation, describe_hold, is_stuck
 
 ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
 
@@ -75,18 +75,13 @@ class ControllerService:
 
     def stuck(self) -> bool:
         """Held longer than the scenario's ``controller.stuck_after_s`` (sim time)."""
-        if self.hold_since_s is None:
-            return False
-        return self.sim_time_s - self.hold_since_s >= self.controller.config.stuck_after_s
+        return is_stuck(self.hold_since_s, self.sim_time_s, self.controller.config.stuck_after_s)
 
     def degraded(self) -> str:
         if not self.holding:
             return ""
-        since = self.hold_since_s if self.hold_since_s is not None else self.sim_time_s
-        stuck = "stuck, " if self.stuck() else ""
-        return (
-            f"holding: {self.hold_reason} ({stuck}for {self.sim_time_s - since:.1f} s, "
-            f"since sim time {since:.2f} s)"
+        return describe_hold(
+            self.hold_reason, self.hold_since_s, self.sim_time_s, self.controller.config
         )
 
     def on_pair(self, features: Features, joints: JointState) -> None:
