@@ -41,6 +41,7 @@ from deploy.compare import (
 )
 from deploy.reachability import (
     MAX_VIEW_ANGLE_DEG,
+    arm_hides_hand_marker,
     check_scenario,
     goal_pose,
     marker_in_image,
@@ -160,6 +161,9 @@ REDRAW_TARGET_OUTSIDE = "target marker not wholly in the image"
 REDRAW_START_OUT_OF_REACH = "start pose out of reach"
 REDRAW_HAND_OUTSIDE = "hand marker not wholly in the image at start"
 REDRAW_HAND_FACING_AWAY = "hand marker facing away from the camera at start"
+REDRAW_HAND_HIDDEN = "hand marker hidden by the robot's own arm at start"
+# The goal reached on the start's elbow and wrist branch: there the servo ends.
+REDRAW_GOAL_HIDDEN = "hand marker hidden by the robot's own arm at the goal (on that branch)"
 
 
 def draw_start(dist: Distribution, base: Scenario, index: int) -> Start:
@@ -200,6 +204,12 @@ def draw_start(dist: Distribution, base: Scenario, index: int) -> Start:
             continue
         if view_angle_deg(hand, scenario) > MAX_VIEW_ANGLE_DEG:
             redrawn[REDRAW_HAND_FACING_AWAY] += 1
+            continue
+        if arm_hides_hand_marker(q, scenario):
+            redrawn[REDRAW_HAND_HIDDEN] += 1
+            continue
+        if arm_hides_hand_marker(solved[0], scenario):
+            redrawn[REDRAW_GOAL_HIDDEN] += 1
             continue
         q0 = tuple(round(float(v), 6) for v in q)
         try:

@@ -18,6 +18,10 @@ IMAGE_MARGIN_PX = 8.0
 # (a 6 cm square at 0.45 m is under a third of its width across): no motion of the servo can
 # start without features, so such a start is refused.
 MAX_VIEW_ANGLE_DEG = 70.0
+LIMB_RADIUS_M = 0.022  # the sim's upper arm and forearm cylinders (services/sim/urdf.py)
+# A line of sight is checked up to this fraction short of the marker: the forearm ends at the
+# wrist, under the hand box the marker lies on.
+SIGHT_CLEARANCE_FRACTION = 0.08
 # IK starts tried before a goal is called out of reach: with 12, a third of the goals of random
 # targets at any yaw were refused though reachable (the damped iteration stalls at joint
 # limits from most seeds when the wrist must turn ~45°); 80 found all but one of them.
@@ -44,6 +48,38 @@ def view_angle_deg(marker_pose: np.ndarray, scenario: Scenario) -> float:
     to_camera = scenario.camera.pose()[:3, 3] - marker_pose[:3, 3]
     cosine = marker_pose[:3, 2] @ to_camera / np.linalg.norm(to_camera)
     return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+
+
+def segment_distance_m(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> float:
+    """Least distance between the segments p0-p1 and q0-q1 (closest points, clamped)."""
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a, e, f = d1 @ d1, d2 @ d2, d2 @ r
+    c, b = d1 @ r, d1 @ d2
+    denom = a * e - b * b
+    s = float(np.clip((b * f - c * e) / denom, 0.0, 1.0)) if denom > 1e-12 else 0.0
+    t = (b * s + f) / e
+    if t < 0.0:
+        t, s = 0.0, float(np.clip(-c / a, 0.0, 1.0))
+    elif t > 1.0:
+        t, s = 1.0, float(np.clip((b - c) / a, 0.0, 1.0))
+    return float(np.linalg.norm(p0 + s * d1 - (q0 + t * d2)))
+
+
+def arm_hides_hand_marker(q_rad: np.ndarray, scenario: Scenario) -> bool:
+    """Whether the upper arm or the forearm (cylinders of :data:`LIMB_RADIUS_M` between their
+    joints, as the sim draws them) comes between the camera and a corner or the centre of the
+    hand marker: vision cannot measure a marker the robot's own arm hides."""
+    frames = kin.frame_transforms(np.asarray(q_rad, dtype=float))
+    marker = frames[-1] @ kin.hand_marker_in_ee()
+    points = np.vstack([kin.marker_corners(marker, scenario.marker.size_m), marker[:3, 3]])
+    camera = scenario.camera.pose()[:3, 3]
+    limbs = [(frames[1][:3, 3], frames[2][:3, 3]), (frames[3][:3, 3], frames[4][:3, 3])]
+    for p in points:
+        end = camera + (1.0 - SIGHT_CLEARANCE_FRACTION) * (p - camera)  # short of the marker
+        for a, b in limbs:
+            if segment_distance_m(camera, end, a, b) < LIMB_RADIUS_M:
+                return True
+    return False
 
 
 def goal_pose(scenario: Scenario) -> np.ndarray:
@@ -73,6 +109,8 @@ def check_scenario(scenario: Scenario, seeds: int | None = None) -> np.ndarray:
     start = kin.forward_kinematics(q0) @ kin.hand_marker_in_ee()
     if not marker_in_image(kin.marker_corners(start, size), scenario):
         raise ScenarioError("robot.q0: the hand marker is not fully in the camera image at start")
+    if arm_hides_hand_marker(q0, scenario):
+        raise ScenarioError("robot.q0: the robot's own arm hides the hand marker from the camera")
     angle = view_angle_deg(start, scenario)
     if angle > MAX_VIEW_ANGLE_DEG:
         raise ScenarioError(
