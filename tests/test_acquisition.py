@@ -21,15 +21,16 @@ def test_directions_go_across_the_forearm_rising_side_first_and_never_down() -> 
     dirs = acq.uncover_directions(hand, elbow, up)
     back = np.array([2.0, 1.0]) / np.sqrt(5)
     across_rising = np.array([1.0, -2.0]) / np.sqrt(5)
+    diagonals = [np.array([1.0, -1.0]) / np.sqrt(2), np.array([-1.0, -1.0]) / np.sqrt(2)]
     # across the other way goes mostly down (onto the table): left out
-    expected = [across_rising, up, back, -back]
+    expected = [across_rising, up, back, -back, *diagonals]
     assert len(dirs) == len(expected)
     for d, e in zip(dirs, expected, strict=True):
         np.testing.assert_allclose(d, e, atol=1e-12)
-    # The elbow straight above: away from it is straight down, left out.
+    # The elbow straight above: away from it is straight down (left out), back is up (once).
     dirs = acq.uncover_directions(hand, np.array([300.0, 50.0]), up)
-    assert all(d @ up >= -acq.DOWN_LIMIT for d in dirs) and len(dirs) == 3
-    assert len(acq.uncover_directions(hand, None)) == 3  # no elbow: up, left, right
+    assert all(d @ up >= -acq.DOWN_LIMIT for d in dirs) and len(dirs) == 5
+    assert len(acq.uncover_directions(hand, None)) == 3  # no elbow, no up: up, left, right
 
 
 def test_goal_slides_the_square_and_stays_inside_the_image() -> None:
@@ -39,8 +40,8 @@ def test_goal_slides_the_square_and_stays_inside_the_image() -> None:
     # Towards the top border, 200 px away: only 200 px less the margin are allowed.
     up = acq.goal_corners(corners, np.array([0.0, -1.0]), 250.0, K)
     assert up is not None and np.isclose(up[:, 1].min(), acq.image_margin_px(K))
-    # Less than half the clearance left: that direction is skipped.
-    assert acq.goal_corners(corners, np.array([0.0, -1.0]), 500.0, K) is None
+    # Less than MIN_SHARE of the clearance left: that direction is skipped.
+    assert acq.goal_corners(corners, np.array([0.0, -1.0]), 700.0, K) is None
 
 
 def test_the_law_slides_the_hand_image_to_its_goal_without_turning_it() -> None:
@@ -100,10 +101,21 @@ def test_acquisition_is_bounded_and_then_holds_naming_the_failure() -> None:
 
 def test_a_target_gone_with_nothing_in_front_is_not_acquired() -> None:
     ctrl, hand = start_covering(ControllerConfig(acquire_after_s=0.1))
-    for i in range(30):
+    target = observe(square_points(np.array([0.1, 0.07, 0.55])))
+    assert ctrl.step(hand, target, K, np.zeros(3), 0.0).phase == "servoing"
+    for i in range(1, 30):
         out = ctrl.step(hand, not_seen("lost"), K, np.zeros(3), i * DT_S)
     assert out.phase == "holding" and out.hold_reason == "target lost"
-    assert out.hold_since_s == 0.0
+    assert out.hold_since_s == DT_S
+
+
+def test_a_target_never_seen_at_all_is_acquired() -> None:
+    """The pre-launch check puts the target in the image: unseen from the start, something
+    (the arm) is in front of it."""
+    ctrl, hand = start_covering(ControllerConfig(acquire_after_s=0.1))
+    for i in range(30):
+        out = ctrl.step(hand, not_seen("lost"), K, np.zeros(3), i * DT_S)
+    assert out.phase == "acquiring" and out.hold_reason.startswith("acquiring: target lost")
 
 
 def test_acquisition_can_be_switched_off() -> None:

@@ -17,7 +17,8 @@ acceleration limits). Directions, in order:
 1. and 2. across the forearm's image, the side where the hand rises first: the hand and the
    forearm behind it both leave the image area they covered;
 3. up in the image (the world's vertical at the hand, from the assumed camera pose);
-4. towards the elbow's image (the hand slides back along its own forearm).
+4. and 5. towards the elbow's image (the hand slides back along its own forearm), and away;
+6. and 7. up and to either side, diagonally.
 
 Directions more downward than sideways are left out: at constant depth they would press the
 hand onto the table the target lies on.
@@ -26,7 +27,7 @@ Each attempt ends when the hand reaches its goal, comes near the image border, o
 ``acquire_attempt_s``; the next one starts from wherever the hand is. After
 ``acquire_attempts`` (counted over the run by the controller) the acquisition has failed. A
 goal is pulled in so that the hand marker stays inside the image (a margin), and a direction
-that leaves less than half the clearance is skipped.
+that leaves less than 30 % of the clearance is skipped.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ CLEARANCE_DIAGONALS = 1.6
 IMAGE_MARGIN_PX = 10.0
 IMAGE_MARGIN_FRACTION = 0.08
 REACHED_PX = 3.0  # an attempt is over when every corner is this close to its goal
-MIN_SHARE = 0.5  # a direction allowing less than this share of the clearance is skipped
+MIN_SHARE = 0.3  # a direction allowing less than this share of the clearance is skipped
 DOWN_LIMIT = 0.7  # directions more downward than this (cosine with the image's down) are left out
 
 
@@ -79,7 +80,8 @@ def uncover_directions(
     """Unit image directions to try, best first (see the module doc). ``up_px``: the image
     direction of the world's vertical at the hand; a direction going down (towards the table
     the target lies on) more than sideways is left out, since at constant depth it would press
-    the hand onto the table. Without the elbow's image, up, left, right."""
+    the hand onto the table; near-duplicates are dropped. Without the elbow's image, up,
+    left, right (then the diagonals, given ``up_px``)."""
     up = None
     if up_px is not None and np.linalg.norm(up_px) > 1e-9:
         up = np.asarray(up_px, dtype=float) / np.linalg.norm(up_px)
@@ -96,7 +98,13 @@ def uncover_directions(
     if not candidates:
         candidates = [np.array(d, dtype=float) for d in ((0.0, -1.0), (-1.0, 0.0), (1.0, 0.0))]
     if up is not None:
-        candidates.insert(2, up)
+        side = candidates[0] - (candidates[0] @ up) * up
+        side = side / np.linalg.norm(side) if np.linalg.norm(side) > 1e-9 else np.zeros(2)
+        diagonals = [
+            (up + side) / np.linalg.norm(up + side),
+            (up - side) / np.linalg.norm(up - side),
+        ]
+        candidates = [*candidates[:2], up, *candidates[2:], *diagonals]
         candidates = [d for d in candidates if d @ up >= -DOWN_LIMIT]
     distinct: list[FloatArray] = []
     for d in candidates:

@@ -384,7 +384,10 @@ class IbvsController:
             if self.hold_since_s is None:
                 self.hold_since_s = t_s
             reason = f"{which} {state}"
-            if hand.visible and may_be_behind_the_hand(seen) and self.config.acquire:
+            # A target never seen at all is in the image (the pre-launch check makes sure):
+            # something, most likely the arm, is in front of it.
+            behind = may_be_behind_the_hand(seen) or self.last_target is None
+            if hand.visible and behind and self.config.acquire:
                 if self.acquisition_failed:
                     reason = self.acquisition_failed
                 elif t_s - self.hold_since_s >= self.config.acquire_after_s:
