@@ -80,7 +80,7 @@ def row(**fields) -> CompareRow:
         ({"converged": True, "reason": "converged", "on_goal": False}, "local minimum"),
         ({"reason": "acquisition_failed"}, "acquisition failed"),
         ({"reason": "stuck", "final_hand_border_px": -2.0}, "marker left the image"),
-        ({"final_joint_margin_deg": 0.2}, "joint limit"),
+        ({"final_joint_margin_deg": 4.0}, "joint limit"),
         ({"min_manipulability": 0.0005}, "singularity"),
         (
             {"reason": "stuck", "detail": "held 4.00 s waiting for: hand partial (holding ...)"},

@@ -51,6 +51,7 @@ CLEARANCE_DIAGONALS = 1.6
 IMAGE_MARGIN_PX = 10.0
 IMAGE_MARGIN_FRACTION = 0.08
 REACHED_PX = 3.0  # an attempt is over when every corner is this close to its goal
+BORDER_HYSTERESIS_PX = 4.0  # nearer the border than at its start by this much: the attempt ends
 MIN_SHARE = 0.3  # a direction allowing less than this share of the clearance is skipped
 DOWN_LIMIT = 0.7  # directions more downward than this (cosine with the image's down) are left out
 
@@ -59,7 +60,8 @@ DOWN_LIMIT = 0.7  # directions more downward than this (cosine with the image's 
 class Acquisition:
     """One acquisition in progress: why it started (what the target was, e.g. ``target
     partial``), when (sim s), its attempt (0-based), when that attempt started, the goal of
-    the hand marker's corners (4×2 px) and the image directions left to try (unit, px)."""
+    the hand marker's corners (4×2 px), the image directions left to try (unit, px) and how
+    far the hand was from the image border when the attempt began."""
 
     why: str
     started_s: float
@@ -67,6 +69,8 @@ class Acquisition:
     attempt_started_s: float
     goal_px: FloatArray
     directions: tuple[tuple[float, float], ...]
+    start_border_px: float  # the hand's distance from the image border when it began
+    every: tuple[tuple[float, float], ...] = ()  # all the directions, in their order
 
     def describe(self, attempt: int, attempts: int) -> str:
         """For the status and the twist's reason: ``acquiring: target partial, attempt 1/4``
@@ -124,15 +128,17 @@ def image_margin_px(k: CameraIntrinsics) -> float:
     return max(IMAGE_MARGIN_PX, IMAGE_MARGIN_FRACTION * min(k.width_px, k.height_px))
 
 
-def near_border(corners_px: FloatArray, k: CameraIntrinsics) -> bool:
-    """A corner within half the goal margin of the border: the attempt stops there."""
+def border_distance_px(corners_px: FloatArray, k: CameraIntrinsics) -> float:
+    """How far the corner nearest the image border is from it (px)."""
     c = np.asarray(corners_px, dtype=float)
-    edge = 0.5 * image_margin_px(k)
-    return bool(
-        np.any(c < edge)
-        or np.any(c[:, 0] > k.width_px - 1 - edge)
-        or np.any(c[:, 1] > k.height_px - 1 - edge)
-    )
+    return float(min(c.min(), (k.width_px - 1 - c[:, 0]).min(), (k.height_px - 1 - c[:, 1]).min()))
+
+
+def near_border(corners_px: FloatArray, k: CameraIntrinsics, start_px: float) -> bool:
+    """A corner within half the goal margin of the border, and nearer it than when the
+    attempt began (``start_px``, :func:`border_distance_px` then): the attempt stops there."""
+    now = border_distance_px(corners_px, k)
+    return now < 0.5 * image_margin_px(k) and now < start_px - BORDER_HYSTERESIS_PX
 
 
 def goal_corners(
@@ -166,8 +172,10 @@ def start(
     up_px: FloatArray | None = None,
 ) -> Acquisition | None:
     """A new acquisition from the hand's corners now, or None when no direction is open."""
-    directions = uncover_directions(np.asarray(corners_px).mean(axis=0), elbow_px, up_px)
-    return _next_attempt(why, t_s, t_s, -1, corners_px, [tuple(d) for d in directions], k)
+    directions = [
+        tuple(d) for d in uncover_directions(np.mean(corners_px, axis=0), elbow_px, up_px)
+    ]
+    return _next_attempt(why, t_s, t_s, -1, corners_px, directions, tuple(directions), k)
 
 
 def _next_attempt(
@@ -177,14 +185,22 @@ def _next_attempt(
     attempt: int,
     corners_px: FloatArray,
     directions: list[tuple[float, float]],
+    every: tuple[tuple[float, float], ...],
     k: CameraIntrinsics,
 ) -> Acquisition | None:
+    """The next attempt: the first untried direction with room in the image; once every
+    direction has been tried, the first with room from where the hand is now."""
     distance = CLEARANCE_DIAGONALS * diagonal_px(corners_px)
-    while directions:
-        d = directions.pop(0)
-        goal = goal_corners(corners_px, np.array(d), distance, k)
-        if goal is not None:
-            return Acquisition(why, started_s, attempt + 1, t_s, goal, tuple(directions))
+    for pool in (directions, list(every)):  # the untried ones, then any from where it is now
+        pool = list(pool)
+        while pool:
+            d = pool.pop(0)
+            goal = goal_corners(corners_px, np.array(d), distance, k)
+            if goal is not None:
+                border = border_distance_px(corners_px, k)
+                return Acquisition(
+                    why, started_s, attempt + 1, t_s, goal, tuple(pool), border, tuple(every)
+                )
     return None
 
 
@@ -200,11 +216,12 @@ def advance(
     ran out of time, or None when no direction is left
     (it failed). The caller bounds the number of attempts."""
     reached = bool(np.all(np.linalg.norm(corners_px - acq.goal_px, axis=1) < REACHED_PX))
-    over = reached or near_border(corners_px, k) or t_s - acq.attempt_started_s >= attempt_s
+    near = near_border(corners_px, k, acq.start_border_px)
+    over = reached or near or t_s - acq.attempt_started_s >= attempt_s
     if not over:
         return acq
     return _next_attempt(
-        acq.why, acq.started_s, t_s, acq.attempt, corners_px, list(acq.directions), k
+        acq.why, acq.started_s, t_s, acq.attempt, corners_px, list(acq.directions), acq.every, k
     )
 
 
