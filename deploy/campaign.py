@@ -294,7 +294,8 @@ def failure_cause(row: CompareRow, manipulability_threshold: float = 0.002) -> s
     acquisition failed, error, marker left the image, joint limit, singularity (least
     manipulability below the actuation's damping threshold), stuck (with what it waited for,
     from the detail) and timeout. Joint limit: a joint inside the actuation's slow-down zone
-    at the end (:data:`JOINT_LIMIT_MARGIN_DEG`). The ground-truth fields judge; nothing flows back."""
+    at the end (:data:`JOINT_LIMIT_MARGIN_DEG`). The ground-truth fields judge; nothing
+    flows back."""
     if row.converged:
         return "converged" if row.on_goal else "local minimum"
     if row.reason == "acquisition_failed":
