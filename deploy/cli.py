@@ -447,6 +447,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 shm=not args.no_shm,
                 synthetic_frames=args.synthetic_frames,
                 command=" ".join(["umay", *sys.argv[1:]]),
+                reference_renderer=not args.no_reference,
             )
         except BenchError as exc:
             print(f"umay bench: {exc}", file=sys.stderr)
@@ -512,6 +513,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", default="640x480", help="colour image WxH (default 640x480)")
     p.add_argument("--mode", default="lockstep", help="clock: lockstep|realtime")
     p.add_argument("--no-shm", action="store_true", help="Zenoh shared memory off everywhere")
+    p.add_argument(
+        "--no-reference",
+        action="store_true",
+        help="skip the TinyRenderer reference (its render cost and its loop)",
+    )
     p.add_argument("--repeat", type=int, default=1, help="runs; the table shows their medians")
     p.add_argument(
         "--synthetic-frames",
