@@ -478,12 +478,17 @@ def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], right_from: in
     return "\n".join(lines)
 
 
-def strategy_table(summaries: Sequence[StrategySummary]) -> str:
-    headers = ["strategy", "converged", "on goal", *[h for _, h, _, _, _ in METRICS]]
+def strategy_table(
+    summaries: Sequence[StrategySummary],
+    metrics: Sequence[tuple[str, str, float, str, str]] = METRICS,
+) -> str:
+    """Per strategy: converged, on goal and the ``metrics`` (a selection of :data:`METRICS`;
+    the README shows a few, summary.md all)."""
+    headers = ["strategy", "converged", "on goal", *[h for _, h, _, _, _ in metrics]]
     body = []
     for s in summaries:
         cells = [s.mode, f"{s.converged}/{s.runs}", f"{s.on_goal}/{s.runs}"]
-        for field, _, scale, fmt, _ in METRICS:
+        for field, _, scale, fmt, _ in metrics:
             unit = "%" if field == "success_rate" else ""
             cells.append(format_cell(getattr(s, field), scale, fmt) + unit)
         body.append(cells)
