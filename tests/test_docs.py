@@ -15,6 +15,9 @@ from deploy.compare import rows_from_json, strategy_table, summarize_modes
 from deploy.docs import (
     BLOCKS,
     END,
+    KINECT_LOCKSTEP_RUN,
+    KINECT_REALTIME_RUN,
+    LOCKSTEP_RUN,
     REPO_ROOT,
     RESULTS_JSON,
     BenchRun,
@@ -26,6 +29,7 @@ from deploy.docs import (
     bench_dropped,
     bench_latency,
     bench_render,
+    documents,
     find_blocks,
     frame_handoff_ms,
     latency,
@@ -35,6 +39,23 @@ from deploy.docs import (
     run_label,
     update,
 )
+
+
+def test_every_generated_table_agrees_with_its_json() -> None:
+    """The repository's README and docs: every block is what its JSON gives (else run
+    ``umay docs`` and commit)."""
+    assert [str(o) for o in update(REPO_ROOT, check=True)] == []
+
+
+def test_the_docs_have_generated_blocks_and_link_inside_the_repository() -> None:
+    names = {b.name for p in documents(REPO_ROOT) for b in find_blocks(p.read_text())}
+    assert {"results-compact", "bench-headline", "bench-commands", "bench-latency"} <= names
+    for p in documents(REPO_ROOT):
+        assert "../shared" not in p.read_text(), p
+
+
+def test_readme_is_short() -> None:
+    assert len((REPO_ROOT / "README.md").read_text().splitlines()) <= 250
 
 
 # --- markers -----------------------------------------------------------------------------------
@@ -209,6 +230,29 @@ def test_link_is_relative_to_the_document() -> None:
     assert link("", "docs/bench/x.json") == "docs/bench/x.json"
     assert link("docs", "docs/bench/x.json") == "bench/x.json"
     assert link("docs", "README.md") == "../README.md"
+
+
+def test_headline_against_the_goals() -> None:
+    realtime = _bench(clock="realtime", frames=300)
+    realtime["distributed"]["dropped"] = {"camera": 7, "vision": 1, "controller": 0}
+    kinect = _bench()
+    kinect["distributed"]["real_time_factor"] = 1.5
+    kinect["distributed"]["services"]["sim"]["peak_rss_mb"] = 290.4
+    runs = [
+        BenchRun(LOCKSTEP_RUN, _bench()),
+        BenchRun(KINECT_LOCKSTEP_RUN, kinect),
+        BenchRun(KINECT_REALTIME_RUN, realtime),
+    ]
+    out = BLOCKS["bench-headline"].render(Inputs(bench=runs), "")
+    assert "| 3.00 ms (90.00 ms) | ≤ 6 ms |" in out
+    assert "| 2.00 (0.33) | ≥ 2.5 |" in out
+    assert "| 1.50 | ≥ 2 |" in out
+    assert (
+        "300 frames: frames dropped" in out and "| 1; 7; 60.0 frames/s | 0; 0; 30 frames/s |" in out
+    )
+    assert "| 0.75 ms | ≤ 0.5 ms |" in out
+    assert "| 6.00 / 12.00 ms |" in out and "| 2.00 ms | ≤ 2.0 ms |" in out
+    assert "| 290 MiB |" in out
 
 
 def test_a_missing_headline_run_is_named() -> None:
