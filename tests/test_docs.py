@@ -4,6 +4,7 @@ rendering and the block markers behave (deploy/docs.py)."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,24 @@ def test_the_docs_have_generated_blocks_and_link_inside_the_repository() -> None
     assert {"results-compact", "bench-headline", "bench-commands", "bench-latency"} <= names
     for p in documents(REPO_ROOT):
         assert "../shared" not in p.read_text(), p
+
+
+def _anchors(markdown: str) -> set[str]:
+    """GitHub's heading anchors: lower case, punctuation dropped, spaces to hyphens."""
+    headings = re.findall(r"^#+ (.+)$", markdown, flags=re.MULTILINE)
+    return {re.sub(r"[^\w\- ]", "", h.lower()).replace(" ", "-") for h in headings}
+
+
+def test_relative_links_of_the_docs_exist() -> None:
+    for doc in documents(REPO_ROOT):
+        for target in re.findall(r"\]\(([^)\s]+)\)", doc.read_text()):
+            path, _, anchor = target.partition("#")
+            if "://" in path:
+                continue
+            linked = doc.parent / path if path else doc
+            assert linked.exists(), f"{doc.name}: {target}"
+            if anchor:
+                assert anchor in _anchors(linked.read_text()), f"{doc.name}: {target}"
 
 
 def test_readme_is_short() -> None:
