@@ -29,6 +29,7 @@ from deploy.compare import (
     CompareRow,
     best_per_metric,
     best_table,
+    markdown_table,
     rows_from_json,
     strategy_table,
     summarize_modes,
@@ -107,13 +108,6 @@ def load_inputs(root: Path) -> Inputs:
 # --- formatting ------------------------------------------------------------------------------
 def _n(v: float | int | None, fmt: str = ".2f") -> str:
     return "–" if v is None else format(v, fmt)
-
-
-def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], right_from: int = 1) -> str:
-    align = ["---" if i < right_from else "---:" for i in range(len(headers))]
-    lines = ["| " + " | ".join(headers) + " |", "| " + " | ".join(align) + " |"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 def link(here: str, path: str) -> str:
@@ -261,7 +255,7 @@ def bench_headline(inputs: Inputs, here: str) -> str:
         ["peak RSS, largest service", f"{rss:.0f} MiB", "≤ 300 MB"],
     ]
     return (
-        _table(["figure (640×480 at 30 Hz)", "measured", "goal"], rows, right_from=1)
+        markdown_table(["figure (640×480 at 30 Hz)", "measured", "goal"], rows, right_from=1)
         + "\n\n"
         + _sources(here, (lock, kin, rt))
     )
@@ -281,7 +275,7 @@ def bench_runs(inputs: Inputs, here: str) -> str:
                 f"load {_n((m.get('load_start') or [None])[0])}",
             ]
         )
-    return _table(["run", "what", "frames", "machine"], body, right_from=4)
+    return markdown_table(["run", "what", "frames", "machine"], body, right_from=4)
 
 
 def bench_commands(inputs: Inputs, here: str) -> str:
@@ -314,7 +308,7 @@ def bench_render(inputs: Inputs, here: str) -> str:
             )
     headers = ["run", "renderer", "render p50 (ms)", "p99 (ms)", "loop (frames/s)", "real-time"]
     said = "; ".join(f"`{d}`" for d in drivers)
-    return f"{_table(headers, body, right_from=2)}\n\nDrivers: {said}.\n\n" + _sources(
+    return f"{markdown_table(headers, body, right_from=2)}\n\nDrivers: {said}.\n\n" + _sources(
         here, inputs.bench
     )
 
@@ -336,7 +330,11 @@ def bench_kinect(inputs: Inputs, here: str) -> str:
             ]
         )
     headers = ["run", "colour", "depth", "colour p50", "depth p50", "total p50", "total p99"]
-    return _table(headers, body, right_from=3) + "\n\nTimes in ms. " + _sources(here, inputs.bench)
+    return (
+        markdown_table(headers, body, right_from=3)
+        + "\n\nTimes in ms. "
+        + _sources(here, inputs.bench)
+    )
 
 
 def bench_latency(inputs: Inputs, here: str) -> str:
@@ -372,7 +370,7 @@ def bench_latency(inputs: Inputs, here: str) -> str:
         "in-process p50",
         "distribution adds",
     ]
-    return _table(headers, body) + "\n\nTimes in ms. " + _sources(here, inputs.bench)
+    return markdown_table(headers, body) + "\n\nTimes in ms. " + _sources(here, inputs.bench)
 
 
 def bench_distribution(inputs: Inputs, here: str) -> str:
@@ -392,7 +390,7 @@ def bench_distribution(inputs: Inputs, here: str) -> str:
         for r in inputs.bench
     ]
     headers = ["run", "adds p50", *[s.replace("_", " ") for s in stages]]
-    return _table(headers, body) + "\n\nTimes in ms. " + _sources(here, inputs.bench)
+    return markdown_table(headers, body) + "\n\nTimes in ms. " + _sources(here, inputs.bench)
 
 
 def bench_services(inputs: Inputs, here: str) -> str:
@@ -410,7 +408,7 @@ def bench_services(inputs: Inputs, here: str) -> str:
         body.append([r.name, " / ".join(rss), " / ".join(cpu)])
     order = " / ".join(services)
     headers = ["run", f"peak RSS, MiB: {order}", f"CPU ms per frame: {order}"]
-    return _table(headers, body) + "\n\n" + _sources(here, inputs.bench)
+    return markdown_table(headers, body) + "\n\n" + _sources(here, inputs.bench)
 
 
 def bench_dropped(inputs: Inputs, here: str) -> str:
@@ -436,7 +434,7 @@ def bench_dropped(inputs: Inputs, here: str) -> str:
         "dropped: vision / controller / actuation",
         "synthetic 30 Hz source: the same",
     ]
-    return _table(headers, body) + "\n\n" + _sources(here, inputs.bench)
+    return markdown_table(headers, body) + "\n\n" + _sources(here, inputs.bench)
 
 
 @dataclass(frozen=True)
