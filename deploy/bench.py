@@ -859,13 +859,32 @@ def run_bench(
     shm: bool = True,
     synthetic_frames: int | None = None,
     command: str = "",
+    reference_renderer: bool = True,
 ) -> dict[str, Any]:
-    """Distributed run, in-process baseline, synthetic 30 Hz source; one JSON-ready dict."""
+    """Distributed run, in-process baseline, synthetic 30 Hz source, and (``reference_renderer``)
+    the render cost and the distributed loop again with TinyRenderer; one JSON-ready dict."""
+    from deploy.render_bench import REFERENCE_RENDERER, run_render_bench
+
     cam = scenario.camera
     synthetic_frames = frames if synthetic_frames is None else synthetic_frames
     distributed = run_distributed(
         scenario_path, scenario, overrides, frames, warmup, log_dir / "distributed", shm
     )
+    render = run_render_bench(scenario, min(frames, 60), reference=reference_renderer)
+    reference = None
+    if reference_renderer and scenario.sim.renderer != REFERENCE_RENDERER:
+        tiny = [*overrides, f"sim.renderer='{REFERENCE_RENDERER}'"]
+        loop = run_distributed(
+            scenario_path, scenario, tiny, frames, warmup, log_dir / "reference", shm
+        )
+        reference = {
+            "renderer": REFERENCE_RENDERER,
+            "render_ms": loop["stages_ms"]["render"],
+            "latency_ms": loop["latency_ms"],
+            "loop_rate_hz": loop["loop_rate_hz"],
+            "real_time_factor": loop["real_time_factor"],
+            "dropped": loop["dropped"],
+        }
     keep = min(MAX_SOURCE_FRAMES, warmup + max(synthetic_frames, 0))
     inprocess, source = run_inprocess(scenario, frames, warmup, keep)
     synthetic = None
@@ -899,6 +918,20 @@ def run_bench(
     def ratio(a: float | None, b: float | None) -> float | None:
         return round(a / b, 4) if a is not None and b else None
 
+    def minus(a: float | None, b: float | None) -> float | None:
+        return round(a - b, 4) if a is not None and b is not None else None
+
+    # What distribution adds to the in-process loop, and where: per service stage the
+    # distributed p50 less the same functions' in-process p50; transports and the sim's
+    # publish are all overhead. Medians do not add up exactly: the parts are indicative.
+    d_stages, i_stages = distributed["stages_ms"], inprocess["stages_ms"]
+    adds_parts = {
+        s: minus(d_stages[s]["p50"], i_stages[s]["p50"])
+        if s in INPROCESS_STAGES
+        else d_stages[s]["p50"]
+        for s in LATENCY_STAGES
+    }
+
     return {
         "version": JSON_VERSION,
         "command": command,
@@ -919,7 +952,7 @@ def run_bench(
             "rgb_hz": cam.rgb_hz,
             "depth_hz": cam.depth_rate_hz,
             "clock": scenario.run.clock.value,
-            "renderer": scenario.sim.renderer,
+            "renderer": render["renderers"][scenario.sim.renderer]["renderer"],
             "transport": "shm" if shm else "tcp",
             "frames": frames,
             "warmup": warmup,
@@ -928,6 +961,9 @@ def run_bench(
         },
         "distributed": distributed,
         "inprocess": inprocess,
+        "distribution_adds_ms": {"p50": minus(d50, i50), "parts_p50": adds_parts},
+        "render": render,
+        "reference_renderer": reference,
         "ratio": {
             "p50": ratio(d50, i50),
             "p99": ratio(d99, i99),
@@ -1032,6 +1068,11 @@ def format_report(r: dict[str, Any]) -> str:
             f"{'':<20} frames over {LATENCY_GOAL_MS:g} ms: {d['frames_over_goal']} of "
             f"{d['latency_ms']['n']}"
         )
+    adds = r.get("distribution_adds_ms")
+    if adds:
+        parts = ", ".join(f"{k} {_f(v)}" for k, v in adds["parts_p50"].items())
+        lines.append(f"distribution adds (p50 distributed - in-process): {_f(adds['p50'])} ms")
+        lines.append(f"  of which (p50 each, ms): {parts}")
     lines += [
         "",
         f"ratio distributed / in-process (p50): {_f(r['ratio']['p50'], '.3f')}"
@@ -1061,6 +1102,17 @@ def format_report(r: dict[str, Any]) -> str:
                 f"{part}: " + ", ".join(f"{k} {v}" for k, v in d.items())
                 for part, d in r["dropped_max"].items()
             )
+        )
+    if r.get("render"):
+        from deploy.render_bench import format_render_report
+
+        lines += ["", *format_render_report(r["render"])]
+    ref = r.get("reference_renderer")
+    if ref:
+        lines.append(
+            f"loop with {ref['renderer']}: render p50 {_f(ref['render_ms']['p50'])} ms, "
+            f"{_f(ref['loop_rate_hz'])} frames/s, real-time factor "
+            f"{_f(ref['real_time_factor'], '.3f')}, latency p50 {_f(ref['latency_ms']['p50'])} ms"
         )
     s = r.get("synthetic")
     if s:

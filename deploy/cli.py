@@ -447,6 +447,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 shm=not args.no_shm,
                 synthetic_frames=args.synthetic_frames,
                 command=" ".join(["umay", *sys.argv[1:]]),
+                reference_renderer=not args.no_reference,
             )
         except BenchError as exc:
             print(f"umay bench: {exc}", file=sys.stderr)
@@ -468,6 +469,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(f"umay bench: could not write the results: {exc}", file=sys.stderr)
         return 1
     return 0
+
+
+def cmd_docs(args: argparse.Namespace) -> int:
+    from deploy.docs import REPO_ROOT, DocsError, update
+
+    try:
+        outdated = update(Path(args.root) if args.root else REPO_ROOT, check=args.check)
+    except DocsError as exc:
+        print(f"umay docs: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for o in outdated:
+        print(o if args.check else f"rewrote {o.document}: {o.block}", file=sys.stderr)
+    return 1 if args.check and outdated else 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -512,6 +526,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", default="640x480", help="colour image WxH (default 640x480)")
     p.add_argument("--mode", default="lockstep", help="clock: lockstep|realtime")
     p.add_argument("--no-shm", action="store_true", help="Zenoh shared memory off everywhere")
+    p.add_argument(
+        "--no-reference",
+        action="store_true",
+        help="skip the TinyRenderer reference (its render cost and its loop)",
+    )
     p.add_argument("--repeat", type=int, default=1, help="runs; the table shows their medians")
     p.add_argument(
         "--synthetic-frames",
@@ -530,6 +549,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log-dir", default="out/logs/bench", help="the services' log files")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("docs", help="rewrite the docs' tables from the JSON they come from")
+    p.add_argument("--check", action="store_true", help="change nothing; exit 1 if out of date")
+    p.add_argument("--root", default=None, help="the repository (default: this one)")
+    p.set_defaults(func=cmd_docs)
 
     from deploy.compare_cli import add_campaign_parser, add_compare_parser
 

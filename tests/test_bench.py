@@ -209,6 +209,24 @@ def test_bench_json_is_complete_and_sane(bench: dict) -> None:
         d["latency_ms"]["p50"] / i["per_frame_ms"]["p50"], rel=1e-3
     )
 
+    # What distribution adds: the difference of the two p50s, and its parts stage by stage.
+    adds = r["distribution_adds_ms"]
+    assert adds["p50"] == pytest.approx(d["latency_ms"]["p50"] - i["per_frame_ms"]["p50"], abs=1e-3)
+    assert set(adds["parts_p50"]) == set(LATENCY_STAGES)
+    assert adds["parts_p50"]["frame_transport"] == d["stages_ms"]["frame_transport"]["p50"]
+
+    # The renderers side by side on the same postures, the sensor model, the reference loop.
+    renderers = r["render"]["renderers"]
+    assert set(renderers) == {"gl", "tiny"}
+    assert renderers["tiny"]["renderer"] == "tiny"
+    for v in renderers.values():
+        assert v["render_ms"]["n"] >= 2 and 0 < v["render_ms"]["p50"] <= v["render_ms"]["max"]
+    model = r["render"]["sensor_model"]
+    assert model["colour_px"] == [320, 240] and model["total_ms"]["p50"] > 0
+    ref = r["reference_renderer"]
+    assert ref["renderer"] == "tiny" and ref["loop_rate_hz"] > 0 and ref["real_time_factor"] > 0
+    assert all(v == 0 for v in ref["dropped"].values()), ref["dropped"]
+
     s = r["synthetic"]
     assert s["rate_hz"] == 30.0 and s["frames"] == FRAMES
     assert set(s["dropped"]) == set(PIPELINE)

@@ -1,0 +1,123 @@
+"""The simulated camera's cost, renderer by renderer, on the same postures (``umay bench``).
+
+For each renderer (the scenario's, and the reference TinyRenderer) a world renders the
+colour image and, when its size differs, the depth image, at postures spread along the
+scenario's start-to-goal motion; the Kinect sensor model is timed apart on the perfect
+images, colour and depth, since it runs after whichever renderer drew them.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from common.config import Scenario
+from services.sim.sensor_model import exposed_rgb, noisy_depth
+from services.sim.world import World
+
+REFERENCE_RENDERER = "tiny"
+
+
+def _summary_ms(values_s: list[float]) -> dict[str, float | int]:
+    ms = 1000.0 * np.asarray(values_s)
+    return {
+        "n": len(ms),
+        "p50": round(float(np.median(ms)), 4),
+        "p99": round(float(np.percentile(ms, 99)), 4),
+        "max": round(float(ms.max()), 4),
+    }
+
+
+def postures(scenario: Scenario, n: int) -> list[np.ndarray]:
+    """``n`` joint configurations from the start posture towards the goal (not past it)."""
+    from deploy.accuracy import sample_postures  # the reachability solver loads on demand
+
+    return sample_postures(scenario, n, np.random.default_rng(0))
+
+
+def time_renderer(scenario: Scenario, renderer: str, qs: list[np.ndarray]) -> dict[str, Any]:
+    """Perfect colour + depth images (as :meth:`World.render` takes them, model off) at each
+    posture of ``qs``, after one warm-up frame."""
+    scenario = scenario.model_copy(
+        update={"sim": scenario.sim.model_copy(update={"renderer": renderer})}
+    )
+    world = World(scenario)
+    times: list[float] = []
+    try:
+        for i, q in enumerate([qs[0], *qs]):
+            world.reset(q)
+            started = time.perf_counter()
+            world.render_perfect(world.intrinsics)
+            if world.depth_intrinsics != world.intrinsics:
+                world.render_perfect(world.depth_intrinsics)
+            if i > 0:
+                times.append(time.perf_counter() - started)
+        return {
+            "requested": renderer,
+            "renderer": world.renderer,
+            "detail": world.renderer_detail,
+            "render_ms": _summary_ms(times),
+        }
+    finally:
+        world.close()
+
+
+def time_sensor_model(scenario: Scenario, frames: int) -> dict[str, Any]:
+    """The Kinect model (the scenario's settings, switched on) on perfect images of the
+    scenario's colour and depth sizes: colour and depth separately and together."""
+    world = World(scenario)
+    try:
+        rgb, _ = world.render_perfect(world.intrinsics)
+        _, depth_m = world.render_perfect(world.depth_intrinsics)
+    finally:
+        world.close()
+    model = scenario.camera.kinect.model_copy(update={"enabled": True})
+    rng = np.random.default_rng(model.seed)
+    colour_s, depth_s = [], []
+    for i in range(frames + 1):
+        t0 = time.perf_counter()
+        exposed_rgb(rgb, model, rng)
+        t1 = time.perf_counter()
+        noisy_depth(depth_m, model, rng)
+        t2 = time.perf_counter()
+        if i > 0:
+            colour_s.append(t1 - t0)
+            depth_s.append(t2 - t1)
+    total = [c + d for c, d in zip(colour_s, depth_s, strict=True)]
+    return {
+        "colour_px": [world.intrinsics.width_px, world.intrinsics.height_px],
+        "depth_px": [world.depth_intrinsics.width_px, world.depth_intrinsics.height_px],
+        "colour_ms": _summary_ms(colour_s),
+        "depth_ms": _summary_ms(depth_s),
+        "total_ms": _summary_ms(total),
+    }
+
+
+def run_render_bench(scenario: Scenario, frames: int, reference: bool = True) -> dict[str, Any]:
+    """Render cost per renderer (the scenario's; TinyRenderer too when ``reference``) and the
+    sensor model's cost, on ``frames`` postures."""
+    qs = postures(scenario, frames)
+    renderers = [scenario.sim.renderer]
+    if reference and REFERENCE_RENDERER not in renderers:
+        renderers.append(REFERENCE_RENDERER)
+    return {
+        "renderers": {name: time_renderer(scenario, name, qs) for name in renderers},
+        "sensor_model": time_sensor_model(scenario, frames),
+    }
+
+
+def format_render_report(r: dict[str, Any]) -> list[str]:
+    """Lines for ``umay bench``'s report."""
+    lines = [f"{'renderer':<10} {'p50 ms':>8} {'p99 ms':>8}   driver"]
+    for name, v in r["renderers"].items():
+        ms = v["render_ms"]
+        lines.append(f"{name:<10} {ms['p50']:>8.2f} {ms['p99']:>8.2f}   {v['detail']}")
+    s = r["sensor_model"]
+    lines.append(
+        f"Kinect model ({s['colour_px'][0]}x{s['colour_px'][1]} colour, "
+        f"{s['depth_px'][0]}x{s['depth_px'][1]} depth): p50 colour {s['colour_ms']['p50']:.2f} "
+        f"+ depth {s['depth_ms']['p50']:.2f} = {s['total_ms']['p50']:.2f} ms"
+    )
+    return lines
