@@ -35,9 +35,9 @@ from deploy.compare import (
     CompareRow,
     Job,
     Plan,
-    _table,
     format_cell,
     job_overrides,
+    markdown_table,
 )
 from deploy.reachability import (
     MAX_VIEW_ANGLE_DEG,
@@ -423,7 +423,7 @@ def taxonomy_markdown(
         "",
         "## Per strategy, and every run's cause",
         "",
-        _table(headers, body),
+        markdown_table(headers, body),
         "",
         "## Refused at start",
         "",
