@@ -71,6 +71,9 @@ class Distribution(BaseModel):
     max_offset_m: float = Field(gt=0.0, le=0.5)
     max_turn_deg: float = Field(ge=0.0, le=180.0)
     max_draws: int = Field(200, ge=1)
+    timeout_s: float | None = Field(
+        None, gt=0.0, le=3600.0, description="run.timeout_s of every run (None: the base's)"
+    )
 
 
 def load_distribution(path: Path) -> tuple[Distribution, Path]:
@@ -261,7 +264,8 @@ def plan_campaign(
             continue
         names.append(start.name)
         for mode in modes:
-            items = job_overrides([*start.overrides(), *overrides], mode)
+            timeout = () if dist.timeout_s is None else (f"run.timeout_s={dist.timeout_s!r}",)
+            items = job_overrides([*start.overrides(), *timeout, *overrides], mode)
             try:
                 scenario = load_scenario(base_path, parse_overrides(list(items)))
             except ScenarioError as exc:
