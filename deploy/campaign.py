@@ -293,12 +293,13 @@ CAUSES = (
 
 
 def failure_cause(row: CompareRow, manipulability_threshold: float = 0.002) -> str:
-    """One named cause per run: ``converged`` (on its goal), else the first that applies of
-    local minimum (the image error converged, the hand more than 5 mm from its goal),
-    acquisition failed, error, marker left the image, joint limit, singularity (least
-    manipulability below the actuation's damping threshold), stuck (with what it waited for,
-    from the detail) and timeout. Joint limit: a joint inside the actuation's slow-down zone
-    at the end (:data:`JOINT_LIMIT_MARGIN_DEG`). The ground-truth fields judge; nothing
+    """One named cause per run. ``converged`` (on its goal) or *local minimum* (the image
+    error converged, the hand more than 5 mm from its goal); *acquisition failed*; *error*; a
+    run ended holding: *marker left the image* when the hand marker was at or past the image
+    border, else *stuck* with what it waited for (from the detail); a run still servoing at
+    its timeout: *joint limit* (a joint inside the actuation's slow-down zone at the end,
+    :data:`JOINT_LIMIT_MARGIN_DEG`), *singularity* (least manipulability below the
+    actuation's damping threshold), else *timeout*. The ground-truth fields judge; nothing
     flows back."""
     if row.converged:
         return "converged" if row.on_goal else "local minimum"
@@ -306,17 +307,16 @@ def failure_cause(row: CompareRow, manipulability_threshold: float = 0.002) -> s
         return "acquisition failed"
     if row.reason == "error":
         return "error"
-    if row.final_hand_border_px is not None and row.final_hand_border_px < HAND_OUT_PX:
+    border = row.final_hand_border_px
+    if border is not None and border < HAND_OUT_PX:
         return "marker left the image"
-    if (
-        row.final_joint_margin_deg is not None
-        and row.final_joint_margin_deg < JOINT_LIMIT_MARGIN_DEG
-    ):
+    if row.reason == "stuck":
+        return f"stuck ({waited_for(row.detail)})"
+    margin = row.final_joint_margin_deg
+    if margin is not None and margin < JOINT_LIMIT_MARGIN_DEG:
         return "joint limit"
     if row.min_manipulability is not None and row.min_manipulability < manipulability_threshold:
         return "singularity"
-    if row.reason == "stuck":
-        return f"stuck ({waited_for(row.detail)})"
     return "timeout"
 
 

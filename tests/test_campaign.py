@@ -81,6 +81,14 @@ def row(**fields) -> CompareRow:
         ({"reason": "acquisition_failed"}, "acquisition failed"),
         ({"reason": "stuck", "final_hand_border_px": -2.0}, "marker left the image"),
         ({"final_joint_margin_deg": 4.0}, "joint limit"),
+        (  # holding, not servoing: the hold is the cause, whatever the joints
+            {
+                "reason": "stuck",
+                "detail": "waiting for: hand partial (",
+                "final_joint_margin_deg": 4.0,
+            },
+            "stuck (hand partial)",
+        ),
         ({"min_manipulability": 0.0005}, "singularity"),
         (
             {"reason": "stuck", "detail": "held 4.00 s waiting for: hand partial (holding ...)"},
