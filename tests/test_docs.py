@@ -129,7 +129,7 @@ def test_results_table_is_compare_s_own_with_fewer_columns() -> None:
     # Same strategy counts and path ratio as summary.md's table; link relative to docs/.
     mine = next(line for line in out.splitlines() if line.startswith("| constant |"))
     assert mine.split(" | ")[1:3] == cells[1:3]
-    assert cells[cells.index("1.051")] in mine.split(" | ")
+    assert cells[cells.index("1.053")] in mine.split(" | ")
     assert "(results/results.json)" in out
     assert out.splitlines()[1].count("---") == len(out.splitlines()[0].split(" | "))
 
@@ -294,7 +294,7 @@ def test_umay_docs_rewrites_then_check_names_the_block_that_differs(
     assert "README.md: block 'results-compact' differs" in capsys.readouterr().err
     assert main(["docs", "--root", str(tmp_path)]) == 0
     assert main(["docs", "--check", "--root", str(tmp_path)]) == 0
-    assert "| pmj | 11/12 | 11/12 |" in (tmp_path / "README.md").read_text()
+    assert "| pmj | 12/12 | 12/12 |" in (tmp_path / "README.md").read_text()
 
     rows = json.loads(results.read_text())
     rows[0]["converged"] = rows[0]["on_goal"] = False  # constant on the baseline fails
