@@ -1,0 +1,270 @@
+"""``umay view``: the live Foxglove view, an observer beside the loop (the imperative shell).
+
+A process of its own: it subscribes to the run's data keys over Zenoh, turns them into
+Foxglove messages (:mod:`deploy.foxglove.convert`) and serves them with the official
+``foxglove-sdk`` WebSocket server. It publishes nothing on Zenoh, so the loop never waits for
+it:
+
+- Zenoh callbacks only decode and queue (:class:`common.transport.Node`); colour and depth
+  frames are kept latest-only, so a view that falls behind skips frames instead of queueing
+  them (counted as ``dropped`` in its status);
+- images are converted only while a client listens on their topic, at most ``image_hz`` /
+  ``depth_hz`` per second (JPEG encoding is the view's main cost, on the loop's cores);
+- the SDK keeps a bounded queue per client and drops the oldest data for a slow one.
+
+It answers ``<prefix>/view/status`` like a service, and once a second asks the services for
+their status, shown as log lines (``/log``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import foxglove
+from foxglove.websocket import Capability
+
+from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES
+from common.config import Scenario
+from common.keys import DEPTH, RGB, Keys
+from common.transport import Node, query_status
+from deploy.foxglove import convert as c
+from deploy.foxglove.channels import FoxgloveChannels
+from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_arguments
+
+log = logging.getLogger("umay.view")
+
+STATUS_PERIOD_S = 1.0
+FRAME_KEYS = (RGB, DEPTH)
+
+
+class PortInUseError(OSError):
+    """The WebSocket port cannot be bound; the message says which and what to do."""
+
+
+def start_server(host: str, port: int, context: foxglove.Context) -> foxglove.WebSocketServer:
+    """The SDK's WebSocket server on ``host:port`` (0: any free port), announcing the time
+    (simulated) to clients. :class:`PortInUseError` when the port is taken."""
+    try:
+        return foxglove.start_server(
+            name="umay",
+            host=host,
+            port=port,
+            context=context,
+            capabilities=[Capability.Time],
+        )
+    except RuntimeError as exc:  # the SDK reports bind failures as RuntimeError
+        text = str(exc)
+        if "in use" in text.lower() or "bind" in text.lower():
+            raise PortInUseError(
+                f"cannot serve on {host}:{port}: {text.removeprefix('FoxgloveError: ')} "
+                "(another umay view? choose another --port)"
+            ) from None
+        raise
+
+
+class ViewNode:
+    """Zenoh in, Foxglove out. Only :meth:`run`'s thread touches :attr:`state`."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        keys: Keys,
+        session: Any,
+        server: foxglove.WebSocketServer,
+        channels: FoxgloveChannels,
+        image_hz: float,
+        depth_hz: float,
+        jpeg_quality: int,
+    ) -> None:
+        self.state = c.ViewState(scenario)
+        self.keys = keys
+        self.session = session
+        self.server = server
+        self.channels = channels
+        self.min_period_s = {RGB: 1.0 / image_hz, DEPTH: 1.0 / depth_hz}
+        self.jpeg_quality = jpeg_quality
+        self.last_sent_s = {RGB: 0.0, DEPTH: 0.0}
+        self.skipped = {RGB: 0, DEPTH: 0}
+        self.shown = 0
+        self.node = Node("view", keys, session, self.status_fields)
+        for suffix, model in c.VIEWED_KEYS.items():
+            frame = suffix in FRAME_KEYS
+            self.node.subscribe(
+                f"{keys.prefix}/{suffix}",
+                model,
+                FRAME_MAX_BYTES if frame else DEFAULT_MAX_BYTES,
+                latest_only=frame,
+            )
+
+    def status_fields(self) -> dict[str, Any]:
+        return {
+            "port": self.server.port,
+            "messages_shown": self.shown,
+            "frames_skipped": {k.rsplit("/", 1)[-1]: n for k, n in self.skipped.items()},
+        }
+
+    def _skip_frame(self, suffix: str) -> bool:
+        """A colour/depth frame nobody watches, or one within the rate limit of the last."""
+        topic = c.COLOUR_IMAGE if suffix == RGB else c.DEPTH_IMAGE
+        now = time.monotonic()
+        if (
+            not self.channels.wanted(topic)
+            or now - self.last_sent_s[suffix] < self.min_period_s[suffix]
+        ):
+            self.skipped[suffix] += 1
+            return True
+        self.last_sent_s[suffix] = now
+        return False
+
+    def on_event(self, key: str, message: Any) -> None:
+        suffix = self.keys.relative(key)
+        if suffix in FRAME_KEYS and self._skip_frame(suffix):
+            return
+        outs = self.state.on_message(suffix, message, self.jpeg_quality)
+        self.channels.log_all(outs)
+        self.shown += len(outs)
+        if suffix == c.keys.JOINT_STATE:
+            self.server.broadcast_time(c.time_ns(self.state.sim_time_s))
+
+    def poll_status(self, stop: threading.Event) -> None:
+        """Every second: the services' status as log lines (a thread of its own: a query
+        waits for answers)."""
+        while not stop.wait(STATUS_PERIOD_S):
+            if not self.channels.wanted(c.LOG):
+                continue
+            try:
+                statuses = query_status(self.session, self.keys, 0.5)
+            except Exception:  # the session closing under us at the end
+                log.debug("status query failed", exc_info=True)
+                continue
+            self.channels.log_all(c.status_logs(statuses, self.state.sim_time_s))
+
+    def run(self, stop: threading.Event) -> None:
+        poller = threading.Thread(target=self.poll_status, args=(stop,), daemon=True)
+        poller.start()
+        self.node.spin(stop, self.on_event)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return serve(view_arguments(argv))
+
+
+def serve(args: argparse.Namespace) -> int:
+    """``umay view``: exit 0 when stopped (Ctrl-C, SIGTERM), 2 on bad options or scenario, 1
+    when the port is taken or Zenoh cannot open."""
+    from common.config import ScenarioError, load_scenario
+    from common.keys import default_prefix
+    from common.runtime import parse_overrides
+    from common.transport import open_session
+
+    problem = check_view_options(args)
+    if problem is not None:
+        print(f"umay view: {problem}", file=sys.stderr)
+        return 2
+    try:
+        scenario = load_scenario(args.scenario, parse_overrides(args.set))
+    except ScenarioError as exc:
+        print(f"umay view: {exc}", file=sys.stderr)
+        return 2
+    keys = Keys(args.prefix or default_prefix())
+    context = foxglove.Context()
+    channels = FoxgloveChannels(context)
+    try:
+        server = start_server(args.host, args.port, context)
+    except PortInUseError as exc:
+        print(f"umay view: {exc}", file=sys.stderr)
+        return 1
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        session = open_session(connect=args.connect)
+        view = ViewNode(
+            scenario, keys, session, server, channels,
+            args.image_hz, args.depth_hz, args.jpeg_quality,
+        )  # fmt: skip
+        print(
+            f"umay view: Foxglove WebSocket at ws://{args.host}:{server.port} for {keys.prefix}; "
+            f"layout {LAYOUT_PATH}",
+            flush=True,
+        )
+        view.run(stop)  # closes the session on the way out
+    finally:
+        server.stop()
+    return 0
+
+
+LAYOUT_PATH = Path(__file__).resolve().parent / "layout.json"
+
+
+# --- launching it beside `umay up` / `umay run` --------------------------------------------
+def wait_for_port(host: str, port: int, proc: subprocess.Popen, timeout_s: float) -> bool:
+    """True once ``host:port`` accepts connections; False if ``proc`` ends or time runs out."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            return False
+        with socket.socket() as s:
+            s.settimeout(0.2)
+            if s.connect_ex((host, port)) == 0:
+                return True
+        time.sleep(0.1)
+    return False
+
+
+class ViewStartError(RuntimeError):
+    """The view process did not start serving; the message has its last output."""
+
+
+@contextlib.contextmanager
+def view_process(
+    prefix: str,
+    endpoint: str,
+    port: int,
+    log_path: Path,
+    scenario_path: str | None = None,
+    overrides: list[str] | None = None,
+    host: str = DEFAULT_HOST,
+    extra: list[str] | None = None,
+    startup_timeout_s: float = 30.0,
+) -> Iterator[subprocess.Popen]:
+    """``umay view`` as a child process for the run on ``prefix`` at ``endpoint``, its output
+    in ``log_path``; stopped (SIGTERM, then SIGKILL) on the way out. :class:`ViewStartError`
+    when it does not serve within ``startup_timeout_s``."""
+    argv = [sys.executable, "-m", "deploy", "view", "--prefix", prefix, "--connect", endpoint,
+            "--host", host, "--port", str(port)]  # fmt: skip
+    if scenario_path:
+        argv += ["--scenario", str(scenario_path)]
+    for item in overrides or []:
+        argv += ["--set", item]
+    argv += extra or []
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    with log_path.open("ab") as out:
+        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=dict(os.environ))
+    try:
+        if not wait_for_port(host, port, proc, startup_timeout_s):
+            tail = log_path.read_text(errors="replace").strip().splitlines()[-3:]
+            raise ViewStartError(
+                f"the view did not start serving on {host}:{port}: " + " / ".join(tail)
+            )
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(5.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
