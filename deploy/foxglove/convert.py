@@ -11,8 +11,9 @@ Time: every message is stamped with the **simulation** time of the data it shows
 (``header.sim_time_s``), and that is also its log time, so plots and the timeline are in
 simulated seconds, live and in an export alike.
 
-Frames (Foxglove's transform tree): ``base`` (DH frame 0, the arm base: x forward, y up,
-z right), ``dh_1`` … ``dh_6`` (each child of the previous one, by the DH link transform of its
+Frames (Foxglove's transform tree): ``world`` (z up, as Foxglove's 3-D panel expects),
+``base`` (DH frame 0, the arm base: x forward, y up, z right; turned +90° about x from
+``world``), ``dh_1`` … ``dh_6`` (each child of the previous one, by the DH link transform of its
 joint), ``end_effector`` (= ``dh_6``), ``hand_marker`` (the green square on the back of the
 hand), ``camera`` (the optical frame where the controller *assumes* the camera is: its
 calibration) and ``camera_true`` (the true mount the simulator renders from; separately
@@ -102,7 +103,7 @@ LOG = "/log"  # Log: each service's status once a second; controller phase chang
 
 JOINT_NAMES = tuple(f"joint_{i + 1}" for i in range(kin.N_JOINTS))
 DH_FRAMES = tuple(f"dh_{i + 1}" for i in range(kin.N_JOINTS))
-BASE, EE, HAND_MARKER = "base", "end_effector", "hand_marker"
+WORLD, BASE, EE, HAND_MARKER = "world", "base", "end_effector", "hand_marker"
 CAMERA, CAMERA_TRUE = "camera", "camera_true"
 
 PHASES = ("servoing", "holding", "converged")  # phase_code is the index
@@ -261,10 +262,16 @@ def arm_transforms(q_rad: FloatArray, t_s: float) -> list[FrameTransform]:
     return out
 
 
+# base → world: the base's y (up) becomes the world's z.
+WORLD_FROM_BASE = kin.homogeneous(kin.rot_x(math.pi / 2), np.zeros(3))
+
+
 def camera_transforms(scenario: Scenario, t_s: float) -> list[FrameTransform]:
-    """The assumed camera pose (calibration: ``camera``) and the true mount (``camera_true``)."""
+    """``world`` → ``base``, the assumed camera pose (calibration: ``camera``) and the true
+    mount (``camera_true``)."""
     cam = scenario.camera
     return [
+        frame_transform(WORLD, BASE, WORLD_FROM_BASE, t_s),
         frame_transform(BASE, CAMERA, cam.assumed_pose(), t_s),
         frame_transform(BASE, CAMERA_TRUE, cam.pose(), t_s),
     ]
