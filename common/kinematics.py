@@ -126,7 +126,7 @@ def geometric_jacobian(q_rad: FloatArray, dh: tuple[DHRow, ...] = UMAY_DH) -> Fl
     poses = np.array(frame_transforms(q_rad, dh))
     z = poses[:, :3, 2]  # joint axes
     lever = poses[-1, :3, 3] - poses[:, :3, 3]  # joint origin → end-effector origin
-    # z × lever for all joints at once (np.cross per joint cost 0.05 ms each).
+    # z × lever for all joints at once (np.cross per joint has a large per-call overhead).
     linear = np.stack(
         [
             z[:, 1] * lever[:, 2] - z[:, 2] * lever[:, 1],
@@ -144,7 +144,7 @@ def manipulability(jacobian: FloatArray) -> float:
 
 def cross(a: FloatArray, b: FloatArray) -> FloatArray:
     """``a × b`` of two 3-vectors: np.cross's arithmetic, bit for bit, without its generic
-    overhead (about 50 µs a call against 3 µs): for per-frame work in the controller and
+    per-call overhead (many times the arithmetic): for per-frame work in the controller and
     vision."""
     return np.array(
         [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]

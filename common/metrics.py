@@ -54,7 +54,7 @@ class TopicMeter:
 def percentile(values: np.ndarray, q: float) -> float:
     """``np.percentile(values, q)`` (its default linear interpolation, same result to the bit)
     by partial sorting. np.percentile goes through np.unique, whose first call imports
-    numpy.ma: 14 ms once, in the middle of whichever frame needs it first."""
+    numpy.ma: a long pause once, in the middle of whichever frame needs it first."""
     if not 0.0 <= q <= 100.0 or len(values) == 0:
         raise ValueError(f"percentile {q} of {len(values)} values")
     position = q / 100.0 * (len(values) - 1)

@@ -3,7 +3,7 @@
 For postures sampled around each scenario's start-to-goal motion, the scene is rendered once
 (perfect images) and then seen under each sensor condition: perfect, the Kinect v1 model,
 brighter and darker exposure, HSV or RGB segmentation, depth at 320×240. Each condition's
-frames go through the vision core (:func:`services.vision.features.measure_markers`) and are
+frames go through the vision core (:func:`services.vision.measurement.measure_markers`) and are
 compared with the projected true corners and their true depths.
 
 Postures where both markers are wholly in view, with no other part of the robot touching their
@@ -28,7 +28,7 @@ from common.config import KinectConfig, Scenario, VisionConfig
 from deploy.reachability import check_scenario
 from services.sim.sensor_model import axial_sigma_m, exposed_rgb, noisy_depth
 from services.sim.world import World
-from services.vision.features import MarkerMeasurement, measure_markers
+from services.vision.measurement import MarkerMeasurement, measure_markers
 
 MARKER_POSES = {"hand": "hand_marker_pose", "target": "target_marker_pose"}
 POSTURE_NOISE_RAD = 0.08  # joint-space spread around the start-to-goal motion

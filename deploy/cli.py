@@ -556,6 +556,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_docs(args: argparse.Namespace) -> int:
+    from deploy.docs import REPO_ROOT, DocsError, update
+
+    try:
+        outdated = update(Path(args.root) if args.root else REPO_ROOT, check=args.check)
+    except DocsError as exc:
+        print(f"umay docs: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for o in outdated:
+        print(o if args.check else f"rewrote {o.document}: {o.block}", file=sys.stderr)
+    return 1 if args.check and outdated else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="umay", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -638,6 +651,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log-dir", default="out/logs/bench", help="the services' log files")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("docs", help="rewrite the docs' tables from the JSON they come from")
+    p.add_argument("--check", action="store_true", help="change nothing; exit 1 if out of date")
+    p.add_argument("--root", default=None, help="the repository (default: this one)")
+    p.set_defaults(func=cmd_docs)
 
     from deploy.compare_cli import add_compare_parser
 

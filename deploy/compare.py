@@ -471,23 +471,30 @@ def format_cell(value: float | None, scale: float = 1.0, fmt: str = ".3f") -> st
     return "–" if value is None else format(value * scale, fmt)
 
 
-def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], right_from: int = 1) -> str:
+def markdown_table(
+    headers: Sequence[str], rows: Sequence[Sequence[str]], right_from: int = 1
+) -> str:
     align = ["---" if i < right_from else "---:" for i in range(len(headers))]
     lines = ["| " + " | ".join(headers) + " |", "| " + " | ".join(align) + " |"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
 
 
-def strategy_table(summaries: Sequence[StrategySummary]) -> str:
-    headers = ["strategy", "converged", "on goal", *[h for _, h, _, _, _ in METRICS]]
+def strategy_table(
+    summaries: Sequence[StrategySummary],
+    metrics: Sequence[tuple[str, str, float, str, str]] = METRICS,
+) -> str:
+    """Per strategy: converged, on goal and the ``metrics`` (a selection of :data:`METRICS`;
+    the README shows a few, summary.md all)."""
+    headers = ["strategy", "converged", "on goal", *[h for _, h, _, _, _ in metrics]]
     body = []
     for s in summaries:
         cells = [s.mode, f"{s.converged}/{s.runs}", f"{s.on_goal}/{s.runs}"]
-        for field, _, scale, fmt, _ in METRICS:
+        for field, _, scale, fmt, _ in metrics:
             unit = "%" if field == "success_rate" else ""
             cells.append(format_cell(getattr(s, field), scale, fmt) + unit)
         body.append(cells)
-    return _table(headers, body)
+    return markdown_table(headers, body)
 
 
 def best_table(bests: Sequence[Best]) -> str:
@@ -504,7 +511,7 @@ def best_table(bests: Sequence[Best]) -> str:
                 format_cell(b.value, scale, fmt) + unit,
             ]
         )
-    return _table(["metric (median)", "", "best strategy", "value"], body, right_from=3)
+    return markdown_table(["metric (median)", "", "best strategy", "value"], body, right_from=3)
 
 
 def converged_cell(r: CompareRow) -> str:
@@ -543,7 +550,7 @@ def runs_table(rows: Sequence[CompareRow]) -> str:
         ]
         for r in rows
     ]
-    return _table(headers, body, right_from=3)
+    return markdown_table(headers, body, right_from=3)
 
 
 def summary_markdown(
@@ -581,7 +588,7 @@ def summary_markdown(
         "",
         f"## Paired: the {len(common)} static scenarios every strategy converged on",
         "",
-        _table(
+        markdown_table(
             ["strategy", "median frames", "median path ratio"],
             [[m, format_cell(frames[m], 1.0, ".0f"), format_cell(ratios[m])] for m in modes],
         ),

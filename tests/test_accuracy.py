@@ -1,5 +1,5 @@
 """Vision against the simulator's ground truth under the sensor conditions of the Kinect model
-(deploy/accuracy.py, ``umay accuracy``): a small sample here; the README reports a large one."""
+(deploy/accuracy.py, ``umay accuracy``): a small sample here; docs/vision.md reports a large one."""
 
 from __future__ import annotations
 

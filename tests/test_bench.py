@@ -211,9 +211,7 @@ def test_bench_json_is_complete_and_sane(bench: dict) -> None:
 
     # What distribution adds: the difference of the two p50s, and its parts stage by stage.
     adds = r["distribution_adds_ms"]
-    assert adds["p50"] == pytest.approx(
-        d["latency_ms"]["p50"] - i["per_frame_ms"]["p50"], abs=1e-3
-    )
+    assert adds["p50"] == pytest.approx(d["latency_ms"]["p50"] - i["per_frame_ms"]["p50"], abs=1e-3)
     assert set(adds["parts_p50"]) == set(LATENCY_STAGES)
     assert adds["parts_p50"]["frame_transport"] == d["stages_ms"]["frame_transport"]["p50"]
 

@@ -17,7 +17,7 @@ from services.controller.ibvs import (
     interaction_matrix,
     point_feature_jacobian,
 )
-from services.vision.features import measure_markers
+from services.vision.measurement import measure_markers
 
 
 def predicted_px(dq, jac, p_ee, l_s, t_base_cam, k) -> np.ndarray:

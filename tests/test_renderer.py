@@ -21,7 +21,7 @@ from services.sim.world import (
     World,
     opengl_projection_matrix,
 )
-from services.vision.features import measure_markers
+from services.vision.measurement import measure_markers
 
 SIZE = ["camera.width_px=320", "camera.height_px=240"]
 TINY = ["sim.renderer='tiny'"]

@@ -9,9 +9,11 @@ import pytest
 
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import VisionConfig
-from services.vision import features as vf
 from services.vision import partial
+from services.vision.depth import fit_inverse_depth_plane
+from services.vision.measurement import measure_markers
 from services.vision.occlusion import hidden_behind, occluder_fraction
+from services.vision.quad import order_corners
 from services.vision.tracking import DepthImage, TrackerState, observe
 from tests.test_vision_features import (
     GREEN,
@@ -73,7 +75,7 @@ def test_a_partly_hidden_target_is_fitted_from_its_visible_edges() -> None:
     measured, _ = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, state, 1 / 30)
     m = measured["target"]
     assert m.state == "partial" and m.fitted and m.usable and m.occluded, m.reason
-    err = np.abs(match_order(m.corners_px, target.corners_px) - vf.order_corners(target.corners_px))
+    err = np.abs(match_order(m.corners_px, target.corners_px) - order_corners(target.corners_px))
     assert err.max() < 0.3, f"fitted corners off by {err.max():.2f} px"
     np.testing.assert_allclose(np.sort(m.depths_m), np.sort(target.points_m[:, 2]), atol=1e-3)
 
@@ -93,7 +95,7 @@ def test_a_target_slid_partly_out_of_the_picture_is_fitted_and_not_occluded() ->
     m = measured["target"]
     assert (m.state, m.reason) == ("partial", "touches image border")
     assert m.fitted and m.usable and not m.occluded
-    err = np.abs(match_order(m.corners_px, target.corners_px) - vf.order_corners(target.corners_px))
+    err = np.abs(match_order(m.corners_px, target.corners_px) - order_corners(target.corners_px))
     assert err.max() < 0.3, f"fitted corners off by {err.max():.2f} px"
 
 
@@ -143,7 +145,7 @@ def test_hidden_is_told_from_gone(case: str, occluded: bool) -> None:
     state, hand, target = first_view()
     rgb, depth = render([hand])  # no red square in this frame
     inside = polygon_mask(target.corners_px)
-    surface = vf.fit_inverse_depth_plane(
+    surface = fit_inverse_depth_plane(
         pixel_to_normalized(np.argwhere(inside)[:, ::-1].astype(float), K),
         _plane_depths(target)[inside],
     )
@@ -220,7 +222,7 @@ def test_depth_at_a_lower_resolution_is_registered_to_colour() -> None:
         z = n @ m.points_m[0] / (rays @ n)
         small = (m.corners_px + 0.5) / 2.0 - 0.5
         depth = np.where(polygon_mask(small, (240, 320)).ravel(), z, depth)
-    measured = vf.measure_markers(
+    measured = measure_markers(
         rgb, depth.reshape(240, 320).astype(np.float32), K, CFG, k_depth=k_small
     )
     for name, marker in (("hand", hand), ("target", target)):
@@ -278,7 +280,7 @@ def test_corner_depth_uncertainty_is_calibrated_on_noisy_planes() -> None:
         marker = Marker(square_3d(centre, SIZE_M, tilt), RED)
         rgb, depth = render([marker])
         noise = rng.normal(0.0, 1.0, SHAPE) * (0.0012 + 0.0019 * (depth - 0.4) ** 2)
-        m = vf.measure_marker(rgb, (depth + noise).astype(np.float32), K, "red", CFG)
+        m = measure_markers(rgb, (depth + noise).astype(np.float32), K, CFG)["target"]
         assert m.visible
         order = [
             int(np.argmin(np.linalg.norm(marker.corners_px - c, axis=1))) for c in m.corners_px

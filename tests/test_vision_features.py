@@ -16,7 +16,19 @@ import pytest
 
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import VisionConfig
-from services.vision import features as vf
+from services.vision import segmentation
+from services.vision.depth import corner_depths, depth_ring_px
+from services.vision.measurement import find_marker_quads, measure_markers
+from services.vision.quad import order_corners, square_corners
+from services.vision.segmentation import (
+    COARSE_STEP,
+    MARKERS,
+    TRACK_MARGIN_MIN_PX,
+    coarse_image,
+    marker_masks,
+    segment,
+    tracking_window,
+)
 
 K = CameraIntrinsics.from_fov(640, 480, 57.0)
 SHAPE = (K.height_px, K.width_px)
@@ -125,7 +137,7 @@ def scaled(colour: tuple[int, int, int], factor: float) -> tuple[int, int, int]:
 
 def match_order(found_px: np.ndarray, true_px: np.ndarray) -> np.ndarray:
     """Found corners relabelled like the true ones (same cyclic order, nearest shift)."""
-    return vf.order_corners(found_px, previous_px=vf.order_corners(true_px))
+    return order_corners(found_px, previous_px=order_corners(true_px))
 
 
 def random_marker(
@@ -167,9 +179,9 @@ def test_corners_are_subpixel_accurate_and_unbiased():
         marker = random_marker(rng, colour)
         rgb, _ = render([marker])
         color = "red" if colour[0] > colour[1] else "green"
-        found = vf.square_corners(vf.segment(rgb, color, CFG), CFG.min_area_px)
+        found = square_corners(segment(rgb, color, CFG), CFG.min_area_px)
         assert found is not None, f"trial {trial}: marker {marker.corners_px.tolist()} not found"
-        truth = vf.order_corners(marker.corners_px)
+        truth = order_corners(marker.corners_px)
         err = match_order(found, truth) - truth
         rms_per_quad.append(math.sqrt(np.mean(np.sum(err**2, axis=1))))
         errors.append(np.linalg.norm(err, axis=1))
@@ -195,7 +207,7 @@ def test_corners_of_an_axis_aligned_square_within_the_digitisation_limit():
         side = rng.uniform(40, 120)
         truth = np.array([[u0, v0], [u0 + side, v0], [u0 + side, v0 + side], [u0, v0 + side]])
         rgb, _ = paint(truth)
-        found = vf.square_corners(vf.segment(rgb, "red", CFG), CFG.min_area_px)
+        found = square_corners(segment(rgb, "red", CFG), CFG.min_area_px)
         assert found is not None
         assert np.max(np.abs(found - truth)) <= 0.5 + 1e-6, (found - truth).tolist()
 
@@ -204,10 +216,10 @@ def test_corners_of_an_axis_aligned_square_within_the_digitisation_limit():
 def test_order_of_an_unrotated_square_is_top_left_clockwise():
     tl, tr, br, bl = [100.0, 50.0], [180.0, 50.0], [180.0, 130.0], [100.0, 130.0]
     shuffled = np.array([br, tl, bl, tr])
-    np.testing.assert_array_equal(vf.order_corners(shuffled), [tl, tr, br, bl])
+    np.testing.assert_array_equal(order_corners(shuffled), [tl, tr, br, bl])
     marker = Marker(square_at_pixel((300.2, 200.7), 80.0, np.eye(3)), GREEN)
     rgb, _ = render([marker])
-    found = vf.square_corners(vf.segment(rgb, "green", CFG), CFG.min_area_px)
+    found = square_corners(segment(rgb, "green", CFG), CFG.min_area_px)
     assert found is not None
     np.testing.assert_allclose(found, marker.corners_px, atol=0.3)  # (-,-) first = top-left
 
@@ -219,11 +231,11 @@ def test_order_follows_previous_frame_through_45_degrees():
         rot = rotation(0.15, -0.2, math.radians(5.0 * step))
         marker = Marker(square_at_pixel((320.4, 240.3), 100.0, rot), RED)
         rgb, depth = render([marker])
-        m = vf.measure_marker(rgb, depth, K, "red", CFG, previous_corners_px=previous)
+        m = measure_markers(rgb, depth, K, CFG, {"target": previous})["target"]
         assert m.visible, m.reason
         physical_first = marker.corners_px[0]  # the corner that was top-left at 0°
         assert np.linalg.norm(m.corners_px[0] - physical_first) < 0.5, f"flipped at {5 * step}°"
-        no_previous = vf.measure_marker(rgb, depth, K, "red", CFG)
+        no_previous = measure_markers(rgb, depth, K, CFG)["target"]
         flipped_without_previous |= np.linalg.norm(no_previous.corners_px[0] - physical_first) > 1
         previous = m.corners_px
     assert flipped_without_previous, "the top-left rule should relabel past 45°"
@@ -233,7 +245,7 @@ def test_order_is_clockwise_in_the_image():
     rng = np.random.default_rng(3)
     for _ in range(20):
         quad = random_marker(rng, RED).corners_px[rng.permutation(4)]
-        ordered = vf.order_corners(quad)
+        ordered = order_corners(quad)
         e = np.roll(ordered, -1, axis=0) - ordered
         cross = e[:, 0] * np.roll(e, -1, 0)[:, 1] - e[:, 1] * np.roll(e, -1, 0)[:, 0]
         assert np.all(cross > 0)  # v down: positive cross product = clockwise on screen
@@ -248,7 +260,7 @@ def tilted_target() -> Marker:
 def test_corner_depths_exact_on_clean_plane():
     marker = tilted_target()
     rgb, depth = render([marker])
-    result = vf.corner_depths(depth, vf.segment(rgb, "red", CFG), marker.corners_px, K)
+    result = corner_depths(depth, segment(rgb, "red", CFG), marker.corners_px, K)
     assert result is not None
     depths, points = result.depths_m, result.points_m
     assert np.ptp(marker.points_m[:, 2]) > 0.02, "the test plane should be clearly tilted"
@@ -266,7 +278,7 @@ def test_corner_depths_robust_to_holes_and_edge_jumps():
     depth[band] = BACKGROUND_Z_M  # mixed / background depth along the outline
     depth[inside & (rng.random(SHAPE) < 0.01)] = np.nan
     depth[inside & (rng.random(SHAPE) < 0.03)] = BACKGROUND_Z_M  # flying pixels: erosion misses
-    result = vf.corner_depths(depth, vf.segment(rgb, "red", CFG), marker.corners_px, K)
+    result = corner_depths(depth, segment(rgb, "red", CFG), marker.corners_px, K)
     assert result is not None
     err_m = np.abs(result.depths_m - marker.points_m[:, 2])
     assert np.max(err_m) <= 2e-3, f"corner depth errors {err_m} m"
@@ -275,16 +287,16 @@ def test_corner_depths_robust_to_holes_and_edge_jumps():
 def test_corner_depths_fallback_and_failure():
     marker = tilted_target()
     rgb, depth = render([marker])
-    mask = vf.segment(rgb, "red", CFG)
+    mask = segment(rgb, "red", CFG)
     inside = polygon_mask(marker.corners_px) & (distance_to_outline_px(marker.corners_px) > 12)
     few = np.zeros_like(depth)
     rows, cols = np.nonzero(inside)
     few[rows[:10], cols[:10]] = 0.7  # 10 valid pixels: median fallback
-    result = vf.corner_depths(few, mask, marker.corners_px, K)
+    result = corner_depths(few, mask, marker.corners_px, K)
     assert result is not None
     np.testing.assert_allclose(result.depths_m, 0.7)
-    assert vf.corner_depths(np.zeros_like(depth), mask, marker.corners_px, K) is None
-    m = vf.measure_marker(rgb, np.zeros_like(depth), K, "red", CFG)
+    assert corner_depths(np.zeros_like(depth), mask, marker.corners_px, K) is None
+    m = measure_markers(rgb, np.zeros_like(depth), K, CFG)["target"]
     assert m.state == "no_depth" and m.reason == "no valid depth"
 
 
@@ -300,10 +312,10 @@ def test_hsv_finds_both_markers_across_brightness(brightness):
     hand, target = two_markers()
     rgb, depth = render([hand, target])
     rgb = np.clip(rgb * brightness, 0, 255).astype(np.uint8)  # markers and background
-    result = vf.measure_markers(rgb, depth, K, CFG)
+    result = measure_markers(rgb, depth, K, CFG)
     for name, marker in (("hand", hand), ("target", target)):
         assert result[name].visible, f"{name} at ×{brightness}: {result[name].reason}"
-        err = match_order(result[name].corners_px, marker.corners_px) - vf.order_corners(
+        err = match_order(result[name].corners_px, marker.corners_px) - order_corners(
             marker.corners_px
         )
         assert np.max(np.abs(err)) < 0.5
@@ -314,7 +326,7 @@ def test_rgb_mode_finds_both_markers_at_nominal_brightness():
     rgb, depth = render([hand, target])
     # RGB thresholds are calibrated on the markers' colours as rendered (as the thesis did).
     cfg = VisionConfig(segmentation="rgb", red_rgb=list(RED), green_rgb=list(GREEN))
-    result = vf.measure_markers(rgb, depth, K, cfg)
+    result = measure_markers(rgb, depth, K, cfg)
     assert result["hand"].visible, result["hand"].reason
     assert result["target"].visible, result["target"].reason
 
@@ -322,7 +334,7 @@ def test_rgb_mode_finds_both_markers_at_nominal_brightness():
 def test_missing_marker_is_not_visible():
     hand, _ = two_markers()
     rgb, depth = render([hand])
-    result = vf.measure_markers(rgb, depth, K, CFG)
+    result = measure_markers(rgb, depth, K, CFG)
     assert result["hand"].visible
     assert result["target"].state == "lost"
     assert result["target"].reason == "no blob"
@@ -339,14 +351,14 @@ def paint(corners_px: np.ndarray, colour=RED) -> tuple[np.ndarray, np.ndarray]:
 
 def test_tiny_blob_is_too_small():
     rgb, depth = paint([[300.2, 200.3], [306.1, 200.2], [306.3, 206.4], [300.1, 206.2]])
-    m = vf.measure_marker(rgb, depth, K, "red", CFG)
+    m = measure_markers(rgb, depth, K, CFG)["target"]
     assert not m.visible and m.reason == "blob too small"
     assert 0 < m.area_px < CFG.min_area_px
 
 
 def test_blob_touching_the_border_is_not_visible():
     rgb, depth = paint([[-20.0, 100.0], [40.0, 95.0], [45.0, 160.0], [-15.0, 165.0]])
-    m = vf.measure_marker(rgb, depth, K, "red", CFG)
+    m = measure_markers(rgb, depth, K, CFG)["target"]
     assert not m.visible and m.reason == "touches image border"
 
 
@@ -363,16 +375,16 @@ def test_blob_touching_the_border_is_not_visible():
 )
 def test_non_quadrilaterals_are_rejected(corners):
     rgb, depth = paint(corners)
-    m = vf.measure_marker(rgb, depth, K, "red", CFG)
+    m = measure_markers(rgb, depth, K, CFG)["target"]
     assert not m.visible and m.reason == "not a quadrilateral"
-    assert vf.square_corners(vf.segment(rgb, "red", CFG), CFG.min_area_px) is None
+    assert square_corners(segment(rgb, "red", CFG), CFG.min_area_px) is None
 
 
 def test_area_is_the_pixel_count():
     marker = Marker(square_at_pixel((320.4, 240.3), 70.0, rotation(0.3, 0.2, 0.6)), RED)
     rgb, depth = render([marker])
-    m = vf.measure_marker(rgb, depth, K, "red", CFG)
-    blob = vf.segment(rgb, "red", CFG)  # the opening nibbles a few corner pixels off
+    m = measure_markers(rgb, depth, K, CFG)["target"]
+    blob = segment(rgb, "red", CFG)  # the opening nibbles a few corner pixels off
     assert m.area_px == np.count_nonzero(blob)
     assert abs(m.area_px - np.count_nonzero(polygon_mask(marker.corners_px))) < 10
 
@@ -381,8 +393,8 @@ def test_area_is_the_pixel_count():
 def test_measure_markers_shapes_and_3d_points():
     hand, target = two_markers()
     rgb, depth = render([hand, target])
-    result = vf.measure_markers(rgb, depth, K, CFG, previous={"hand": hand.corners_px})
-    assert set(result) == {"hand", "target"} == set(vf.MARKERS)
+    result = measure_markers(rgb, depth, K, CFG, previous={"hand": hand.corners_px})
+    assert set(result) == {"hand", "target"} == set(MARKERS)
     for name, marker in (("hand", hand), ("target", target)):
         m = result[name]
         assert m.visible and m.reason == ""
@@ -394,7 +406,7 @@ def test_measure_markers_shapes_and_3d_points():
         np.testing.assert_allclose(m.points_m, marker.points_m[nearest], atol=2e-3)
         np.testing.assert_allclose(m.points_m[:, 2], m.depths_m)
     np.testing.assert_allclose(result["hand"].corners_px, hand.corners_px, atol=0.5)
-    invisible = vf.measure_markers(render([])[0], depth, K, CFG)
+    invisible = measure_markers(render([])[0], depth, K, CFG)
     for m in invisible.values():
         assert m.corners_px.shape == (4, 2) and m.depths_m.shape == (4,)
         assert m.points_m.shape == (4, 3) and not m.visible
@@ -409,9 +421,9 @@ def test_fast_path_matches_the_reference_path():
         hand = random_marker(rng, GREEN, u_range=(120.0, 230.0))  # left and right halves:
         target = random_marker(rng, scaled(RED, 0.7), u_range=(410.0, 520.0))  # no overlap
         rgb, depth = render([hand, target])
-        result = vf.measure_markers(rgb, depth, K, CFG)
-        for name, color in vf.MARKERS.items():
-            reference = vf.square_corners(vf.segment(rgb, color, CFG), CFG.min_area_px)
+        result = measure_markers(rgb, depth, K, CFG)
+        for name, color in MARKERS.items():
+            reference = square_corners(segment(rgb, color, CFG), CFG.min_area_px)
             assert reference is not None
             assert result[name].visible, result[name].reason
             np.testing.assert_allclose(result[name].corners_px, reference, atol=1e-9)
@@ -423,13 +435,12 @@ def test_the_tracking_window_finds_what_the_whole_image_finds(monkeypatch):
     a little (found inside the window, the whole image is not even converted), far (searched
     for in the whole image) or across the window's edge (likewise)."""
     whole_image_conversions = []
-    coarse_image = vf._coarse_image
 
     def spy(rgb, cfg):
         whole_image_conversions.append(rgb.shape[:2] == SHAPE)
         return coarse_image(rgb, cfg)
 
-    monkeypatch.setattr(vf, "_coarse_image", spy)
+    monkeypatch.setattr(segmentation, "coarse_image", spy)
     rng = np.random.default_rng(5)
     for moved_px in [(0.0, 0.0), (6.0, -4.0), (30.0, 12.0), (200.0, 0.0)]:
         for _ in range(3):
@@ -437,21 +448,21 @@ def test_the_tracking_window_finds_what_the_whole_image_finds(monkeypatch):
             target = random_marker(rng, scaled(RED, 0.8), u_range=(410.0, 520.0))
             rgb, _ = render([hand, target])
             previous = {
-                "hand": vf.order_corners(hand.corners_px) - moved_px,
-                "target": vf.order_corners(target.corners_px) + moved_px,
+                "hand": order_corners(hand.corners_px) - moved_px,
+                "target": order_corners(target.corners_px) + moved_px,
             }
-            whole = vf.find_marker_quads(rgb, CFG)
+            whole = find_marker_quads(rgb, CFG)
             whole_image_conversions.clear()
-            tracked = vf.find_marker_quads(rgb, CFG, previous)
+            tracked = find_marker_quads(rgb, CFG, previous)
             if moved_px == (0.0, 0.0):
                 assert not any(whole_image_conversions)
-            regions = [roi for _, roi in vf._marker_masks(rgb, CFG, previous)]
-            assert regions == [roi for _, roi in vf._marker_masks(rgb, CFG, {})]
-            for name in vf.MARKERS:
+            regions = [roi for _, roi in marker_masks(rgb, CFG, previous)]
+            assert regions == [roi for _, roi in marker_masks(rgb, CFG, {})]
+            for name in MARKERS:
                 assert tracked[name].reason == whole[name].reason
                 assert np.array_equal(tracked[name].mask, whole[name].mask), (name, moved_px)
                 assert whole[name].corners_px is not None, whole[name].reason
-                reordered = vf.order_corners(whole[name].corners_px, previous[name])
+                reordered = order_corners(whole[name].corners_px, previous[name])
                 np.testing.assert_array_equal(tracked[name].corners_px, reordered)
 
 
@@ -463,15 +474,15 @@ def test_the_tracking_window_finds_what_the_whole_image_finds(monkeypatch):
     ],
 )
 def test_the_tracking_window_lies_on_the_coarse_grid_inside_the_image(corners_px):
-    rows, cols = vf._tracking_window(np.array(corners_px), SHAPE)
+    rows, cols = tracking_window(np.array(corners_px), SHAPE)
     (u0, v0), (u1, v1) = np.min(corners_px, axis=0), np.max(corners_px, axis=0)
     for span, lo, hi, size in ((rows, v0, v1, SHAPE[0]), (cols, u0, u1, SHAPE[1])):
-        assert span.start % vf.COARSE_STEP == 0 and (span.stop - span.start) % vf.COARSE_STEP == 0
+        assert span.start % COARSE_STEP == 0 and (span.stop - span.start) % COARSE_STEP == 0
         assert span.start >= 0 and span.stop <= size
-        assert span.start <= max(lo - vf.TRACK_MARGIN_MIN_PX, 0)  # the margin is kept
-        assert span.stop >= hi + vf.TRACK_MARGIN_MIN_PX
-    assert vf._tracking_window(None, SHAPE) is None
-    assert vf._tracking_window(np.array(corners_px) - 1000.0, SHAPE) is None  # far outside
+        assert span.start <= max(lo - TRACK_MARGIN_MIN_PX, 0)  # the margin is kept
+        assert span.stop >= hi + TRACK_MARGIN_MIN_PX
+    assert tracking_window(None, SHAPE) is None
+    assert tracking_window(np.array(corners_px) - 1000.0, SHAPE) is None  # far outside
 
 
 def test_marker_partly_hidden_by_a_closer_object_is_occluded():
@@ -482,25 +493,25 @@ def test_marker_partly_hidden_by_a_closer_object_is_occluded():
     u_left = int(marker.corners_px[:, 0].min())
     rgb[150:330, u_left - 20 : u_left + 25] = (140, 150, 165)  # a blue-grey arm in front
     depth[150:330, u_left - 20 : u_left + 25] = 0.45
-    m = vf.measure_marker(rgb, depth, K, "red", CFG)
+    m = measure_markers(rgb, depth, K, CFG)["target"]
     assert m.state == "partial" and m.reason == "occluded" and m.occluded
-    assert vf.square_corners(vf.segment(rgb, "red", CFG), CFG.min_area_px) is not None
+    assert square_corners(segment(rgb, "red", CFG), CFG.min_area_px) is not None
 
 
 def test_mismatched_depth_is_an_error():
     rgb, depth = render([])
     with pytest.raises(ValueError):
-        vf.measure_markers(rgb, depth[:-1], K, CFG)
+        measure_markers(rgb, depth[:-1], K, CFG)
 
 
 def test_a_frame_is_processed_quickly():
     """Loose bound (the target is well under 5 ms); catches per-pixel Python loops."""
     rgb, depth = render(list(two_markers()))
-    vf.measure_markers(rgb, depth, K, CFG)
+    measure_markers(rgb, depth, K, CFG)
     times = []
     for _ in range(15):
         t0 = time.perf_counter()
-        vf.measure_markers(rgb, depth, K, CFG)
+        measure_markers(rgb, depth, K, CFG)
         times.append(time.perf_counter() - t0)
     assert np.median(times) < 0.025, f"median {1e3 * np.median(times):.1f} ms per frame"
 
@@ -509,6 +520,6 @@ def test_the_occlusion_reach_is_scaled_to_a_coarser_depth_image() -> None:
     """5 colour pixels are 2.5 pixels of a 320×240 depth image (kept one past the ring); at
     the colour resolution the reach stays as configured."""
     k_small = CameraIntrinsics.from_fov(320, 240, 57.0)
-    assert vf.depth_ring_px(5, K, None) == 5 and vf.depth_ring_px(5, K, K) == 5
-    assert vf.depth_ring_px(5, K, k_small) == 3
-    assert vf.depth_ring_px(12, K, k_small) == 6
+    assert depth_ring_px(5, K, None) == 5 and depth_ring_px(5, K, K) == 5
+    assert depth_ring_px(5, K, k_small) == 3
+    assert depth_ring_px(12, K, k_small) == 6

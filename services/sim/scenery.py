@@ -3,9 +3,9 @@
 TinyRenderer scans the screen box of every triangle it is given, clipped to the image, and
 shades each pixel there that passes the depth test. A face that reaches outside the view
 (the floor runs under and behind the camera; the torso's front face passes a centimetre
-behind it) costs as if it covered the image, though little of it shows: at 640×480 the
-torso, 344 pixels in a corner of the image, cost 21 ms a frame, and the floor and the table
-12 ms more than their visible parts. They never move, and neither does the camera, so each
+behind it) costs as if it covered the image, though little of it shows (the torso, a few
+hundred pixels in a corner of the image, cost as much as a large part of the frame; see
+docs/performance.md). They never move, and neither does the camera, so each
 of their faces is cut once, at start, to the view frustum (grown by a margin, so that no
 pixel is near a cut), and the faces turned away from the camera are dropped. The images are
 those of the whole boxes: colour bit for bit, depth to a few micrometres (float rounding at

@@ -85,9 +85,9 @@ def depth_buffer_to_metres(buffer: FloatArray, near_m: float, far_m: float) -> F
     """OpenGL depth buffer (0..1, non-linear) to Z along the optical axis (m), float32.
 
     Pixels at the far plane (nothing rendered) become 0, the "invalid" value of a Kinect.
-    Computed in float32, the buffer's own type: 14× faster than through float64 at 640×480
-    (0.3 against 4.5 ms), within 5e-5 m of it up to 5 m (1e-5 relative), far below a depth
-    camera's millimetres.
+    Computed in float32, the buffer's own type (far faster than through float64), within
+    5e-5 m of the float64 result up to 5 m (1e-5 relative), far below a depth camera's
+    millimetres.
     """
     b = np.asarray(buffer, dtype=np.float32)
     far, near = np.float32(far_m), np.float32(near_m)
@@ -293,9 +293,9 @@ class World:
 
         TinyRenderer draws bodies in the order they were made and shades every pixel that is
         nearer than what is drawn there already. Drawn last, the floor behind the table and
-        the arm fails the depth test before it is shaded: at 640×480, 168 ms a frame instead
-        of 204 (medians of 8, interleaved), with bit-identical images; cutting the torso,
-        table and floor to the view (:mod:`services.sim.scenery`) then takes it to 135-138."""
+        the arm fails the depth test before it is shaded, which saves TinyRenderer the shading
+        of every pixel they hide, with bit-identical images (docs/performance.md); cutting the
+        torso, table and floor to the view (:mod:`services.sim.scenery`) saves more."""
         # The object: a box from the table top up to the red marker, which lies on its top face.
         size = self.scenario.marker.size_m
         top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M

@@ -15,7 +15,7 @@ from common.codec import FRAME_MAX_BYTES
 from common.messages import DepthFrame, Features, MarkerFeatures, RgbFrame
 from common.runtime import ServiceContext
 from common.transport import Node
-from services.vision.features import MarkerMeasurement
+from services.vision.measurement import MarkerMeasurement
 from services.vision.tracking import DepthImage, TrackerState, observe
 
 DEPTH_WAIT_S = 0.5  # wall clock: how long a colour frame waits for its depth image

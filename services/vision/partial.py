@@ -15,10 +15,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized
 from common.kinematics import cross
-from services.vision.features import FloatArray
+
+FloatArray = NDArray[np.float64]
 
 EDGE_CLEARANCE_PX = 3  # a blob edge point this close to an occluder may be the occluder's edge
 CORNER_CLEARANCE_PX = 3.0  # edge points this close to a corner are not fitted (rounded corners)

@@ -27,19 +27,13 @@ import numpy as np
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized, project
 from common.config import VisionConfig
 from common.motion import MarkerMotion
-from services.vision.features import (
-    MARKERS,
-    FloatArray,
+from services.vision.depth import FloatArray, PlaneFit, marker_surface, to_depth_pixels
+from services.vision.measurement import (
     MarkerMeasurement,
     MarkerQuad,
-    PlaneFit,
-    colour_mask,
     find_marker_quads,
-    marker_surface,
-    mask_bounds,
     measure_quad,
     not_visible,
-    to_depth_pixels,
 )
 from services.vision.occlusion import hidden_behind, occluder_map
 from services.vision.partial import (
@@ -49,6 +43,7 @@ from services.vision.partial import (
     stray_fraction,
     true_edge_points,
 )
+from services.vision.segmentation import MARKERS, colour_mask, mask_bounds
 
 # How each marker's depth is carried between depth images (see the module docstring).
 HELD_DEPTH = {"hand": "corners", "target": "plane"}

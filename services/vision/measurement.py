@@ -1,0 +1,242 @@
+"""One frame's measurement of both markers, and the measurement type vision works with.
+
+Pure functions on numpy arrays (no networking, no global state). Conventions:
+
+- Images are RGB ``uint8`` (H, W, 3) in RGB channel order; depth is ``float32`` (H, W), Z along
+  the optical axis in metres, with 0 or non-finite meaning "no measurement".
+- Pixel ``(u, v)``: column, row; pixel centres sit at integer coordinates (OpenCV style, see
+  :mod:`common.camera`).
+- Corner order is canonical (:func:`services.vision.quad.order_corners`).
+
+One frame walks the modules in one direction: :mod:`~services.vision.segmentation` (colour
+threshold + morphology, full resolution only around each marker) →
+:mod:`~services.vision.quad` (largest blob, rough quadrilateral, one straight edge per side,
+corners; both markers' edges refined in one numpy batch) → :mod:`~services.vision.depth`
+(plane fitted to the depth inside the eroded blob, corner rays intersected with it) →
+:mod:`~services.vision.occlusion` (something in front of the outline?). Tracking across frames
+and partly hidden markers are :mod:`~services.vision.tracking`'s and
+:mod:`~services.vision.partial`'s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from common.camera import CameraIntrinsics, pixel_to_normalized
+from common.config import VisionConfig
+from common.messages import is_usable
+from common.metrics import percentile
+from services.vision.depth import (
+    DEPTH_MIN_PIXELS,
+    PlaneFit,
+    bounding_box,
+    corner_depths,
+    depth_ring_px,
+    fit_inverse_depth_plane,
+    grid_step,
+    marker_surface,
+    plane_depth_image,
+    registered_mask,
+    to_depth_pixels,
+)
+from services.vision.occlusion import is_occluded
+from services.vision.quad import find_quads, order_corners
+from services.vision.segmentation import MARKERS, MORPH_KERNEL, check_rgb, marker_masks, mask_bounds
+
+FloatArray = NDArray[np.float64]
+
+
+# Why a marker is not usable → its state (see common.messages.MarkerFeatures).
+REASON_STATES: dict[str, str] = {
+    "no blob": "lost",
+    "blob too small": "partial",  # a sliver of it shows
+    "touches image border": "partial",
+    "not a quadrilateral": "partial",
+    "occluded": "partial",
+    "not the marker's size": "partial",
+    "no valid depth": "no_depth",
+    "no depth image": "no_depth",
+    "depth image too old": "no_depth",
+}
+
+
+@dataclass(frozen=True)
+class MarkerMeasurement:
+    """One marker in one frame.
+
+    ``corners_px`` (4, 2) sub-pixel (u, v) in canonical order; ``depths_m`` (4,) Z of each
+    corner (m) and ``depth_sigmas_m`` (4,) its 1-σ uncertainty; ``points_m`` (4, 3) corners in
+    the camera optical frame (m); ``area_px`` the blob's pixel count (0 when there is no blob);
+    ``plane`` the depth plane the depths come from (None when they do not come from a fit).
+    ``state``: "visible", or why not (see :data:`REASON_STATES`, ``reason`` says which);
+    when not visible the arrays are zeros, unless ``fitted``: a partly hidden marker whose
+    corners were found from its visible edges, known size and plane
+    (:mod:`services.vision.partial`). ``occluded``: something is seen in front of it.
+    """
+
+    state: str
+    corners_px: FloatArray
+    depths_m: FloatArray
+    depth_sigmas_m: FloatArray
+    points_m: FloatArray
+    area_px: float
+    reason: str
+    occluded: bool = False
+    plane: PlaneFit | None = None
+    fitted: bool = False
+
+    @property
+    def visible(self) -> bool:
+        return self.state == "visible"
+
+    @property
+    def usable(self) -> bool:
+        """Corners and depths can be acted on: seen whole, or fitted from what is seen."""
+        return is_usable(self.state, self.fitted)
+
+
+def not_visible(reason: str, area_px: float = 0.0, occluded: bool = False) -> MarkerMeasurement:
+    """A marker that cannot be used, for ``reason`` (a key of :data:`REASON_STATES`)."""
+    return MarkerMeasurement(
+        state=REASON_STATES[reason],
+        corners_px=np.zeros((4, 2)),
+        depths_m=np.zeros(4),
+        depth_sigmas_m=np.zeros(4),
+        points_m=np.zeros((4, 3)),
+        area_px=float(area_px),
+        reason=reason,
+        occluded=occluded,
+    )
+
+
+def _measure(
+    quad: MarkerQuad,
+    depth_m: np.ndarray,
+    k: CameraIntrinsics,
+    k_depth: CameraIntrinsics | None,
+    ring_px: int,
+) -> MarkerMeasurement:
+    """Depths and occlusion check of a marker whose corners are in their final order."""
+    ring_px = depth_ring_px(ring_px, k, k_depth)
+    if quad.corners_px is None:
+        occluded = quad.area_px > 0 and _blob_occluded(quad.mask, depth_m, k_depth or k, ring_px)
+        return not_visible(quad.reason, quad.area_px, occluded)
+    corners, mask = quad.corners_px, quad.mask
+    depth = corner_depths(depth_m, mask, corners, k, k_depth)
+    if depth is None:
+        return not_visible("no valid depth", quad.area_px)
+    k_depth = k_depth or k
+    depth_corners = corners if k_depth == k else to_depth_pixels(corners, k, k_depth)
+    bounds = bounding_box(depth_corners, ring_px + 3, depth_m.shape)
+    r0, r1, c0, c1 = bounds
+    crop_mask = registered_mask(mask, depth_m.shape)[r0:r1, c0:c1]
+    surface = marker_surface(depth.plane, depth.depths_m, k_depth, bounds)
+    if is_occluded(depth_m[r0:r1, c0:c1], crop_mask, surface, ring_px):
+        return not_visible("occluded", quad.area_px, occluded=True)
+    return MarkerMeasurement(
+        "visible",
+        corners,
+        depth.depths_m,
+        depth.sigmas_m,
+        depth.points_m,
+        quad.area_px,
+        "",
+        plane=depth.plane,
+    )
+
+
+def _blob_occluded(
+    mask: np.ndarray, depth_m: np.ndarray, k_depth: CameraIntrinsics, ring_px: int
+) -> bool:
+    """Is something in front of a blob that did not make a whole square? The ring around it
+    against the plane of its own depth (else its nearest depth: a tilted marker spans
+    centimetres)."""
+    small = registered_mask(mask, depth_m.shape)
+    bounds = mask_bounds(small, ring_px + 3)
+    if bounds is None:
+        return False
+    r0, r1, c0, c1 = bounds
+    crop_mask, crop_depth = small[r0:r1, c0:c1], depth_m[r0:r1, c0:c1]
+    eroded = cv2.erode(crop_mask, MORPH_KERNEL)
+    step = grid_step(cv2.countNonZero(eroded))
+    z_grid = crop_depth[::step, ::step]
+    vv, uu = np.nonzero((eroded[::step, ::step] > 0) & (z_grid > 0) & np.isfinite(z_grid))
+    if vv.size < DEPTH_MIN_PIXELS:
+        return False
+    z = z_grid[vv, uu].astype(float)
+    uv = np.column_stack([uu * step + c0, vv * step + r0]).astype(float)
+    plane = fit_inverse_depth_plane(pixel_to_normalized(uv, k_depth), z)
+    if plane is not None:
+        surface: FloatArray | float = plane_depth_image(plane, k_depth, bounds)
+    else:
+        surface = percentile(z, 5.0)
+    return is_occluded(crop_depth, crop_mask, surface, ring_px)
+
+
+def _check_frame(rgb: np.ndarray, depth_m: np.ndarray, k_depth: CameraIntrinsics | None) -> None:
+    check_rgb(rgb)
+    expected = rgb.shape[:2] if k_depth is None else (k_depth.height_px, k_depth.width_px)
+    if depth_m.shape != expected:
+        raise ValueError(f"depth {depth_m.shape} does not match the expected {expected}")
+
+
+@dataclass(frozen=True)
+class MarkerQuad:
+    """A marker found in colour alone: corners (canonical order) or why not, and its mask."""
+
+    corners_px: FloatArray | None
+    reason: str
+    area_px: float
+    mask: np.ndarray
+
+
+def find_marker_quads(
+    rgb: np.ndarray, cfg: VisionConfig, previous: dict[str, np.ndarray] | None = None
+) -> dict[str, MarkerQuad]:
+    """Both markers in a colour image, keyed ``"hand"`` (green) and ``"target"`` (red);
+    ``previous`` maps the same keys to last frame's corners (to keep their order)."""
+    check_rgb(rgb)
+    previous = previous or {}
+    masks = marker_masks(rgb, cfg, previous)
+    quads = find_quads(masks, cfg.min_area_px)  # both markers' sides refined in one batch
+    out = {}
+    for name, quad, (mask, _) in zip(MARKERS, quads, masks, strict=True):
+        corners = None
+        if quad.corners_px is not None:
+            corners = order_corners(quad.corners_px, previous.get(name))
+        out[name] = MarkerQuad(corners, quad.reason, quad.area_px, mask)
+    return out
+
+
+def measure_markers(
+    rgb: np.ndarray,
+    depth_m: np.ndarray,
+    k: CameraIntrinsics,
+    cfg: VisionConfig,
+    previous: dict[str, np.ndarray] | None = None,
+    k_depth: CameraIntrinsics | None = None,
+) -> dict[str, MarkerMeasurement]:
+    """Both markers, keyed ``"hand"`` (green) and ``"target"`` (red), from a colour image and
+    the depth image taken with it; ``previous`` maps the same keys to last frame's corners
+    (missing keys: no previous)."""
+    _check_frame(rgb, depth_m, k_depth)
+    return {
+        name: measure_quad(quad, depth_m, k, cfg, k_depth)
+        for name, quad in find_marker_quads(rgb, cfg, previous).items()
+    }
+
+
+def measure_quad(
+    quad: MarkerQuad,
+    depth_m: np.ndarray,
+    k: CameraIntrinsics,
+    cfg: VisionConfig,
+    k_depth: CameraIntrinsics | None = None,
+) -> MarkerMeasurement:
+    """Depths and occlusion check of a marker found by :func:`find_marker_quads`, with the
+    depth image taken together with the colour image."""
+    return _measure(quad, depth_m, k, k_depth, cfg.occlusion_ring_px)

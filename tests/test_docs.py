@@ -1,0 +1,320 @@
+"""``umay docs``: the generated tables of README.md and docs/*.md agree with their JSON, and the
+rendering and the block markers behave (deploy/docs.py)."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from deploy.cli import main
+from deploy.compare import rows_from_json, strategy_table, summarize_modes
+from deploy.docs import (
+    BLOCKS,
+    END,
+    KINECT_LOCKSTEP_RUN,
+    KINECT_REALTIME_RUN,
+    LOCKSTEP_RUN,
+    REPO_ROOT,
+    RESULTS_JSON,
+    BenchRun,
+    DocsError,
+    Inputs,
+    Outdated,
+    bench_commands,
+    bench_distribution,
+    bench_dropped,
+    bench_latency,
+    bench_render,
+    documents,
+    find_blocks,
+    frame_handoff_ms,
+    latency,
+    link,
+    results_compact,
+    rewrite,
+    run_label,
+    update,
+)
+
+
+def test_every_generated_table_agrees_with_its_json() -> None:
+    """The repository's README and docs: every block is what its JSON gives (else run
+    ``umay docs`` and commit)."""
+    assert [str(o) for o in update(REPO_ROOT, check=True)] == []
+
+
+def test_the_docs_have_generated_blocks_and_link_inside_the_repository() -> None:
+    names = {b.name for p in documents(REPO_ROOT) for b in find_blocks(p.read_text())}
+    assert {"results-compact", "bench-headline", "bench-commands", "bench-latency"} <= names
+    for p in documents(REPO_ROOT):
+        assert "../shared" not in p.read_text(), p
+
+
+def _anchors(markdown: str) -> set[str]:
+    """GitHub's heading anchors: lower case, punctuation dropped, spaces to hyphens."""
+    headings = re.findall(r"^#+ (.+)$", markdown, flags=re.MULTILINE)
+    return {re.sub(r"[^\w\- ]", "", h.lower()).replace(" ", "-") for h in headings}
+
+
+def test_relative_links_of_the_docs_exist() -> None:
+    for doc in documents(REPO_ROOT):
+        for target in re.findall(r"\]\(([^)\s]+)\)", doc.read_text()):
+            path, _, anchor = target.partition("#")
+            if "://" in path:
+                continue
+            linked = doc.parent / path if path else doc
+            assert linked.exists(), f"{doc.name}: {target}"
+            if anchor:
+                assert anchor in _anchors(linked.read_text()), f"{doc.name}: {target}"
+
+
+def test_readme_is_short() -> None:
+    assert len((REPO_ROOT / "README.md").read_text().splitlines()) <= 250
+
+
+# --- markers -----------------------------------------------------------------------------------
+def _doc(name: str, body: str = "old") -> str:
+    return f"before\n<!-- generated: {name} -->\n{body}\n{END}\nafter\n"
+
+
+def test_find_blocks_in_order() -> None:
+    text = _doc("results-compact") + _doc("bench-runs")
+    assert [b.name for b in find_blocks(text)] == ["results-compact", "bench-runs"]
+    first = find_blocks(text)[0]
+    assert text[first.start : first.end] == "\nold\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        (_doc("no-such-block"), "unknown block 'no-such-block'"),
+        ("<!-- generated: bench-runs -->\nno end\n", "has no"),
+        ("<!-- generated: bench-runs -->\n" + _doc("bench-runs"), "has no"),
+        (f"text\n{END}\n", "line 2"),
+    ],
+)
+def test_malformed_markers_are_refused(text: str, says: str) -> None:
+    with pytest.raises(DocsError, match=says):
+        find_blocks(text)
+
+
+def _results() -> list:
+    return rows_from_json((REPO_ROOT / RESULTS_JSON).read_text())
+
+
+def test_rewrite_changes_only_the_blocks_and_is_idempotent() -> None:
+    inputs = Inputs(results=_results())
+    text = "# Title\n\nprose stays\n" + _doc("results-compact") + "tail\n"
+    new, changed = rewrite(text, inputs, "")
+    assert changed == ["results-compact"]
+    assert new.startswith("# Title\n\nprose stays\nbefore\n<!-- generated: results-compact -->\n")
+    assert new.endswith(f"{END}\nafter\ntail\n")
+    assert "\nold\n" not in new
+    again, changed_again = rewrite(new, inputs, "")
+    assert (again, changed_again) == (new, [])
+
+
+# --- the comparison ----------------------------------------------------------------------------
+def test_results_table_is_compare_s_own_with_fewer_columns() -> None:
+    rows = _results()
+    out = results_compact(Inputs(results=rows), "docs")
+    full = strategy_table(summarize_modes(rows, ["constant", "dynamic"]))
+    constant = next(line for line in full.splitlines() if line.startswith("| constant |"))
+    cells = constant.split(" | ")
+    # Same strategy counts and path ratio as summary.md's table; link relative to docs/.
+    mine = next(line for line in out.splitlines() if line.startswith("| constant |"))
+    assert mine.split(" | ")[1:3] == cells[1:3]
+    assert cells[cells.index("1.051")] in mine.split(" | ")
+    assert "(results/results.json)" in out
+    assert out.splitlines()[1].count("---") == len(out.splitlines()[0].split(" | "))
+
+
+# --- the benchmark -----------------------------------------------------------------------------
+def _stage(p50: float | None) -> dict[str, Any]:
+    return {"n": 10, "p50": p50, "p99": None if p50 is None else 2 * p50, "max": p50}
+
+
+def _bench(**config: Any) -> dict[str, Any]:
+    stages = {
+        "render": _stage(5.0),
+        "publish": _stage(0.25),
+        "frame_transport": _stage(0.5),
+        "vision": _stage(3.0),
+    }
+    services = {
+        s: {"peak_rss_mb": 100.0, "cpu_ms_per_frame": 1.0}
+        for s in ("sim", "vision", "controller", "actuation")
+    }
+    dropped = {"camera": 0, "vision": 0, "controller": 0, "actuation": 0}
+    return {
+        "command": "umay bench --frames 10",
+        "machine": {"cpus": 2, "processor": "x86_64", "python": "3.11", "zenoh": "1.10.2"},
+        "config": {
+            "width_px": 640,
+            "height_px": 480,
+            "depth_width_px": 640,
+            "depth_height_px": 480,
+            "rgb_hz": 30.0,
+            "clock": "lockstep",
+            "renderer": "gl",
+            "transport": "shm",
+            "frames": 10,
+            "overrides": [],
+            **config,
+        },
+        "distributed": {
+            "stages_ms": stages,
+            "latency_ms": _stage(6.0),
+            "frames_over_goal": 1,
+            "loop_rate_hz": 60.0,
+            "real_time_factor": 2.0,
+            "dropped": dropped,
+            "services": services,
+        },
+        "inprocess": {"per_frame_ms": _stage(4.0)},
+        "distribution_adds_ms": {"p50": 2.0, "parts_p50": {"publish": 0.25, "vision": 0.5}},
+        "render": {
+            "renderers": {
+                "gl": {"renderer": "gl", "detail": "llvmpipe", "render_ms": _stage(3.0)},
+                "tiny": {"renderer": "tiny", "detail": "TinyRenderer", "render_ms": _stage(90.0)},
+            },
+            "sensor_model": {
+                "colour_px": [640, 480],
+                "depth_px": [640, 480],
+                "colour_ms": _stage(1.0),
+                "depth_ms": _stage(2.0),
+                "total_ms": _stage(3.0),
+            },
+        },
+        "reference_renderer": {"renderer": "tiny", "loop_rate_hz": 10.0, "real_time_factor": 0.33},
+        "synthetic": None,
+    }
+
+
+def test_run_label_says_what_a_run_is() -> None:
+    assert run_label(_bench()) == "lockstep 640×480"
+    kinect = _bench(
+        depth_width_px=320,
+        depth_height_px=240,
+        clock="realtime",
+        transport="tcp",
+        overrides=["camera.kinect.enabled=true"],
+    )
+    assert run_label(kinect) == "realtime 640×480, depth 320×240, Kinect model, TCP"
+
+
+def test_figures_taken_from_the_json() -> None:
+    one = _bench()
+    assert frame_handoff_ms(one) == pytest.approx(0.75)
+    assert latency(one) == (one["distributed"]["latency_ms"], 1)
+    repeated = {**one, "runs": 3}
+    repeated["distributed"] = {
+        **one["distributed"],
+        "pooled": {"latency_ms": _stage(7.0), "frames_over_goal": 4},
+    }
+    assert latency(repeated) == (_stage(7.0), 4)  # all frames of all runs, not the median
+
+
+def test_bench_tables() -> None:
+    inputs = Inputs(
+        bench=[BenchRun("a_run", _bench()), BenchRun("b_run", _bench(clock="realtime"))]
+    )
+    rendered = bench_render(inputs, "docs")
+    # The scenario's renderer drew the distributed loop, TinyRenderer the reference loop.
+    assert "| a_run | gl | 3.00 | 6.00 | 60.0 | 2.00 |" in rendered
+    assert "| a_run | tiny | 90.00 | 180.00 | 10.0 | 0.33 |" in rendered
+    assert "`llvmpipe`" in rendered and "(bench/a_run.json)" in rendered
+    lat = bench_latency(inputs, "")
+    assert "| a_run | 10 | 0.75 | 6.00 | 6.00 | 12.00 | 6.00 | 1 | 4.00 | 2.00 |" in lat
+    assert "(docs/bench/b_run.json)" in lat
+    dist = bench_distribution(inputs, "docs")
+    assert "| run | adds p50 | publish | vision |" in dist
+    assert "| a_run | 2.00 | 0.25 | 0.50 |" in dist
+    assert bench_commands(inputs, "docs").splitlines()[1:3] == ["umay bench --frames 10"] * 2
+
+
+def test_dropped_counts_the_worst_run() -> None:
+    data = _bench()
+    data["dropped_max"] = {"distributed": {"camera": 3, "vision": 1, "controller": 0}}
+    out = bench_dropped(Inputs(bench=[BenchRun("r", data)]), "docs")
+    assert "| r | 3 | 1 / 0 / 0 | – |" in out
+
+
+def test_link_is_relative_to_the_document() -> None:
+    assert link("", "docs/bench/x.json") == "docs/bench/x.json"
+    assert link("docs", "docs/bench/x.json") == "bench/x.json"
+    assert link("docs", "README.md") == "../README.md"
+
+
+def test_headline_against_the_goals() -> None:
+    realtime = _bench(clock="realtime", frames=300)
+    realtime["distributed"]["dropped"] = {"camera": 7, "vision": 1, "controller": 0}
+    kinect = _bench()
+    kinect["distributed"]["real_time_factor"] = 1.5
+    kinect["distributed"]["services"]["sim"]["peak_rss_mb"] = 290.4
+    runs = [
+        BenchRun(LOCKSTEP_RUN, _bench()),
+        BenchRun(KINECT_LOCKSTEP_RUN, kinect),
+        BenchRun(KINECT_REALTIME_RUN, realtime),
+    ]
+    out = BLOCKS["bench-headline"].render(Inputs(bench=runs), "")
+    assert "| 3.00 ms (90.00 ms) | ≤ 6 ms |" in out
+    assert "| 2.00 (0.33) | ≥ 2.5 |" in out
+    assert "| 1.50 | ≥ 2 |" in out
+    assert (
+        "300 frames: frames dropped" in out and "| 1; 7; 60.0 frames/s | 0; 0; 30 frames/s |" in out
+    )
+    assert "| 0.75 ms | ≤ 0.5 ms |" in out
+    assert "| 6.00 / 12.00 ms |" in out and "| 2.00 ms | ≤ 2.0 ms |" in out
+    assert "| 290 MiB |" in out
+
+
+def test_a_missing_headline_run_is_named() -> None:
+    with pytest.raises(DocsError, match=r"lockstep_640x480\.json is missing"):
+        BLOCKS["bench-headline"].render(Inputs(), "")
+
+
+# --- the command -------------------------------------------------------------------------------
+def test_umay_docs_rewrites_then_check_names_the_block_that_differs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    results = tmp_path / RESULTS_JSON
+    results.parent.mkdir(parents=True)
+    shutil.copy(REPO_ROOT / RESULTS_JSON, results)
+    (tmp_path / "docs" / "bench").mkdir()
+    (tmp_path / "README.md").write_text(_doc("results-compact"))
+    (tmp_path / "docs" / "results.md").write_text(_doc("results-strategies"))
+
+    assert main(["docs", "--check", "--root", str(tmp_path)]) == 1
+    assert "README.md: block 'results-compact' differs" in capsys.readouterr().err
+    assert main(["docs", "--root", str(tmp_path)]) == 0
+    assert main(["docs", "--check", "--root", str(tmp_path)]) == 0
+    assert "| pmj | 11/12 | 11/12 |" in (tmp_path / "README.md").read_text()
+
+    rows = json.loads(results.read_text())
+    rows[0]["converged"] = rows[0]["on_goal"] = False  # constant on the baseline fails
+    results.write_text(json.dumps(rows))
+    capsys.readouterr()
+    assert update(tmp_path, check=True) == [
+        Outdated("README.md", "results-compact"),
+        Outdated("docs/results.md", "results-strategies"),
+    ]
+    assert main(["docs", "--check", "--root", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert "README.md: block 'results-compact' differs from docs/results/results.json" in err
+    assert "docs/results.md: block 'results-strategies'" in err
+
+
+def test_umay_docs_refuses_malformed_docs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "docs" / "results").mkdir(parents=True)
+    shutil.copy(REPO_ROOT / RESULTS_JSON, tmp_path / RESULTS_JSON)
+    (tmp_path / "README.md").write_text("<!-- generated: results-compact -->\n")
+    assert main(["docs", "--check", "--root", str(tmp_path)]) == 2
+    assert "README.md: line 1: block 'results-compact' has no" in capsys.readouterr().err
