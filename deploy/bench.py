@@ -60,6 +60,7 @@ Times come from ``time.time()`` in every process, so all processes must be on on
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
@@ -67,6 +68,8 @@ import platform
 import threading
 import time
 import uuid
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -420,8 +423,13 @@ def run_distributed(
     log_dir: Path,
     shm: bool,
     startup_timeout_s: float = 60.0,
+    observer: Callable[[Keys, str, Path], AbstractContextManager[dict[str, Any]]] | None = None,
 ) -> dict[str, Any]:
-    """Launch the four services, measure ``frames`` frames after ``warmup``, stop them."""
+    """Launch the four services, measure ``frames`` frames after ``warmup``, stop them.
+
+    ``observer(keys, endpoint, log_dir)``: a context entered once the services are up and
+    left after the measurement (``umay bench --view``: a live view with a client connected);
+    the dict it yields goes into the result as ``observer``, filled in when it is left."""
     keys = Keys(f"bench/{uuid.uuid4().hex[:12]}")
     endpoint = free_tcp_endpoint()
     env = {} if shm else {ENV_SHM: "0"}
@@ -434,9 +442,13 @@ def run_distributed(
     realtime = scenario.run.clock is ClockMode.REALTIME
     load_before = machine_load()
     bench_cpu0 = time.process_time()
+    observed: dict[str, Any] | None = None
+    stack = contextlib.ExitStack()
     try:
         sup.start()
         _wait_for_services(session, keys, sup, SERVICES, startup_timeout_s)
+        if observer is not None:
+            observed = stack.enter_context(observer(keys, endpoint, log_dir))
         ready_s = time.time()
         # The window starts after every service is up (a realtime sim renders from the start).
         while True:
@@ -476,6 +488,7 @@ def run_distributed(
         collect_stamps(session, keys, trace)
         counters = _status_counters(session, keys)
     finally:
+        stack.close()
         sup.stop()
         for s in subs:
             s.undeclare()
@@ -496,6 +509,7 @@ def run_distributed(
             "frames_received_by_vision": vision_rgb.get("count"),
             "load_before": load_before,
             "load_after": machine_load(),
+            "observer": observed,
         }
     )
     result["_velocities"] = {k: trace.velocities.get(k) for k in window}
@@ -860,6 +874,7 @@ def run_bench(
     synthetic_frames: int | None = None,
     command: str = "",
     reference_renderer: bool = True,
+    view: bool = False,
 ) -> dict[str, Any]:
     """Distributed run, in-process baseline, synthetic 30 Hz source, and (``reference_renderer``)
     the render cost and the distributed loop again with TinyRenderer; one JSON-ready dict."""
@@ -867,9 +882,17 @@ def run_bench(
 
     cam = scenario.camera
     synthetic_frames = frames if synthetic_frames is None else synthetic_frames
+    observer = None
+    if view:
+        from deploy.foxglove.bench import watched_by_a_view
+
+        def observer(keys: Keys, endpoint: str, view_log_dir: Path):  # type: ignore[no-redef]
+            return watched_by_a_view(keys, endpoint, view_log_dir, scenario_path, overrides)
+
     distributed = run_distributed(
-        scenario_path, scenario, overrides, frames, warmup, log_dir / "distributed", shm
-    )
+        scenario_path, scenario, overrides, frames, warmup, log_dir / "distributed", shm,
+        observer=observer,
+    )  # fmt: skip
     render = run_render_bench(scenario, min(frames, 60), reference=reference_renderer)
     reference = None
     if reference_renderer and scenario.sim.renderer != REFERENCE_RENDERER:
@@ -957,6 +980,7 @@ def run_bench(
             "frames": frames,
             "warmup": warmup,
             "controller_mode": scenario.controller.mode.value,
+            "view": view,
             "overrides": overrides,
         },
         "distributed": distributed,

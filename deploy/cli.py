@@ -533,6 +533,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 synthetic_frames=args.synthetic_frames,
                 command=" ".join(["umay", *sys.argv[1:]]),
                 reference_renderer=not args.no_reference,
+                view=args.view,
             )
         except BenchError as exc:
             print(f"umay bench: {exc}", file=sys.stderr)
@@ -634,6 +635,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="skip the TinyRenderer reference (its render cost and its loop)",
     )
     p.add_argument("--repeat", type=int, default=1, help="runs; the table shows their medians")
+    p.add_argument(
+        "--view",
+        action="store_true",
+        help="with a live view (umay view) and a Foxglove client connected during the loop",
+    )
     p.add_argument(
         "--synthetic-frames",
         type=int,

@@ -52,6 +52,9 @@ class FoxgloveChannels:
         """Someone listens on ``topic`` (a client subscribed, or a file is open)."""
         return self.channels[topic].has_sinks()
 
+    def any_wanted(self) -> bool:
+        return any(ch.has_sinks() for ch in self.channels.values())
+
     def log(self, out: c.Out) -> None:
         self.channels[out.topic].log(out.message, log_time=out.log_time_ns)
 

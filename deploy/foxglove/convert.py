@@ -169,6 +169,7 @@ TABLE_SIZE_M = (0.56, 0.04, 0.90)
 LIMB_RADIUS_M = 0.022
 FRUSTUM_DEPTH_M = 0.6  # how far the drawn camera frustum reaches
 TRAIL_MAX_POINTS = 3000  # the hand-marker centre's trail (the thesis's white dots)
+TRAIL_MIN_STEP_PX = 1.0  # a dot is added once the centre has moved this far from the last
 STATIC_PERIOD_S = 1.0  # the fixed scene is sent again this often (sim s), for late clients
 
 
@@ -702,8 +703,10 @@ class ViewState:
         ns = time_ns(t)
         hand = features.hand
         if hand.usable:
-            centre = np.mean(np.asarray(hand.corners_px, dtype=float), axis=0)
-            self.trail_px.append((float(centre[0]), float(centre[1])))
+            u, v = np.mean(np.asarray(hand.corners_px, dtype=float), axis=0)
+            last = self.trail_px[-1] if self.trail_px else None
+            if last is None or math.hypot(u - last[0], v - last[1]) >= TRAIL_MIN_STEP_PX:
+                self.trail_px.append((float(u), float(v)))
             del self.trail_px[: max(0, len(self.trail_px) - self.trail_max)]
         desired = desired_corners_px(features, self.scenario.target.approach_height_m)
         error: dict[str, Any] = {

@@ -5,11 +5,12 @@ Foxglove messages (:mod:`deploy.foxglove.convert`) and serves them with the offi
 ``foxglove-sdk`` WebSocket server. It publishes nothing on Zenoh, so the loop never waits for
 it:
 
-- Zenoh callbacks only decode and queue (:class:`common.transport.Node`); colour and depth
-  frames are kept latest-only, so a view that falls behind skips frames instead of queueing
-  them (counted as ``dropped`` in its status);
-- images are converted only while a client listens on their topic, at most ``image_hz`` /
-  ``depth_hz`` per second (JPEG encoding is the view's main cost, on the loop's cores);
+- it shows at most ``rate_hz`` messages per key and second (``image_hz`` colour images,
+  ``depth_hz`` depth images: JPEG encoding is its main cost, on the loop's cores), and none
+  while no client listens: a sample it does not want is dropped in the Zenoh callback
+  before it is copied or decoded; the rest are decoded there and kept newest-only per key,
+  so a view that falls behind skips messages instead of queueing them (``dropped`` in its
+  status);
 - the SDK keeps a bounded queue per client and drops the oldest data for a slow one.
 
 It answers ``<prefix>/view/status`` like a service, and once a second asks the services for
@@ -35,7 +36,7 @@ from typing import Any
 import foxglove
 from foxglove.websocket import Capability
 
-from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES
+from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decode
 from common.config import Scenario
 from common.keys import DEPTH, RGB, Keys
 from common.transport import Node, query_status
@@ -75,7 +76,9 @@ def start_server(host: str, port: int, context: foxglove.Context) -> foxglove.We
 
 
 class ViewNode:
-    """Zenoh in, Foxglove out. Only :meth:`run`'s thread touches :attr:`state`."""
+    """Zenoh in, Foxglove out. Zenoh callbacks only admit (rate limit, someone listening),
+    decode and keep the newest message per key; only :meth:`run`'s thread touches
+    :attr:`state`."""
 
     def __init__(
         self,
@@ -84,6 +87,7 @@ class ViewNode:
         session: Any,
         server: foxglove.WebSocketServer,
         channels: FoxgloveChannels,
+        rate_hz: float,
         image_hz: float,
         depth_hz: float,
         jpeg_quality: int,
@@ -93,45 +97,61 @@ class ViewNode:
         self.session = session
         self.server = server
         self.channels = channels
-        self.min_period_s = {RGB: 1.0 / image_hz, DEPTH: 1.0 / depth_hz}
         self.jpeg_quality = jpeg_quality
-        self.last_sent_s = {RGB: 0.0, DEPTH: 0.0}
-        self.skipped = {RGB: 0, DEPTH: 0}
         self.shown = 0
-        self.node = Node("view", keys, session, self.status_fields)
-        for suffix, model in c.VIEWED_KEYS.items():
-            frame = suffix in FRAME_KEYS
-            self.node.subscribe(
+        self.rejected = 0
+        self.dropped: dict[str, int] = dict.fromkeys(c.VIEWED_KEYS, 0)
+        self._accepted_s: dict[str, float] = dict.fromkeys(c.VIEWED_KEYS, -1e9)
+        self._latest: dict[str, Any] = {}
+        self._cond = threading.Condition()
+        self.node = Node("view", keys, session, self.status_fields)  # status and liveliness
+        periods = {RGB: 1.0 / image_hz, DEPTH: 1.0 / depth_hz}
+        self._subscribers = [
+            session.declare_subscriber(
                 f"{keys.prefix}/{suffix}",
-                model,
-                FRAME_MAX_BYTES if frame else DEFAULT_MAX_BYTES,
-                latest_only=frame,
+                self._on_sample(suffix, model, periods.get(suffix, 1.0 / rate_hz)),
             )
+            for suffix, model in c.VIEWED_KEYS.items()
+        ]
 
     def status_fields(self) -> dict[str, Any]:
         return {
             "port": self.server.port,
             "messages_shown": self.shown,
-            "frames_skipped": {k.rsplit("/", 1)[-1]: n for k, n in self.skipped.items()},
+            "dropped": dict(self.dropped),
+            "rejected": self.rejected,
         }
 
-    def _skip_frame(self, suffix: str) -> bool:
-        """A colour/depth frame nobody watches, or one within the rate limit of the last."""
-        topic = c.COLOUR_IMAGE if suffix == RGB else c.DEPTH_IMAGE
-        now = time.monotonic()
-        if (
-            not self.channels.wanted(topic)
-            or now - self.last_sent_s[suffix] < self.min_period_s[suffix]
-        ):
-            self.skipped[suffix] += 1
-            return True
-        self.last_sent_s[suffix] = now
-        return False
+    def _wanted(self, suffix: str) -> bool:
+        if suffix == RGB:
+            return self.channels.wanted(c.COLOUR_IMAGE)
+        if suffix == DEPTH:
+            return self.channels.wanted(c.DEPTH_IMAGE)
+        return self.channels.any_wanted()
 
-    def on_event(self, key: str, message: Any) -> None:
-        suffix = self.keys.relative(key)
-        if suffix in FRAME_KEYS and self._skip_frame(suffix):
-            return
+    def _on_sample(self, suffix: str, model: type, period_s: float) -> Any:
+        max_bytes = FRAME_MAX_BYTES if suffix in FRAME_KEYS else DEFAULT_MAX_BYTES
+
+        def on_sample(sample: Any) -> None:
+            now = time.monotonic()
+            if now - self._accepted_s[suffix] < period_s or not self._wanted(suffix):
+                self.dropped[suffix] += 1  # before the copy and the decode: costs nothing
+                return
+            self._accepted_s[suffix] = now
+            try:
+                message = decode(sample.payload.to_bytes(), model, max_bytes)
+            except MessageError:
+                self.rejected += 1
+                return
+            with self._cond:
+                if self._latest.pop(suffix, None) is not None:
+                    self.dropped[suffix] += 1  # the view is behind: the newer one wins
+                self._latest[suffix] = message
+                self._cond.notify()
+
+        return on_sample
+
+    def on_event(self, suffix: str, message: Any) -> None:
         outs = self.state.on_message(suffix, message, self.jpeg_quality)
         self.channels.log_all(outs)
         self.shown += len(outs)
@@ -152,9 +172,20 @@ class ViewNode:
             self.channels.log_all(c.status_logs(statuses, self.state.sim_time_s))
 
     def run(self, stop: threading.Event) -> None:
-        poller = threading.Thread(target=self.poll_status, args=(stop,), daemon=True)
-        poller.start()
-        self.node.spin(stop, self.on_event)
+        threading.Thread(target=self.poll_status, args=(stop,), daemon=True).start()
+        self.node.ready()
+        try:
+            while not stop.is_set():
+                with self._cond:
+                    if not self._latest:
+                        self._cond.wait(0.1)
+                    batch, self._latest = list(self._latest.items()), {}
+                for suffix, message in batch:
+                    self.on_event(suffix, message)
+        finally:
+            for sub in self._subscribers:
+                sub.undeclare()
+            self.node.close()  # also closes the session
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -193,7 +224,7 @@ def serve(args: argparse.Namespace) -> int:
         session = open_session(connect=args.connect)
         view = ViewNode(
             scenario, keys, session, server, channels,
-            args.image_hz, args.depth_hz, args.jpeg_quality,
+            args.rate_hz, args.image_hz, args.depth_hz, args.jpeg_quality,
         )  # fmt: skip
         print(
             f"umay view: Foxglove WebSocket at ws://{args.host}:{server.port} for {keys.prefix}; "

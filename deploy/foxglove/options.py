@@ -32,8 +32,11 @@ def add_view_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--port", type=int, default=DEFAULT_PORT, help="WebSocket port (default 8765; 0: any)"
     )
-    p.add_argument("--image-hz", type=float, default=15.0, help="colour images per s at most")
-    p.add_argument("--depth-hz", type=float, default=5.0, help="depth images per s at most")
+    p.add_argument(
+        "--rate-hz", type=float, default=15.0, help="messages per key and s at most (15)"
+    )
+    p.add_argument("--image-hz", type=float, default=10.0, help="colour images per s at most")
+    p.add_argument("--depth-hz", type=float, default=2.0, help="depth images per s at most")
     p.add_argument("--jpeg-quality", type=int, default=80, help="1-100")
 
 
@@ -41,8 +44,8 @@ def check_view_options(args: argparse.Namespace) -> str | None:
     """What is wrong with the options (None: nothing)."""
     if not 0 <= args.port <= 65535:
         return f"--port {args.port}: 0-65535"
-    if not (args.image_hz > 0 and args.depth_hz > 0):
-        return "--image-hz and --depth-hz: above 0"
+    if not (args.rate_hz > 0 and args.image_hz > 0 and args.depth_hz > 0):
+        return "--rate-hz, --image-hz and --depth-hz: above 0"
     if not 1 <= args.jpeg_quality <= 100:
         return f"--jpeg-quality {args.jpeg_quality}: 1-100"
     return None
