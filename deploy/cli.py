@@ -26,9 +26,8 @@ from common.transport import (
     setup_logging,
     zenoh_reason,
 )
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_CONVERGED, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED
 from deploy.paths import FIGURE_SUFFIXES, OutputPathError, check_output_dir, check_output_file
-
-EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 
 
 def _positive_seconds(value: str) -> float:
@@ -652,7 +651,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"umay {args.command}: interrupted; what it started is stopped", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except zenoh.ZError as exc:  # a session that cannot open: endpoint unusable, port taken
         logging.getLogger("umay").debug("Zenoh error", exc_info=True)
         print(f"umay {args.command}: Zenoh: {zenoh_reason(exc)}", file=sys.stderr)
