@@ -339,7 +339,13 @@ class TopicStats(Message):
     rate_hz: float = Field(ge=0.0, description="over the last few seconds")
     age_s: float | None = Field(None, description="since the last message; None: never")
     dropped: int = Field(0, ge=0, description="replaced by a newer one before being processed")
-    shm: int = Field(0, ge=0, description="of count, delivered through Zenoh shared memory")
+    by_ref: int = Field(
+        0, ge=0, description="camera frames by reference (a view of the sim's shared-memory ring)"
+    )
+    by_copy: int = Field(0, ge=0, description="camera frames whole, by copy")
+    fetched: int = Field(
+        0, ge=0, description="of by_copy, asked from the publisher: its ring was unreachable"
+    )
 
 
 class ServiceStatus(Message):

@@ -301,6 +301,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     for key, n in sorted(counts.items()):
         print(f"{n:8d}  {key}")
     print(f"{sum(counts.values()):8d}  messages in {args.out}")
+    if recorder.lost:
+        print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
     return 0
 
 
