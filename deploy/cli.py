@@ -513,7 +513,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--warmup", type=int, default=5, help="frames left out at the start")
     p.add_argument("--size", default="640x480", help="colour image WxH (default 640x480)")
     p.add_argument("--mode", default="lockstep", help="clock: lockstep|realtime")
-    p.add_argument("--no-shm", action="store_true", help="Zenoh shared memory off everywhere")
+    p.add_argument(
+        "--no-shm",
+        action="store_true",
+        help="shared memory off everywhere: camera frames whole, by copy, not by reference",
+    )
     p.add_argument("--repeat", type=int, default=1, help="runs; the table shows their medians")
     p.add_argument(
         "--synthetic-frames",
