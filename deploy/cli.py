@@ -300,6 +300,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     for key, n in sorted(counts.items()):
         print(f"{n:8d}  {key}")
     print(f"{sum(counts.values()):8d}  messages in {args.out}")
+    if recorder.lost:
+        print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
     return 0
 
 
@@ -524,7 +526,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--warmup", type=int, default=5, help="frames left out at the start")
     p.add_argument("--size", default="640x480", help="colour image WxH (default 640x480)")
     p.add_argument("--mode", default="lockstep", help="clock: lockstep|realtime")
-    p.add_argument("--no-shm", action="store_true", help="Zenoh shared memory off everywhere")
+    p.add_argument(
+        "--no-shm",
+        action="store_true",
+        help="shared memory off everywhere: camera frames whole, by copy, not by reference",
+    )
     p.add_argument(
         "--no-reference",
         action="store_true",
