@@ -27,9 +27,8 @@ from common.transport import (
     setup_logging,
     zenoh_reason,
 )
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_CONVERGED, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED
 from deploy.paths import FIGURE_SUFFIXES, OutputPathError, check_output_dir, check_output_file
-
-EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 
 
 def _positive_seconds(value: str) -> float:
@@ -386,6 +385,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     for key, n in sorted(counts.items()):
         print(f"{n:8d}  {key}")
     print(f"{sum(counts.values()):8d}  messages in {args.out}")
+    if recorder.lost:
+        print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
     return 0
 
 
@@ -628,7 +629,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--warmup", type=int, default=5, help="frames left out at the start")
     p.add_argument("--size", default="640x480", help="colour image WxH (default 640x480)")
     p.add_argument("--mode", default="lockstep", help="clock: lockstep|realtime")
-    p.add_argument("--no-shm", action="store_true", help="Zenoh shared memory off everywhere")
+    p.add_argument(
+        "--no-shm",
+        action="store_true",
+        help="shared memory off everywhere: camera frames whole, by copy, not by reference",
+    )
     p.add_argument(
         "--no-reference",
         action="store_true",
@@ -760,7 +765,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"umay {args.command}: interrupted; what it started is stopped", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except zenoh.ZError as exc:  # a session that cannot open: endpoint unusable, port taken
         logging.getLogger("umay").debug("Zenoh error", exc_info=True)
         print(f"umay {args.command}: Zenoh: {zenoh_reason(exc)}", file=sys.stderr)
