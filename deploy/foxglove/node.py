@@ -40,6 +40,7 @@ from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decod
 from common.config import Scenario
 from common.keys import DEPTH, RGB, Keys
 from common.transport import Node, query_status
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from deploy.foxglove import convert as c
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_arguments
@@ -153,6 +154,10 @@ class ViewNode:
 
     def on_event(self, suffix: str, message: Any) -> None:
         outs = self.state.on_message(suffix, message, self.jpeg_quality)
+        image = getattr(message, "rgb", None) or getattr(message, "depth_m", None)
+        if suffix in FRAME_KEYS and image is not None and not image.intact():
+            self.dropped[suffix] += 1  # a ring slot overwritten while it was converted
+            return
         self.channels.log_all(outs)
         self.shown += len(outs)
         if suffix == c.keys.JOINT_STATE:
@@ -203,12 +208,12 @@ def serve(args: argparse.Namespace) -> int:
     problem = check_view_options(args)
     if problem is not None:
         print(f"umay view: {problem}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     try:
         scenario = load_scenario(args.scenario, parse_overrides(args.set))
     except ScenarioError as exc:
         print(f"umay view: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     keys = Keys(args.prefix or default_prefix())
     context = foxglove.Context()
     channels = FoxgloveChannels(context)
@@ -216,7 +221,7 @@ def serve(args: argparse.Namespace) -> int:
         server = start_server(args.host, args.port, context)
     except PortInUseError as exc:
         print(f"umay view: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -234,7 +239,7 @@ def serve(args: argparse.Namespace) -> int:
         view.run(stop)  # closes the session on the way out
     finally:
         server.stop()
-    return 0
+    return EXIT_OK
 
 
 LAYOUT_PATH = Path(__file__).resolve().parent / "layout.json"
