@@ -33,9 +33,10 @@ Segments are plain files under ``/dev/shm`` (Linux), created with ``os.open`` an
 with ``posix_fallocate``, so that a ``/dev/shm`` too small for the ring fails here, at
 creation, instead of with SIGBUS at the first write into a page tmpfs cannot back; and so
 that no ``multiprocessing`` resource tracker registers (and later unlinks, or warns about) a
-segment its process only reads. The writer unlinks its segment when it closes; a writer killed
-outright leaves it behind, and :func:`remove_segments_of` (the supervisor calls it when a child
-ends) removes what a process left. Segment names carry the writer's pid and a random token.
+segment its process only reads. The writer unlinks its segment when it closes, or when its
+process exits normally without closing it; a writer killed outright leaves it behind, and
+:func:`remove_segments_of` (the supervisor calls it when a child ends) removes what a process
+left. Segment names carry the writer's pid and a random token.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ import secrets
 import socket
 import struct
 import threading
+import weakref
 from collections import OrderedDict
 from dataclasses import dataclass
 from functools import cache
@@ -157,6 +159,11 @@ def _slot_offsets(slots: int, capacity_bytes: int) -> tuple[int, int]:
     return stride, ALIGN + slots * stride
 
 
+def _unlink(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
+
+
 class RingWriter:
     """The writer's side: a segment created at the first frame, replaced by a new one when a
     frame no longer fits its slots (the old one is unlinked; readers that still map it keep
@@ -181,6 +188,7 @@ class RingWriter:
         self._view: memoryview | None = None
         self._seq = 0
         self._refs: dict[int, FrameRef] = {}  # slot → the frame it holds
+        self._unlink_at_exit: weakref.finalize | None = None
         self._lock = threading.Lock()  # the segment's replacement against copy_frame
 
     def write(self, pixels: Any, shape: tuple[int, ...] | list[int], dtype: str) -> FrameRef:
@@ -255,6 +263,9 @@ class RingWriter:
             self._map, self._view = new_map, memoryview(new_map)
             self.segment, self.capacity_bytes, self._stride = name, frame_bytes, stride
             self._refs.clear()
+            # Unlinked also if the writer is dropped without close(), or at the interpreter's
+            # exit: a forgotten close() must not leave the ring in /dev/shm.
+            self._unlink_at_exit = weakref.finalize(self, _unlink, path)
 
     def _release(self) -> None:
         """Unlink and unmap the current segment (called with the lock held)."""
@@ -262,8 +273,8 @@ class RingWriter:
             self._view.release()
             self._view = None
         if self._map is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(self.directory / self.segment)
+            if self._unlink_at_exit is not None:
+                self._unlink_at_exit()  # once: a finalizer does nothing the second time
             self._map.close()
             self._map = None
 
@@ -319,7 +330,8 @@ class RingReader:
 
     def intact(self, ref: FrameRef) -> bool:
         """Whether no write into the frame's slot has begun since the frame was written: a
-        view of it taken before still shows that frame."""
+        view of it taken before still shows that frame. False, to be safe, for a segment this
+        reader no longer keeps (more than ``max_segments`` since)."""
         with self._lock:
             mapped = self._maps.get(ref.segment)
         if mapped is None:

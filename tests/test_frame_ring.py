@@ -243,3 +243,20 @@ def test_another_process_reads_the_ring_and_leaves_it_in_place() -> None:
     finally:
         writer.close()
     assert not (Path("/dev/shm") / ref.segment).exists()
+
+
+def test_a_writer_s_process_that_exits_without_closing_leaves_no_segment(tmp_path: Path) -> None:
+    code = textwrap.dedent(
+        f"""
+        import numpy as np
+        from pathlib import Path
+        from common.frame_ring import RingWriter
+        ring = RingWriter(4, Path({str(tmp_path)!r}))
+        ring.write(np.zeros(64, np.uint8), (8, 8), "uint8")
+        print(ring.segment)
+        """
+    )  # no close(): the process just ends
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().startswith(SEGMENT_PREFIX)
+    assert list(tmp_path.iterdir()) == []
