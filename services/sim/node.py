@@ -270,8 +270,7 @@ class SimService:
         ``sim.realtime_command_wait_s`` for that frame's joint command. pybullet keeps the
         interpreter lock while it renders, so a command arriving during a render could not even
         be received before the render ends: without the wait every command would reach the
-        motors one render late (``umay bench``, 320×240: 84 ms p50 frame → command applied
-        without the wait, 23 ms with it)."""
+        motors one render late (docs/performance.md has the figures)."""
         started = time.monotonic()
         next_frame_s = 0.0
         wait_s = self.scenario.sim.realtime_command_wait_s
