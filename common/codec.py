@@ -15,6 +15,18 @@ validates the map like any message (pydantic: ranges, shapes against intrinsics)
 the pixel bytes match shape and dtype exactly, and returns the image as a read-only view into
 the payload (``np.frombuffer``), without a copy. A frame in the plain msgpack form (recordings
 made before this layout) is still accepted.
+
+A frame **by reference** (version 2 of the layout) has the same prefix and map, but where the
+pixels would start there is a msgpack map of a :class:`~common.frame_ring.FrameRef`: where the
+pixels are in a shared-memory ring of the publisher's host (:mod:`common.frame_ring`).
+:func:`decode` resolves it into the same message, whose image is then a read-only view of the
+ring's slot (:meth:`~common.messages.ImageData.intact` says whether it still shows that
+frame). A reference it cannot map (another host, a segment gone) raises
+:class:`FrameUnreachable`, which carries the reference so that the caller can ask the publisher
+for the whole frame (:mod:`common.transport`); a slot overwritten before it was read is a
+:class:`MessageError` like any unusable payload. :func:`whole_frame` turns a by-reference
+payload into the ordinary layout (a copy of the pixels), for tools that keep payloads
+(recordings).
 """
 
 from __future__ import annotations
@@ -26,6 +38,13 @@ from typing import Any, TypeVar
 import msgpack
 from pydantic import BaseModel, ValidationError
 
+from common.frame_ring import (
+    FrameRef,
+    RingReader,
+    RingUnreachable,
+    SlotOverwritten,
+    shared_reader,
+)
 from common.messages import ImageData, ImageSpec
 
 M = TypeVar("M", bound=BaseModel)
@@ -35,6 +54,7 @@ FRAME_MAX_BYTES = 64 << 20  # RGB-D frames: 1920×1080 RGB + float32 depth fits 
 
 FRAME_MAGIC = b"UMYF"  # "U" is a msgpack integer: no msgpack map starts with it
 FRAME_VERSION = 1
+FRAME_VERSION_REF = 2  # the pixels are replaced by a FrameRef map
 FRAME_ALIGN = 64  # the pixels start at a multiple of this (cache line; any dtype's alignment)
 FRAME_MAX_HEADER_BYTES = 1 << 14
 FRAME_PREFIX = struct.Struct("<4sHI")  # magic, version, header length
@@ -42,6 +62,15 @@ FRAME_PREFIX = struct.Struct("<4sHI")  # magic, version, header length
 
 class MessageError(ValueError):
     """A payload that is not valid msgpack, too large, or fails validation."""
+
+
+class FrameUnreachable(MessageError):
+    """A frame by reference whose ring this process cannot map (another host, or the
+    segment is gone): ``ref`` names the frame to ask its publisher for."""
+
+    def __init__(self, message: str, ref: FrameRef) -> None:
+        super().__init__(message)
+        self.ref = ref
 
 
 @functools.cache
@@ -78,6 +107,20 @@ def frame_parts(message: BaseModel) -> tuple[bytes, memoryview]:
     return prefix + head + bytes(_aligned(used) - used), memoryview(getattr(message, field).data)
 
 
+def by_reference(head: bytes, ref: FrameRef) -> bytes:
+    """The by-reference payload of a frame whose :func:`frame_parts` head is ``head``."""
+    _magic, _version, head_len = FRAME_PREFIX.unpack_from(head, 0)
+    prefix = FRAME_PREFIX.pack(FRAME_MAGIC, FRAME_VERSION_REF, head_len)
+    return prefix + head[FRAME_PREFIX.size :] + msgpack.packb(ref.to_map(), use_bin_type=True)
+
+
+def is_by_reference(payload: bytes | bytearray | memoryview) -> bool:
+    """Whether ``payload`` is a frame by reference (the pixels in a shared-memory ring)."""
+    if len(payload) < FRAME_PREFIX.size or bytes(payload[:4]) != FRAME_MAGIC:
+        return False
+    return FRAME_PREFIX.unpack_from(payload, 0)[1] == FRAME_VERSION_REF
+
+
 def _validation_error(model: type[BaseModel], exc: ValidationError, prefix: str = "") -> str:
     first = exc.errors()[0]
     loc = ".".join([prefix, *(str(p) for p in first["loc"])] if prefix else map(str, first["loc"]))
@@ -98,26 +141,55 @@ def _unpack_map(data: bytes | bytearray | memoryview, model: type[BaseModel]) ->
 
 def _split_frame(
     payload: bytes | bytearray | memoryview, model: type[BaseModel]
-) -> tuple[dict, memoryview]:
-    """(header map, pixel bytes) of a payload in the frame layout."""
+) -> tuple[dict, memoryview, int]:
+    """(header map, pixel bytes or the reference's map, layout version) of a payload in the
+    frame layout."""
     view = memoryview(payload)
     name = model.__name__
     if len(view) < FRAME_PREFIX.size:
         raise MessageError(f"{name}: frame of {len(view)} bytes, shorter than its prefix")
     _magic, version, head_len = FRAME_PREFIX.unpack_from(view, 0)
-    if version != FRAME_VERSION:
-        raise MessageError(f"{name}: frame layout version {version}, expected {FRAME_VERSION}")
+    if version not in (FRAME_VERSION, FRAME_VERSION_REF):
+        raise MessageError(
+            f"{name}: frame layout version {version}, expected {FRAME_VERSION} or "
+            f"{FRAME_VERSION_REF}"
+        )
     if head_len > FRAME_MAX_HEADER_BYTES or FRAME_PREFIX.size + head_len > len(view):
         raise MessageError(f"{name}: frame header of {head_len} bytes does not fit")
     head = _unpack_map(view[FRAME_PREFIX.size : FRAME_PREFIX.size + head_len], model)
     start = _aligned(FRAME_PREFIX.size + head_len)
     if start > len(view):
         raise MessageError(f"{name}: frame truncated before its pixels")
-    return head, view[start:]
+    return head, view[start:], version
 
 
-def _decode_frame(payload: bytes | bytearray | memoryview, model: type[M], field: str) -> M:
-    head, pixels = _split_frame(payload, model)
+def _frame_ref(body: memoryview, spec: ImageSpec, model: type[BaseModel], field: str) -> FrameRef:
+    """The reference in a by-reference frame's body, checked against the header's spec."""
+    try:
+        ref = FrameRef.from_map(_unpack_map(body, model))
+    except ValueError as exc:
+        raise MessageError(f"{model.__name__}: {field}: {exc}") from exc
+    if list(ref.shape) != spec.shape or ref.dtype != spec.dtype:
+        raise MessageError(
+            f"{model.__name__}: {field}: the reference is to a {ref.dtype} {list(ref.shape)} "
+            f"image, the header says {spec.dtype} {spec.shape}"
+        )
+    return ref
+
+
+def _ring_view(ref: FrameRef, rings: RingReader, model: type[BaseModel], field: str) -> memoryview:
+    try:
+        return rings.view(ref)
+    except RingUnreachable as exc:
+        raise FrameUnreachable(f"{model.__name__}: {field}: {exc}", ref) from exc
+    except SlotOverwritten as exc:
+        raise MessageError(f"{model.__name__}: {field}: {exc}") from exc
+
+
+def _decode_frame(
+    payload: bytes | bytearray | memoryview, model: type[M], field: str, rings: RingReader | None
+) -> M:
+    head, pixels, version = _split_frame(payload, model)
     spec_data = head.get(field)
     if not isinstance(spec_data, dict):
         raise MessageError(f"{model.__name__}: {field}: missing image shape and dtype")
@@ -125,29 +197,69 @@ def _decode_frame(payload: bytes | bytearray | memoryview, model: type[M], field
         spec = ImageSpec.model_validate(spec_data)
     except ValidationError as exc:
         raise MessageError(_validation_error(model, exc, field)) from exc
+    ref = None
+    if version == FRAME_VERSION_REF:
+        ref = _frame_ref(pixels, spec, model, field)
+        rings = rings or shared_reader()
+        pixels = _ring_view(ref, rings, model, field)
     try:
-        head[field] = ImageData.from_view(spec, pixels.toreadonly())
+        image = head[field] = ImageData.from_view(spec, pixels.toreadonly())
     except ValueError as exc:
         raise MessageError(f"{model.__name__}: {field}: {exc}") from exc
+    if ref is not None:
+        image.in_ring(ref, rings)
     try:
         return model.model_validate(head)  # the ImageData instance is kept as it is
     except ValidationError as exc:
         raise MessageError(_validation_error(model, exc)) from exc
 
 
-def decode(payload: bytes | bytearray | memoryview, model: type[M], max_bytes: int) -> M:
-    """Validate ``payload`` as ``model``; oversized payloads are refused before unpacking."""
+def decode(
+    payload: bytes | bytearray | memoryview,
+    model: type[M],
+    max_bytes: int,
+    rings: RingReader | None = None,
+) -> M:
+    """Validate ``payload`` as ``model``; oversized payloads are refused before unpacking.
+    A frame by reference is resolved through ``rings`` (default: this process's
+    :func:`~common.frame_ring.shared_reader`); :class:`FrameUnreachable` when it cannot be."""
     size = len(payload)
     if size > max_bytes:
         raise MessageError(f"{model.__name__}: payload of {size} bytes exceeds {max_bytes}")
     field = image_field(model)
     if field is not None and bytes(payload[: len(FRAME_MAGIC)]) == FRAME_MAGIC:
-        return _decode_frame(payload, model, field)
+        return _decode_frame(payload, model, field, rings)
     data = _unpack_map(payload, model)
     try:
         return model.model_validate(data)
     except ValidationError as exc:
         raise MessageError(_validation_error(model, exc)) from exc
+
+
+def whole_frame(
+    payload: bytes | bytearray | memoryview, model: type[BaseModel], rings: RingReader | None = None
+) -> bytes:
+    """A by-reference frame ``payload`` as the ordinary layout (header, then a copy of the
+    pixels, checked intact after the copy). :class:`FrameUnreachable` when the ring cannot
+    be mapped, :class:`MessageError` when the frame is no longer in it."""
+    field = image_field(model)
+    if field is None:
+        raise TypeError(f"{model.__name__} is not a camera frame")
+    head, body, version = _split_frame(payload, model)
+    if version != FRAME_VERSION_REF:
+        return bytes(payload)
+    try:
+        spec = ImageSpec.model_validate(head.get(field))
+    except ValidationError as exc:
+        raise MessageError(_validation_error(model, exc, field)) from exc
+    ref = _frame_ref(body, spec, model, field)
+    rings = rings or shared_reader()
+    pixels = bytes(_ring_view(ref, rings, model, field))
+    if not rings.intact(ref):
+        raise MessageError(f"{model.__name__}: {field}: frame {ref.seq} overwritten while copied")
+    start = len(payload) - len(body)
+    prefix = FRAME_PREFIX.pack(FRAME_MAGIC, FRAME_VERSION, FRAME_PREFIX.unpack_from(payload)[2])
+    return prefix + bytes(payload[FRAME_PREFIX.size : start]) + pixels
 
 
 def unpack(payload: bytes | bytearray | memoryview) -> dict[str, Any] | None:

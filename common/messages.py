@@ -11,7 +11,7 @@ import math
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
 from common.camera import CameraIntrinsics
 
@@ -86,9 +86,12 @@ class ImageData(ImageSpec):
 
     ``data`` is ``bytes`` when validated from a payload by pydantic, or a read-only
     ``memoryview`` (no copy) when made by :meth:`view_of` or decoded by :mod:`common.codec`
-    from the frame layout (a view into the received payload)."""
+    from the frame layout (a view into the received payload, or into a slot of the
+    publisher's shared-memory ring for a frame sent by reference: see :meth:`intact`)."""
 
     data: bytes
+    # (FrameRef, RingReader) of common.frame_ring when ``data`` is a view of a ring's slot.
+    _ring: tuple[Any, Any] | None = PrivateAttr(default=None)
 
     @model_validator(mode="after")
     def _size_matches_shape(self) -> ImageData:
@@ -122,6 +125,26 @@ class ImageData(ImageSpec):
     def to_array(self) -> np.ndarray:
         """Read-only view on the bytes (no copy)."""
         return np.frombuffer(self.data, dtype=self.dtype).reshape(self.shape)
+
+    def in_ring(self, ref: Any, rings: Any) -> None:
+        """Say that ``data`` is a view of the ring slot ``ref`` (a ``FrameRef``) that
+        ``rings`` (a ``RingReader``) mapped: what :mod:`common.codec` does for a frame sent
+        by reference."""
+        self._ring = (ref, rings)
+
+    @property
+    def ring_ref(self) -> Any:
+        """The ``FrameRef`` of the ring slot this image is a view of; None for an image that
+        owns its bytes or views a payload."""
+        return None if self._ring is None else self._ring[0]
+
+    def intact(self) -> bool:
+        """Whether the pixels are still the frame's. Always for an image that owns its bytes
+        or views a received payload; for a view of a ring slot, whether the publisher has not
+        begun to write another frame into that slot. A consumer of a frame sent by reference
+        asks this once it is done with the pixels, and throws away what it computed from
+        them when the answer is no."""
+        return self._ring is None or self._ring[1].intact(self._ring[0])
 
 
 class RgbFrame(Message):
@@ -316,7 +339,13 @@ class TopicStats(Message):
     rate_hz: float = Field(ge=0.0, description="over the last few seconds")
     age_s: float | None = Field(None, description="since the last message; None: never")
     dropped: int = Field(0, ge=0, description="replaced by a newer one before being processed")
-    shm: int = Field(0, ge=0, description="of count, delivered through Zenoh shared memory")
+    by_ref: int = Field(
+        0, ge=0, description="camera frames by reference (a view of the sim's shared-memory ring)"
+    )
+    by_copy: int = Field(0, ge=0, description="camera frames whole, by copy")
+    fetched: int = Field(
+        0, ge=0, description="of by_copy, asked from the publisher: its ring was unreachable"
+    )
 
 
 class ServiceStatus(Message):

@@ -21,7 +21,11 @@ class TopicMeter:
         self.window_s = window_s
         self.count = 0
         self.dropped = 0
-        self.shm = 0  # delivered through shared memory (subscribers only)
+        # Camera frames only: by reference (a view of the publisher's shared-memory ring) or
+        # whole, by copy; of the latter, fetched from the publisher (the ring was unreachable).
+        self.by_ref = 0
+        self.by_copy = 0
+        self.fetched = 0
         self._times: deque[float] = deque()
         self._lock = threading.Lock()
 
@@ -47,7 +51,9 @@ class TopicMeter:
             rate_hz=rate if times else 0.0,
             age_s=None if last is None else now - last,
             dropped=self.dropped,
-            shm=self.shm,
+            by_ref=self.by_ref,
+            by_copy=self.by_copy,
+            fetched=self.fetched,
         )
 
 

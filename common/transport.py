@@ -5,6 +5,21 @@ decode and validate, then hand the message to the node's single event loop throu
 :meth:`Node.next_event`, so service state is touched by one thread only (as in dora-rs nodes).
 A payload that fails validation is counted, its reason kept and logged at a limited rate; it
 never reaches the service and never kills it.
+
+Camera frames go **by reference** between processes of one host: the publisher copies the
+pixels into a shared-memory ring (:mod:`common.frame_ring`) and puts on the frame's key the
+same message with the pixels replaced by a small reference (:mod:`common.codec`'s layout
+version 2); a subscriber's decoding resolves it into the usual ``RgbFrame``/``DepthFrame``
+whose image is a view of the ring's slot. This is an optimisation of the key's contract, not a
+second protocol: the key, the message and every subscriber's code stay the same. A subscriber
+that cannot map the ring (another host, a ``/dev/shm`` of its own, the segment gone) gets the
+whole frame from the publisher, which answers ``<frame key>/whole?segment=S;seq=N`` from its
+ring (:class:`RingPublisher`, :func:`fetch_whole_frame`): one request per frame, asked without
+blocking the callback, so such a subscriber gets every frame a little later, and a publisher
+with no remote subscriber never sends a whole frame at all. Publishing the whole frame as well,
+on another key, for remote subscribers was the alternative; it would have made every tool
+(recorder, replay, ``umay status``) know two keys for one stream. ``$UMAY_ZENOH_SHM=0`` turns
+frames by reference off with Zenoh's shared memory: frames then go whole, by copy.
 """
 
 from __future__ import annotations
@@ -25,13 +40,16 @@ from pydantic import BaseModel
 
 from common.codec import (
     DEFAULT_MAX_BYTES,
+    FrameUnreachable,
     MessageError,
+    by_reference,
     decode,
     encode,
     frame_parts,
     image_field,
 )
-from common.keys import Keys
+from common.frame_ring import RING_SLOTS, FrameRef, RingReader, RingUnavailable, RingWriter
+from common.keys import Keys, whole_frame_key
 from common.messages import Header, PublishedStamps, ServiceStatus, Stamp
 from common.metrics import DurationMeter, TopicMeter
 
@@ -156,68 +174,93 @@ def free_tcp_endpoint() -> str:
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
-class ShmFrameWriter:
-    """Writes camera frames straight into a Zenoh shared-memory pool of this publisher's own.
+class RingPublisher:
+    """A camera stream's frames by reference: each frame's pixels go into a
+    :class:`~common.frame_ring.RingWriter` of this publisher's own and the payload carries
+    only their reference; the publisher answers ``<key>/whole`` with the whole frame of a
+    reference for subscribers that cannot map the ring. Where the host cannot give a ring (no
+    ``/dev/shm``, too small, read-only, as in some containers) every frame goes whole, by
+    copy, and :attr:`unavailable` says why."""
 
-    Handing Zenoh ``bytes`` costs two fresh buffers of the frame's size per put (the encoded
-    payload, then Zenoh's own copy, before its shared-memory copy): at 640×480, 0.66 ms per
-    image against 0.07 ms here, where the frame is assembled in a buffer kept from frame to
-    frame and copied once into a pool chunk. Zenoh sends the chunk by reference to peers on
-    this host that map the pool, and its bytes over the network to the others (another host,
-    shared memory disabled); when the pool is full (subscribers still hold old frames) the
-    frame goes as an ordinary put. The pool holds :data:`POOL_FRAMES` frames of the first
-    frame's size (4 to 64 MiB). Where the host cannot give one (a small or read-only
-    ``/dev/shm``, as in many containers) every frame goes as an ordinary put, and
-    :attr:`unavailable` says why."""
+    def __init__(self, session: zenoh.Session, key: str, slots: int = RING_SLOTS) -> None:
+        self.key = key
+        self.ring = RingWriter(slots)
+        self.served = 0  # whole frames sent to subscribers that could not map the ring
+        self.unavailable = ""  # why there is no ring ("": there is one, or not yet)
+        # slot → (ring seq, frame_parts head) of the frame the slot holds, for the answers
+        self._heads: dict[int, tuple[int, bytes]] = {}
+        self._queryable = session.declare_queryable(whole_frame_key(key), self._answer)
 
-    POOL_FRAMES = 8
+    def payload(self, message: BaseModel) -> tuple[bytes, bool]:
+        """What to put for ``message`` and whether it is by reference: its reference, or the
+        whole frame without a ring."""
+        head, pixels = frame_parts(message)
+        if not self.unavailable:
+            image = getattr(message, image_field(type(message)) or "")
+            try:
+                ref = self.ring.write(pixels, image.shape, image.dtype)
+            except RingUnavailable as exc:
+                self.unavailable = str(exc)
+                log.warning("%s: camera frames go whole, by copy (%s)", self.key, exc)
+            else:
+                self._heads[ref.slot] = (ref.seq, head)
+                return by_reference(head, ref), True
+        return b"".join((head, pixels)), False
 
-    def __init__(self) -> None:
-        self._provider: Any = None
-        self._scratch = bytearray()
-        self.fallbacks = 0  # frames put without the pool (none, exhausted, or too small)
-        self.unavailable = ""  # why there is no pool ("": there is one, or not yet)
-
-    def payload(self, parts: tuple[bytes, memoryview]) -> Any:
-        """The frame as a pool chunk to put (or as a bytearray when the pool cannot take it)."""
-        import zenoh.shm as zshm
-
-        size = sum(len(p) for p in parts)
-        if len(self._scratch) != size:  # reallocated only when the frame size changes
-            self._scratch = bytearray(size)
-        view, offset = memoryview(self._scratch), 0
-        for part in parts:
-            view[offset : offset + len(part)] = part
-            offset += len(part)
-        if self._provider is None and not self.unavailable:
-            self._provider = self._open_pool(size)
-        if self._provider is None:
-            self.fallbacks += 1
-            return self._scratch
+    def _answer(self, query: zenoh.Query) -> None:
+        """The whole frame ``segment``/``seq`` of the query's parameters (Zenoh's thread)."""
         try:
-            chunk = self._provider.alloc(size, policy=zshm.GarbageCollect())  # never blocks
-        except zenoh.ZError:
-            self.fallbacks += 1
-            return self._scratch
-        chunk[:] = self._scratch  # this wheel's chunks take only bytes/bytearray
-        return chunk
+            segment = query.parameters.get("segment") or ""
+            seq = int(query.parameters.get("seq") or -1)
+            found = self.ring.copy_frame(segment, seq)
+            entry = self._heads.get(found[1].slot) if found else None
+            if found is None or entry is None or entry[0] != seq:
+                query.reply_err(f"frame {seq} of {segment} is no longer in the ring".encode())
+                return
+            query.reply(query.key_expr, entry[1] + found[0])
+            self.served += 1
+        except Exception:  # an answer must never take the service down
+            log.exception("%s: whole-frame answer failed", self.key)
 
-    def _open_pool(self, frame_bytes: int) -> Any:
-        """A pool for :data:`POOL_FRAMES` frames, or None (the reason kept and logged once)."""
-        import zenoh.shm as zshm
+    def close(self) -> None:
+        self._queryable.undeclare()
+        self.ring.close()
 
-        pool_bytes = min(max(self.POOL_FRAMES * frame_bytes, 4 << 20), 64 << 20)
-        try:
-            return zshm.ShmProvider.default_backend(pool_bytes)
-        except zenoh.ZError as exc:
-            reason = zenoh_reason(exc)
-            self.unavailable = f"no shared-memory pool of {pool_bytes / 2**20:.1f} MiB ({reason})"
-            log.warning("%s: camera frames go over the network", self.unavailable)
-            return None
+
+def fetch_whole_frame(
+    session: zenoh.Session,
+    key: str,
+    ref: FrameRef,
+    on_frame: Callable[[bytes], None],
+    on_failure: Callable[[str], None],
+    timeout_s: float = 1.0,
+) -> None:
+    """Ask the publisher of ``key`` for the whole frame ``ref`` names, without waiting:
+    ``on_frame`` gets its payload (ordinary frame layout), or ``on_failure`` why not, on a
+    Zenoh thread. Safe to call from a subscriber's callback."""
+    answered = False
+
+    def on_reply(reply: zenoh.Reply) -> None:
+        nonlocal answered
+        if answered:
+            return
+        answered = True
+        if reply.ok is not None:
+            on_frame(reply.ok.payload.to_bytes())
+        else:
+            on_failure(reply.err.payload.to_bytes().decode(errors="replace"))
+
+    def on_done() -> None:
+        if not answered:
+            on_failure(f"no answer from {whole_frame_key(key)} within {timeout_s:g} s")
+
+    selector = f"{whole_frame_key(key)}?segment={ref.segment};seq={ref.seq}"
+    session.get(selector, zenoh.handlers.Callback(on_reply, on_done), timeout=timeout_s)
 
 
 def shm_enabled() -> bool:
-    """False when ``$UMAY_ZENOH_SHM=0`` turns Zenoh's shared memory off."""
+    """False when ``$UMAY_ZENOH_SHM=0`` turns Zenoh's shared memory, and frames by
+    reference, off."""
     return os.environ.get(ENV_SHM, "").strip() != "0"
 
 
@@ -230,19 +273,30 @@ class TypedPublisher(Generic[M]):
     key: str
     publisher: Any
     meter: TopicMeter = field(default_factory=TopicMeter)
-    frames: ShmFrameWriter | None = None  # camera frames through a pool of their own
+    frames: RingPublisher | None = None  # camera frames by reference
     # The header stamps of the last messages put, for the service's stamps queryable.
     stamps: deque[Stamp] = field(default_factory=lambda: deque(maxlen=STAMPS_KEPT))
 
     def put(self, message: M) -> None:
-        if self.frames is not None and image_field(type(message)) is not None:
-            self.publisher.put(self.frames.payload(frame_parts(message)))
+        is_frame = image_field(type(message)) is not None
+        if self.frames is not None and is_frame:
+            payload, by_ref = self.frames.payload(message)
         else:
-            self.publisher.put(encode(message))
+            payload, by_ref = encode(message), False
+        self.publisher.put(payload)
         self.meter.tick()
+        if is_frame:
+            self.meter.by_ref += by_ref
+            self.meter.by_copy += not by_ref
         header = getattr(message, "header", None)
         if isinstance(header, Header):
             self.stamps.append((header.frame_seq, header.recv_time_s, header.send_time_s))
+
+    def close(self) -> None:
+        """Undeclare; a ring of frames by reference is unlinked."""
+        if self.frames is not None:
+            self.frames.close()
+        self.publisher.undeclare()
 
 
 def typed_publisher(
@@ -250,8 +304,8 @@ def typed_publisher(
 ) -> TypedPublisher[Any]:
     """A :class:`TypedPublisher` on ``key`` (see :meth:`Node.publisher` for the options)."""
     cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
-    writer = ShmFrameWriter() if frames and shm_enabled() else None
-    return TypedPublisher(key, session.declare_publisher(key, congestion_control=cc), frames=writer)
+    ring = RingPublisher(session, key) if frames and shm_enabled() else None
+    return TypedPublisher(key, session.declare_publisher(key, congestion_control=cc), frames=ring)
 
 
 class Node:
@@ -309,8 +363,8 @@ class Node:
     # --- publishing -------------------------------------------------------------------
     def publisher(self, key: str, block: bool = True, frames: bool = False) -> TypedPublisher[Any]:
         """``block``: back-pressure instead of dropping when the network is congested.
-        ``frames``: camera frames, written into a shared-memory pool (:class:`ShmFrameWriter`)
-        unless shared memory is off."""
+        ``frames``: camera frames, sent by reference through a shared-memory ring
+        (:class:`RingPublisher`) unless shared memory is off."""
         pub = typed_publisher(self.session, key, block, frames)
         self._publishers[key] = pub
         return pub
@@ -336,28 +390,35 @@ class Node:
         model: type[M],
         max_bytes: int = DEFAULT_MAX_BYTES,
         latest_only: bool = False,
+        rings: RingReader | None = None,
     ) -> None:
         """Deliver validated ``model`` messages on ``key`` to :meth:`next_event`.
 
         ``latest_only``: an undelivered older message on the same key is replaced (and counted
         as dropped), so a slow consumer always works on the newest data.
+        ``rings``: what maps the publisher's ring for camera frames sent by reference
+        (default: the process's :func:`~common.frame_ring.shared_reader`); a frame it cannot
+        map is asked whole from the publisher (:func:`fetch_whole_frame`).
         """
         meter = self.received[key] = TopicMeter()
         if latest_only:
             self._latest_only.add(key)
+        field = image_field(model)
+        newest_seq = -1  # header.seq of the newest message delivered on this key
 
-        def on_sample(sample: zenoh.Sample) -> None:
-            received = time.time()  # before the copy and decode: those count as processing
-            payload = sample.payload
-            via_shm = payload.as_shm() is not None  # 0.2 µs; diagnostics (status, umay bench)
-            try:
-                message = decode(payload.to_bytes(), model, max_bytes)
-            except MessageError as exc:
-                self._reject(key, str(exc))
-                return
+        def deliver(message: BaseModel, received: float, by_ref: bool, fetched: bool) -> None:
+            nonlocal newest_seq
+            seq = message.header.seq if isinstance(getattr(message, "header", None), Header) else -1
             with self._cond:
+                if fetched and seq < newest_seq:  # a newer frame came first: this one is late
+                    meter.dropped += 1
+                    return
+                newest_seq = max(newest_seq, seq)
                 meter.tick()
-                meter.shm += via_shm
+                if field is not None:
+                    meter.by_ref += by_ref
+                    meter.by_copy += not by_ref
+                    meter.fetched += fetched
                 if key in self._latest_only:
                     for i, (k, _, _) in enumerate(self._inbox):
                         if k == key:
@@ -366,6 +427,35 @@ class Node:
                             break
                 self._inbox.append((key, message, received))
                 self._cond.notify()
+
+        def on_whole_frame(payload: bytes) -> None:
+            received = time.time()
+            try:
+                message = decode(payload, model, max_bytes)
+            except MessageError as exc:
+                self._reject(key, f"whole frame: {exc}")
+                return
+            deliver(message, received, by_ref=False, fetched=True)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            received = time.time()  # before the copy and decode: those count as processing
+            try:
+                message = decode(sample.payload.to_bytes(), model, max_bytes, rings)
+            except FrameUnreachable as exc:  # by reference, but not to a ring this host maps
+                seq = exc.ref.seq
+                fetch_whole_frame(
+                    self.session,
+                    key,
+                    exc.ref,
+                    on_whole_frame,
+                    lambda reason: self._reject(key, f"whole frame {seq}: {reason}"),
+                )
+                return
+            except MessageError as exc:
+                self._reject(key, str(exc))
+                return
+            by_ref = field is not None and getattr(message, field).ring_ref is not None
+            deliver(message, received, by_ref, fetched=False)
 
         self._subscribers.append(self.session.declare_subscriber(key, on_sample))
 
@@ -387,6 +477,11 @@ class Node:
             finally:
                 self._loop_waiting = False
                 self._loop_left_s = time.monotonic()
+
+    def reject(self, key: str, reason: str) -> None:
+        """Count a message on ``key`` the service could not use (a frame whose ring slot was
+        overwritten while it was in use): as a payload that failed validation."""
+        self._reject(key, reason)
 
     def _reject(self, key: str, reason: str) -> None:
         with self._cond:
@@ -481,6 +576,9 @@ class Node:
             self._cond.notify_all()
         for s in self._subscribers:
             s.undeclare()
+        for p in self._publishers.values():
+            if p.frames is not None:
+                p.frames.close()  # the ring's segment is unlinked
         self._queryable.undeclare()
         self._stamps_queryable.undeclare()
         if self._token is not None:

@@ -27,12 +27,19 @@ Three measurements in one command, on the same scenario and image size:
 
    A "transport" stage holds the sender's message construction and encoding, Zenoh, and the
    wait for the partner message (pairing); a service stage holds the receive copy, decoding,
-   queueing and the work. While the loop runs the bench listens only to the sim's timing
-   (which also carries each applied command's velocities); the headers' stamps of features,
-   twists and commands are asked from vision, controller and actuation (their
-   ``<prefix>/<service>/stamps`` queryables) after the run, so that the measurement adds no
-   subscriber to the loop's hops. Frames dropped per stage are counted by ``frame_seq``; CPU
-   time and peak RSS per service come from ``/proc/<pid>`` of the supervisor's children.
+   queueing and the work. The camera frame's hand-off, ``frame_handoff`` (publish +
+   frame_transport, frame by frame), is what frames by reference change: the sim's copy of
+   the depth and colour pixels into its shared-memory ring, two small puts, and vision's
+   decoding of the references into views of the slots (no copy), against two whole-frame puts
+   and their copies out of Zenoh's buffers without the ring (``--no-shm``). Vision's status
+   counts the frames it read by reference.
+
+   While the loop runs the bench listens only to the sim's timing (which also carries each
+   applied command's velocities); the headers' stamps of features, twists and commands are
+   asked from vision, controller and actuation (their ``<prefix>/<service>/stamps``
+   queryables) after the run, so that the measurement adds no subscriber to the loop's hops.
+   Frames dropped per stage are counted by ``frame_seq``; CPU time and peak RSS per service
+   come from ``/proc/<pid>`` of the supervisor's children.
 
 2. **In-process baseline**: the same pure stage functions, one after another in this process,
    on the same frames (a lockstep run renders the same images: the loop is deterministic),
@@ -60,6 +67,7 @@ Times come from ``time.time()`` in every process, so all processes must be on on
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
@@ -67,6 +75,8 @@ import platform
 import threading
 import time
 import uuid
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -316,10 +326,13 @@ def analyse_trace(trace: Trace, window: list[int]) -> dict[str, Any]:
     first, last = (timings[rendered[0]], timings[rendered[-1]]) if rendered else (None, None)
     wall_s = (last.render_start_s - first.render_start_s) if first and last else 0.0
     sim_s = (last.header.sim_time_s - first.header.sim_time_s) if first and last else 0.0
+    handoff = [row["publish"] + row["frame_transport"] for row in per_frame]
     return {
         "frames": len(window),
         "frames_complete": len(latency),
         "stages_ms": {s: summary_ms(v) for s, v in per_stage.items()},
+        # images ready → vision has the colour frame: the camera frame's hand-off
+        "frame_handoff_ms": summary_ms([v / 1000.0 for v in handoff]),
         "latency_ms": summary_ms(latency),
         "frames_over_goal": frames_over_goal(latency),
         "loop_rate_hz": round((len(rendered) - 1) / wall_s, 3) if wall_s > 0 else None,
@@ -392,7 +405,8 @@ def collect_stamps(
 
 
 def _status_counters(session: zenoh.Session, keys: Keys) -> dict[str, dict[str, Any]]:
-    """Each service's own counters: messages received/dropped/via shared memory, rejected."""
+    """Each service's own counters: messages received/dropped, camera frames by reference,
+    by copy and fetched whole, rejected."""
     out: dict[str, dict[str, Any]] = {}
     for st in query_status(session, keys, 2.0):
         out[st.service] = {
@@ -400,7 +414,9 @@ def _status_counters(session: zenoh.Session, keys: Keys) -> dict[str, dict[str, 
                 keys.relative(k): {
                     "count": v.count,
                     "dropped": v.dropped,
-                    "shm": v.shm,
+                    "by_ref": v.by_ref,
+                    "by_copy": v.by_copy,
+                    "fetched": v.fetched,
                 }
                 for k, v in st.received.items()
             },
@@ -420,8 +436,13 @@ def run_distributed(
     log_dir: Path,
     shm: bool,
     startup_timeout_s: float = 60.0,
+    observer: Callable[[Keys, str, Path], AbstractContextManager[dict[str, Any]]] | None = None,
 ) -> dict[str, Any]:
-    """Launch the four services, measure ``frames`` frames after ``warmup``, stop them."""
+    """Launch the four services, measure ``frames`` frames after ``warmup``, stop them.
+
+    ``observer(keys, endpoint, log_dir)``: a context entered once the services are up and
+    left after the measurement (``umay bench --view``: a live view with a client connected);
+    the dict it yields goes into the result as ``observer``, filled in when it is left."""
     keys = Keys(f"bench/{uuid.uuid4().hex[:12]}")
     endpoint = free_tcp_endpoint()
     env = {} if shm else {ENV_SHM: "0"}
@@ -434,9 +455,13 @@ def run_distributed(
     realtime = scenario.run.clock is ClockMode.REALTIME
     load_before = machine_load()
     bench_cpu0 = time.process_time()
+    observed: dict[str, Any] | None = None
+    stack = contextlib.ExitStack()
     try:
         sup.start()
         _wait_for_services(session, keys, sup, SERVICES, startup_timeout_s)
+        if observer is not None:
+            observed = stack.enter_context(observer(keys, endpoint, log_dir))
         ready_s = time.time()
         # The window starts after every service is up (a realtime sim renders from the start).
         while True:
@@ -476,6 +501,7 @@ def run_distributed(
         collect_stamps(session, keys, trace)
         counters = _status_counters(session, keys)
     finally:
+        stack.close()
         sup.stop()
         for s in subs:
             s.undeclare()
@@ -492,10 +518,11 @@ def run_distributed(
             "status": counters,
             "bench_cpu_s": round(time.process_time() - bench_cpu0, 3),
             "bench_rejected": trace.rejected,
-            "frames_via_shm": vision_rgb.get("shm"),
+            "frames_by_ref": vision_rgb.get("by_ref"),
             "frames_received_by_vision": vision_rgb.get("count"),
             "load_before": load_before,
             "load_after": machine_load(),
+            "observer": observed,
         }
     )
     result["_velocities"] = {k: trace.velocities.get(k) for k in window}
@@ -803,7 +830,7 @@ def run_synthetic(
     finally:
         sup.stop()
         for p in publishers.values():
-            p.publisher.undeclare()
+            p.close()
         session.close()
         if not shm:
             os.environ.pop(ENV_SHM, None)
@@ -860,6 +887,7 @@ def run_bench(
     synthetic_frames: int | None = None,
     command: str = "",
     reference_renderer: bool = True,
+    view: bool = False,
 ) -> dict[str, Any]:
     """Distributed run, in-process baseline, synthetic 30 Hz source, and (``reference_renderer``)
     the render cost and the distributed loop again with TinyRenderer; one JSON-ready dict."""
@@ -867,9 +895,17 @@ def run_bench(
 
     cam = scenario.camera
     synthetic_frames = frames if synthetic_frames is None else synthetic_frames
+    observer = None
+    if view:
+        from deploy.foxglove.bench import watched_by_a_view
+
+        def observer(keys: Keys, endpoint: str, view_log_dir: Path):  # type: ignore[no-redef]
+            return watched_by_a_view(keys, endpoint, view_log_dir, scenario_path, overrides)
+
     distributed = run_distributed(
-        scenario_path, scenario, overrides, frames, warmup, log_dir / "distributed", shm
-    )
+        scenario_path, scenario, overrides, frames, warmup, log_dir / "distributed", shm,
+        observer=observer,
+    )  # fmt: skip
     render = run_render_bench(scenario, min(frames, 60), reference=reference_renderer)
     reference = None
     if reference_renderer and scenario.sim.renderer != REFERENCE_RENDERER:
@@ -957,6 +993,7 @@ def run_bench(
             "frames": frames,
             "warmup": warmup,
             "controller_mode": scenario.controller.mode.value,
+            "view": view,
             "overrides": overrides,
         },
         "distributed": distributed,
@@ -999,9 +1036,15 @@ def median_of_runs(runs: list[dict[str, Any]]) -> dict[str, Any]:
     every_frame_s = [
         row["latency_ms"] / 1000.0 for r in runs for row in r["distributed"].get("frames_ms", [])
     ]
+    every_handoff_s = [
+        (row["publish"] + row["frame_transport"]) / 1000.0
+        for r in runs
+        for row in r["distributed"].get("frames_ms", [])
+    ]
     out["distributed"]["pooled"] = {
         "latency_ms": summary_ms(every_frame_s),
         "frames_over_goal": frames_over_goal(every_frame_s),
+        "frame_handoff_ms": summary_ms(every_handoff_s),
     }
     out["dropped_max"] = {
         part: {k: max(r[part]["dropped"][k] for r in runs) for k in runs[0][part]["dropped"]}
@@ -1047,6 +1090,12 @@ def format_report(r: dict[str, Any]) -> str:
         st = d["stages_ms"][s]
         extra = _f(inproc[s]["p50"]) if s in inproc else ""
         lines.append(f"{s:<20} {_f(st['p50']):>8} {_f(st['p99']):>8} {_f(st['max']):>8}   {extra}")
+        if s == "frame_transport" and "frame_handoff_ms" in d:
+            h = d["frame_handoff_ms"]
+            lines.append(
+                f"{'  publish+transport':<20} {_f(h['p50']):>8} {_f(h['p99']):>8} "
+                f"{_f(h['max']):>8}   (the frame's hand-off, frame by frame)"
+            )
     lat = d["latency_ms"]
     lines += [
         f"{'latency excl. render':<20} {_f(lat['p50']):>8} {_f(lat['p99']):>8} "
@@ -1062,6 +1111,11 @@ def format_report(r: dict[str, Any]) -> str:
             f"{'latency, all frames':<20} {_f(pl['p50']):>8} {_f(pl['p99']):>8} "
             f"{_f(pl['max']):>8}   ({pl['n']} frames of {r['runs']} runs; "
             f"{pooled['frames_over_goal']} over {LATENCY_GOAL_MS:g} ms)"
+        )
+        ph = pooled["frame_handoff_ms"]
+        lines.append(
+            f"{'publish+transport':<20} {_f(ph['p50']):>8} {_f(ph['p99']):>8} {_f(ph['max']):>8}"
+            "   (all frames of the runs)"
         )
     else:
         lines.append(
@@ -1079,8 +1133,8 @@ def format_report(r: dict[str, Any]) -> str:
         f"   (p99 {_f(r['ratio']['p99'], '.3f')}; vs in-process with codec "
         f"{_f(r['ratio']['vs_with_codec_p50'], '.3f')})",
         f"loop rate {_f(d['loop_rate_hz'])} frames/s, real-time factor "
-        f"{_f(d['real_time_factor'], '.3f')}; frames via shared memory "
-        f"{d['frames_via_shm']}/{d['frames_received_by_vision']}",
+        f"{_f(d['real_time_factor'], '.3f')}; colour frames by reference "
+        f"{d['frames_by_ref']}/{d['frames_received_by_vision']}",
         "dropped: " + ", ".join(f"{k} {v}" for k, v in d["dropped"].items()),
     ]
     if i.get("same_commands_max_abs_diff_rad_s") is not None:

@@ -1,8 +1,9 @@
-"""The ``umay`` command: run, up, service, status."""
+"""The ``umay`` command: run, up, service, status, view, export."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import logging
@@ -26,9 +27,8 @@ from common.transport import (
     setup_logging,
     zenoh_reason,
 )
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_CONVERGED, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED
 from deploy.paths import FIGURE_SUFFIXES, OutputPathError, check_output_dir, check_output_file
-
-EXIT_CONVERGED, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 
 
 def _positive_seconds(value: str) -> float:
@@ -106,16 +106,25 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.record:
         check_output_file("--record", args.record)
     check_output_dir("--log-dir", args.log_dir)
-    result = run_once(
-        args.scenario,
-        scenario,
-        overrides,
-        args.prefix or default_prefix(),
-        Path(args.log_dir),
-        listen=args.listen,
-        quiet=args.quiet,
-        record=record,
-    )
+    prefix = args.prefix or default_prefix()
+    listen = args.listen
+    with contextlib.ExitStack() as stack:
+        if args.view:
+            from deploy.run import default_listen_endpoint
+
+            listen = listen or default_listen_endpoint()
+            if not _start_view(stack, args, "run", prefix, listen, overrides):
+                return 1
+        result = run_once(
+            args.scenario,
+            scenario,
+            overrides,
+            prefix,
+            Path(args.log_dir),
+            listen=listen,
+            quiet=args.quiet,
+            record=record,
+        )
     if args.quiet:
         print(format_result(result))
     else:
@@ -145,7 +154,82 @@ def cmd_up(args: argparse.Namespace) -> int:
     connect = args.connect or [DEFAULT_ENDPOINT]
     connect = [e for e in connect if e != listen]
     prefix = args.prefix or default_prefix()
-    return run_up(args.scenario, scenario, overrides, prefix, listen, connect, Path(args.log_dir))
+    with contextlib.ExitStack() as stack:
+        if args.view and not _start_view(stack, args, "up", prefix, listen, overrides):
+            return 1
+        return run_up(
+            args.scenario, scenario, overrides, prefix, listen, connect, Path(args.log_dir)
+        )
+
+
+def _start_view(
+    stack: contextlib.ExitStack,
+    args: argparse.Namespace,
+    command: str,
+    prefix: str,
+    endpoint: str,
+    overrides: list[str],
+) -> bool:
+    """``umay view`` beside ``umay up``/``run`` (stopped when ``stack`` closes), its output in
+    ``<log-dir>/view.log``; False after saying why when it does not start serving."""
+    from deploy.foxglove.node import ViewStartError, view_process
+    from deploy.foxglove.options import DEFAULT_HOST
+
+    log_path = Path(args.log_dir) / "view.log"
+    try:
+        stack.enter_context(
+            view_process(
+                prefix, endpoint, args.view_port, log_path, args.scenario, overrides,
+                host=DEFAULT_HOST,
+            )
+        )  # fmt: skip
+    except ViewStartError as exc:
+        print(f"umay {command}: {exc} (see {log_path})", file=sys.stderr)
+        return False
+    print(f"umay {command}: Foxglove view at ws://{DEFAULT_HOST}:{args.view_port}", flush=True)
+    return True
+
+
+def _view_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--view", action="store_true", help="serve a live Foxglove view beside it (umay view)"
+    )
+    p.add_argument("--view-port", type=int, default=8765, help="its WebSocket port (8765)")
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from deploy.foxglove.node import serve
+
+    return serve(args)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from deploy.foxglove.export import export_foxglove
+    from deploy.recording import NotARecordingError
+
+    if not Path(args.file).is_file():
+        print(f"umay export: {args.file}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if not args.foxglove:
+        print("umay export: say what to write: --foxglove OUT.mcap", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    check_output_file("--foxglove", args.foxglove)
+    if Path(args.foxglove).resolve() == Path(args.file).resolve():
+        print("umay export: --foxglove must not overwrite the recording", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        report = export_foxglove(args.file, args.foxglove, args.jpeg_quality)
+    except (NotARecordingError, ScenarioError) as exc:
+        print(f"umay export: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for topic, n in sorted(report.written.items()):
+        print(f"{n:8d}  {topic}")
+    print(f"{sum(report.written.values()):8d}  messages in {args.foxglove}")
+    for note in report.notes:
+        print(f"note: {note}", file=sys.stderr)
+    if report.rejected:
+        print(f"note: {report.rejected} recorded payloads did not decode", file=sys.stderr)
+    return 0 if report.written else EXIT_NOT_CONVERGED
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
@@ -301,6 +385,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     for key, n in sorted(counts.items()):
         print(f"{n:8d}  {key}")
     print(f"{sum(counts.values()):8d}  messages in {args.out}")
+    if recorder.lost:
+        print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
     return 0
 
 
@@ -448,6 +534,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 synthetic_frames=args.synthetic_frames,
                 command=" ".join(["umay", *sys.argv[1:]]),
                 reference_renderer=not args.no_reference,
+                view=args.view,
             )
         except BenchError as exc:
             print(f"umay bench: {exc}", file=sys.stderr)
@@ -495,6 +582,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no live progress line")
     p.add_argument("--plot", default=None, metavar="DIR", help="write the run's figures here")
     p.add_argument("--record", default=None, metavar="OUT.mcap", help="record the run to MCAP")
+    _view_options(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("up", help="launch the four services and keep them running")
@@ -505,7 +593,23 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="Zenoh endpoint(s) to join as well",
     )
+    _view_options(p)
     p.set_defaults(func=cmd_up)
+
+    p = sub.add_parser(
+        "view",
+        help="live Foxglove view of a running system (WebSocket, default ws://127.0.0.1:8765)",
+    )
+    from deploy.foxglove.options import add_view_arguments
+
+    add_view_arguments(p)
+    p.set_defaults(func=cmd_view)
+
+    p = sub.add_parser("export", help="a recording as an MCAP file Foxglove shows")
+    p.add_argument("file", metavar="RUN.mcap")
+    p.add_argument("--foxglove", default=None, metavar="OUT.mcap", help="write it here")
+    p.add_argument("--jpeg-quality", type=int, default=85, help="colour images' JPEG quality")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("plot", help="figures of a recorded run (PNG)")
     p.add_argument("file", help="an MCAP recording (umay run --record / umay record)")
@@ -525,13 +629,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--warmup", type=int, default=5, help="frames left out at the start")
     p.add_argument("--size", default="640x480", help="colour image WxH (default 640x480)")
     p.add_argument("--mode", default="lockstep", help="clock: lockstep|realtime")
-    p.add_argument("--no-shm", action="store_true", help="Zenoh shared memory off everywhere")
+    p.add_argument(
+        "--no-shm",
+        action="store_true",
+        help="shared memory off everywhere: camera frames whole, by copy, not by reference",
+    )
     p.add_argument(
         "--no-reference",
         action="store_true",
         help="skip the TinyRenderer reference (its render cost and its loop)",
     )
     p.add_argument("--repeat", type=int, default=1, help="runs; the table shows their medians")
+    p.add_argument(
+        "--view",
+        action="store_true",
+        help="with a live view (umay view) and a Foxglove client connected during the loop",
+    )
     p.add_argument(
         "--synthetic-frames",
         type=int,
@@ -653,7 +766,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"umay {args.command}: interrupted; what it started is stopped", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except zenoh.ZError as exc:  # a session that cannot open: endpoint unusable, port taken
         logging.getLogger("umay").debug("Zenoh error", exc_info=True)
         print(f"umay {args.command}: Zenoh: {zenoh_reason(exc)}", file=sys.stderr)

@@ -250,17 +250,6 @@ def rows_csv(rows: Sequence[CompareRow]) -> str:
     return out.getvalue()
 
 
-def rows_from_csv(text: str) -> list[CompareRow]:
-    """Inverse of :func:`rows_csv` (an empty cell is None; pydantic parses the rest)."""
-    reader = csv.DictReader(io.StringIO(text))
-    return [
-        CompareRow.model_validate(
-            {k: (None if v == "" and k != "detail" else v) for k, v in r.items()}
-        )
-        for r in reader
-    ]
-
-
 def rows_json(rows: Sequence[CompareRow]) -> str:
     return json.dumps([r.model_dump() for r in rows], indent=2) + "\n"
 

@@ -11,11 +11,10 @@ import threading
 import time
 from pathlib import Path
 
-from common.config import JacobianMode
+from deploy.compare import ALL_MODES
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 DEFAULT_SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios" / "suite"
-ALL_MODES = tuple(m.value for m in JacobianMode)
 # Relative difference allowed by default between float results and --reference's: lockstep runs
 # repeat bit for bit on one machine, but another CPU's BLAS/LAPACK kernels round the last bits
 # differently and a hundred frames of closed loop carry that into later digits (1.9e-5 at most

@@ -7,6 +7,13 @@ schema (encoding ``jsonschema``), receive time as ``log_time`` and the header's
 ``send_time_s`` as ``publish_time``; zstd-compressed chunks with a summary and indexes, so
 Foxglove Studio, the ``mcap`` CLI and :mod:`deploy.replay` can all read it.
 
+Camera frames are always stored whole: a frame the sim sent by reference (a descriptor of a
+slot in its shared-memory ring, see :mod:`common.transport`) is turned back into the ordinary
+layout as it arrives, from the ring when this host maps it, else by asking the sim for the
+whole frame, so a recording, and its replay, never depend on a ring that is long gone. A frame
+that could be had neither way (overwritten, the sim gone) is counted in
+:attr:`Recorder.lost`, with the reason.
+
 Metadata record ``umay`` holds what a replay needs: the scenario TOML text
 (``scenario_toml``), the ``--set`` overrides as a JSON list (``overrides_json``) and the key
 prefix (``prefix``).
@@ -33,6 +40,7 @@ from pydantic import BaseModel
 from common import codec
 from common import keys as data_keys
 from common.config import DEFAULT_SCENARIO
+from common.frame_ring import RingReader
 from common.keys import Keys
 from common.messages import (
     DepthFrame,
@@ -43,6 +51,7 @@ from common.messages import (
     RgbFrame,
     SimTruth,
 )
+from common.transport import fetch_whole_frame
 
 METADATA_NAME = "umay"
 MESSAGE_ENCODING = "msgpack"
@@ -120,12 +129,19 @@ class Recorder:
         key_expr: str | None = None,
         metadata: dict[str, str] | None = None,
         chunk_size: int = 1 << 20,
+        rings: RingReader | None = None,
     ) -> None:
+        """``rings``: what maps the sim's ring for frames sent by reference (default: the
+        process's :func:`~common.frame_ring.shared_reader`)."""
         self.path = Path(path)
+        self._rings = rings
         self.keys = keys
         self.key_expr = key_expr or f"{keys.prefix}/**"
         self.counts: dict[str, int] = {}
         self.skipped = 0  # samples on keys without a model
+        self.lost = 0  # frames by reference that could not be had whole
+        self.last_loss = ""
+        self._session = session
         self._lock = threading.Lock()
         self._closed = False
         self._channels: dict[str, int] = {}
@@ -179,6 +195,29 @@ class Recorder:
                 self.skipped += 1
             return
         payload = sample.payload.to_bytes()
+        if codec.image_field(model) is not None and codec.is_by_reference(payload):
+            try:
+                payload = codec.whole_frame(payload, model, self._rings)
+            except codec.FrameUnreachable as exc:  # not on this host: ask the sim
+                fetch_whole_frame(
+                    self._session,
+                    key,
+                    exc.ref,
+                    lambda whole: self._write(key, model, whole),
+                    lambda reason: self._lose(key, reason),
+                )
+                return
+            except codec.MessageError as exc:
+                self._lose(key, str(exc))
+                return
+        self._write(key, model, payload)
+
+    def _lose(self, key: str, reason: str) -> None:
+        with self._lock:
+            self.lost += 1
+            self.last_loss = f"{key}: {reason}"
+
+    def _write(self, key: str, model: type[BaseModel], payload: bytes) -> None:
         sent_ns = _send_time_ns(payload)
         with self._lock:
             if self._closed:

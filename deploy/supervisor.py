@@ -29,6 +29,7 @@ import zenoh
 
 from common.codec import MessageError
 from common.config import RestartPolicy, SupervisorConfig
+from common.frame_ring import remove_segments_of
 from common.keys import SERVICES, Keys
 from common.runtime import ENV_SUPERVISOR_PID
 from common.transport import ENV_CONFIG, ENV_CONNECT, status_from_reply
@@ -169,6 +170,7 @@ class Supervisor:
         for child in self.children.values():
             if child.process is not None and child.process.poll() is not None:
                 child.exit_codes.append(child.process.returncode)
+                self._ended(child.process)
                 child.process = None
                 out.append(child)
         return out
@@ -257,7 +259,16 @@ class Supervisor:
                 child.process.kill()
                 child.process.wait()
             child.exit_codes.append(child.process.returncode)
+            self._ended(child.process)
             child.process = None
+
+    @staticmethod
+    def _ended(process: subprocess.Popen) -> None:
+        """After a child's end: remove the frame rings it left in shared memory (a sim
+        killed outright cannot unlink its own)."""
+        removed = remove_segments_of(process.pid)
+        if removed:
+            log.info("removed the frame rings pid %d left: %s", process.pid, ", ".join(removed))
 
     def summary(self) -> dict[str, dict]:
         """For the supervisor's status answer."""

@@ -15,9 +15,8 @@ from pathlib import Path
 from common.config import Scenario
 from common.keys import Keys
 from common.transport import Node, alive_services, open_session
+from deploy.exit_codes import EXIT_ALREADY_RUNNING
 from deploy.supervisor import Supervisor
-
-EXIT_ALREADY_RUNNING = 3
 
 
 def run_up(

@@ -15,7 +15,7 @@ import pytest
 import zenoh
 
 from common.codec import encode
-from common.keys import Keys
+from common.keys import Keys, whole_frame_key
 from common.messages import Header, JointState, JointVelocityCommand
 from common.transport import free_tcp_endpoint
 from tests.router_deployment import (
@@ -115,6 +115,15 @@ def test_only_the_sim_can_publish_frames_and_strangers_are_refused(tmp_path: Pat
             publisher.put(forged)
             time.sleep(0.05)
         assert forged not in received  # ...the forged ones never do
+        # Nor can anyone but the sim answer for its whole frames (what a subscriber that
+        # cannot map the sim's frame ring asks for).
+        rogue_queryable = rogue.declare_queryable(
+            whole_frame_key(keys.rgb), lambda q: q.reply(q.key_expr, forged)
+        )
+        time.sleep(0.5)
+        replies = list(vision.get(f"{whole_frame_key(keys.rgb)}?segment=s;seq=1", timeout=2.0))
+        assert replies and all(r.ok is None for r in replies)  # the sim's "no such frame"
+        rogue_queryable.undeclare()
         sub.undeclare()
         rogue.close()
         vision.close()

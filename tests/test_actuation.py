@@ -37,19 +37,20 @@ def test_damping_grows_as_manipulability_falls_and_bounds_the_rates() -> None:
 def test_speed_limit_scales_the_whole_vector() -> None:
     q = np.zeros(6)
     qdot = np.array([3.0, 1.0, 0.0, 0.0, 0.0, 0.0])
-    out, saturated = limit_joint_velocities(qdot, q)
+    out, slowed, over = limit_joint_velocities(qdot, q)
     assert np.abs(out).max() <= kin.JOINT_VELOCITY_LIMIT_RAD_S.max() + 1e-12
     np.testing.assert_allclose(out[1] / out[0], 1.0 / 3.0)
-    assert saturated == [0]
+    assert slowed == [] and over == [0]
 
 
 def test_position_limit_stops_motion_towards_it_only() -> None:
     q = kin.JOINT_UPPER_RAD.copy()
-    out, saturated = limit_joint_velocities(np.full(6, 0.5), q)
+    out, slowed, over = limit_joint_velocities(np.full(6, 0.5), q)
     np.testing.assert_allclose(out, 0.0)
-    out, _ = limit_joint_velocities(np.full(6, -0.5), q)
+    assert slowed == list(range(6)) and over == []
+    out, slowed, _ = limit_joint_velocities(np.full(6, -0.5), q)
     np.testing.assert_allclose(out, -0.5)
-    assert saturated == list(range(6))
+    assert slowed == []
 
 
 def test_nan_twist_never_reaches_the_motors() -> None:

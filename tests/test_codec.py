@@ -17,11 +17,17 @@ from common.codec import (
     FRAME_MAX_BYTES,
     FRAME_PREFIX,
     FRAME_VERSION,
+    FrameUnreachable,
     MessageError,
+    by_reference,
     decode,
     encode,
+    frame_parts,
+    is_by_reference,
     unpack,
+    whole_frame,
 )
+from common.frame_ring import FrameRef, RingReader, RingWriter
 from common.messages import (
     ITEMSIZE,
     DepthFrame,
@@ -164,7 +170,7 @@ def _layout(head: dict, pixels: bytes, version: int = FRAME_VERSION, head_len: i
 @pytest.mark.parametrize(
     "change, fragment",
     [
-        (lambda h, p: _layout(h, p, version=2), "version 2"),
+        (lambda h, p: _layout(h, p, version=3), "version 3"),
         (lambda h, p: _layout(h, p, head_len=1 << 20), "does not fit"),
         (lambda h, p: _layout(h, p)[:40], "truncated|does not fit"),
         (lambda h, p: _layout(h, p[:-1]), "rgb: image data has"),
@@ -201,3 +207,89 @@ def test_unpack_reads_headers_of_both_layouts_without_pixels() -> None:
     assert "data" not in unpack(encode(f))["rgb"]
     assert unpack(msgpack.packb(f.model_dump(), use_bin_type=True))["depth_frame_seq"] == 3
     assert unpack(b"\xc1garbage") is None and unpack(FRAME_MAGIC + b"\x01") is None
+
+
+# --- frames by reference ------------------------------------------------------------------
+@pytest.fixture()
+def rings(tmp_path):
+    writer, reader = RingWriter(4, tmp_path, "host/boot"), RingReader(tmp_path, "host/boot")
+    yield writer, reader
+    writer.close()
+
+
+def by_ref(writer: RingWriter, message: RgbFrame | DepthFrame) -> tuple[bytes, FrameRef]:
+    head, pixels = frame_parts(message)
+    image = message.rgb if isinstance(message, RgbFrame) else message.depth_m
+    ref = writer.write(pixels, image.shape, image.dtype)
+    return by_reference(head, ref), ref
+
+
+def test_a_frame_by_reference_decodes_to_the_same_message_viewing_the_ring(rings) -> None:
+    writer, reader = rings
+    for original, model in ((frame(), RgbFrame), (depth_frame(), DepthFrame)):
+        payload, ref = by_ref(writer, original)
+        assert is_by_reference(payload) and not is_by_reference(encode(original))
+        assert len(payload) < 512  # the header and a reference, no pixels
+        back = decode(payload, model, DEFAULT_MAX_BYTES, reader)
+        image = back.rgb if model is RgbFrame else back.depth_m
+        assert back.model_dump(exclude={"rgb", "depth_m"}) == original.model_dump(
+            exclude={"rgb", "depth_m"}
+        )
+        want = original.rgb if model is RgbFrame else original.depth_m
+        np.testing.assert_array_equal(image.to_array(), want.to_array())
+        assert image.ring_ref == ref and image.intact()
+        assert not image.to_array().flags.writeable
+        # Read in place: the ring's next writes into that slot show through the view, and
+        # the image says so.
+        for _ in range(4):
+            by_ref(writer, original)
+        assert not image.intact()
+        # The header reads like any frame's, for tools that only need it.
+        assert unpack(payload)["header"]["frame_seq"] == 3
+
+
+def test_whole_frame_turns_a_reference_back_into_the_ordinary_layout(rings) -> None:
+    writer, reader = rings
+    f = frame()
+    payload, _ref = by_ref(writer, f)
+    assert whole_frame(payload, RgbFrame, reader) == encode(f)
+    assert whole_frame(encode(f), RgbFrame, reader) == encode(f)  # already whole
+    for _ in range(4):
+        by_ref(writer, f)
+    with pytest.raises(MessageError, match="overwritten"):
+        whole_frame(payload, RgbFrame, reader)
+
+
+def test_a_reference_out_of_reach_or_overwritten_is_refused_with_its_reason(rings) -> None:
+    writer, reader = rings
+    payload, ref = by_ref(writer, frame())
+    elsewhere = RingReader(writer.directory, "another/host")
+    with pytest.raises(FrameUnreachable, match="another host") as caught:
+        decode(payload, RgbFrame, DEFAULT_MAX_BYTES, elsewhere)
+    assert caught.value.ref == ref  # what to ask the publisher for
+    for _ in range(4):
+        by_ref(writer, frame())
+    with pytest.raises(MessageError, match=r"overwritten in .* before it was read") as caught:
+        decode(payload, RgbFrame, DEFAULT_MAX_BYTES, reader)
+    assert not isinstance(caught.value, FrameUnreachable)  # nobody has that frame any more
+    writer.close()
+    with pytest.raises(FrameUnreachable, match="cannot open"):
+        decode(payload, RgbFrame, DEFAULT_MAX_BYTES, RingReader(writer.directory, "host/boot"))
+
+
+@pytest.mark.parametrize(
+    "change, fragment",
+    [
+        (lambda m: {**m, "shape": [48, 64]}, "header says uint8"),
+        (lambda m: {**m, "dtype": "float32"}, "header says uint8"),
+        (lambda m: {k: v for k, v in m.items() if k != "slot"}, "missing 'slot'"),
+        (lambda m: [1, 2], "expected a map"),
+    ],
+)
+def test_a_bad_reference_is_a_message_error(rings, change, fragment: str) -> None:
+    writer, reader = rings
+    payload, ref = by_ref(writer, frame())
+    body = msgpack.packb(ref.to_map(), use_bin_type=True)
+    forged = payload[: -len(body)] + msgpack.packb(change(ref.to_map()), use_bin_type=True)
+    with pytest.raises(MessageError, match=fragment):
+        decode(forged, RgbFrame, DEFAULT_MAX_BYTES, reader)

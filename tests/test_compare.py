@@ -4,6 +4,8 @@ consistent."""
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import shutil
 import signal
@@ -26,7 +28,6 @@ from deploy.compare import (
     parse_modes,
     plan,
     rows_csv,
-    rows_from_csv,
     rows_from_json,
     rows_json,
     same_runs,
@@ -47,6 +48,17 @@ SMALL_SUITE = ("01_baseline.toml", "12_moving_target.toml")
 CHEAP = ["camera.width_px=320", "camera.height_px=240", "run.timeout_s=12.0"]
 CHEAP_ARGS = [a for item in CHEAP for a in ("--set", item)]
 RUN_TIMEOUT_S = 1200
+
+
+def rows_from_csv(text: str) -> list[CompareRow]:
+    """What a reader of results.csv gets back (an empty cell is None; pydantic parses the rest)."""
+    reader = csv.DictReader(io.StringIO(text))
+    return [
+        CompareRow.model_validate(
+            {k: (None if v == "" and k != "detail" else v) for k, v in r.items()}
+        )
+        for r in reader
+    ]
 
 
 def row(scenario: str, mode: str, converged: bool = True, **fields) -> CompareRow:

@@ -3,7 +3,8 @@
 10,000+ random and mutated payloads: random bytes, truncated messages, wrong types, NaN, huge
 arrays, images whose size does not match their shape, and valid-looking messages with values
 out of range; camera frames both as plain msgpack and in the codec's raw frame layout (bad
-prefix, version or header length, cut pixels, wrong image descriptions, bad header fields).
+prefix, version or header length, cut pixels, wrong image descriptions, bad header fields,
+frames by reference whose reference is garbage or names another image).
 Every one must be rejected and counted; no service may exit; the run converges.
 """
 
@@ -28,10 +29,12 @@ from common.codec import (
     FRAME_MAX_BYTES,
     FRAME_PREFIX,
     FRAME_VERSION,
+    FRAME_VERSION_REF,
     MessageError,
     decode,
 )
 from common.config import load_scenario
+from common.frame_ring import FrameRef
 from common.keys import SERVICES, Keys
 from common.messages import (
     DepthFrame,
@@ -108,7 +111,7 @@ def frame_layout(data: dict, version: int = FRAME_VERSION, head_len: int | None 
 
 def mutate_frame_layout(template: dict, rng: np.random.Generator) -> bytes:
     """One invalid payload in the raw frame layout (what the sim sends)."""
-    kind = int(rng.integers(0, 6))
+    kind = int(rng.integers(0, 7))
     valid = frame_layout(template)
     if kind == 0:  # the magic, then garbage
         return FRAME_MAGIC + rng.bytes(int(rng.integers(0, 200)))
@@ -116,10 +119,20 @@ def mutate_frame_layout(template: dict, rng: np.random.Generator) -> bytes:
         return valid[: int(rng.integers(0, len(valid) - 1))]
     if kind == 2:  # a layout version that does not exist, or a header length that lies
         if rng.random() < 0.5:
-            return frame_layout(template, version=int(rng.integers(2, 1 << 16)))
+            return frame_layout(template, version=int(rng.integers(3, 1 << 16)))
         return frame_layout(template, head_len=int(rng.integers(1 << 14, 1 << 32)))
     if kind == 3:  # pixels that do not match shape and dtype
         return valid[:-1] if rng.random() < 0.5 else valid + b"\x00"
+    if kind == 6:  # by reference: pixels where the reference should be, or a reference to
+        # another image than the header's
+        if rng.random() < 0.5:
+            return frame_layout(template, version=FRAME_VERSION_REF)
+        image = next(k for k in ("rgb", "depth_m") if k in template)
+        ref = FrameRef("h/b", "umay-frames-1-0", 1, 1, 128, (1, 1), "uint8").to_map()
+        pixels = msgpack.packb(ref, use_bin_type=True)
+        return frame_layout(
+            {**template, image: {**template[image], "data": pixels}}, FRAME_VERSION_REF
+        )
     data = msgpack.unpackb(msgpack.packb(template, use_bin_type=True), raw=False)
     image = next(k for k in ("rgb", "depth_m") if k in data)
     if kind == 4:  # a wrong image description

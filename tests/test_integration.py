@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -20,7 +21,9 @@ import pytest
 from common.codec import encode
 from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, Header, JointState, MarkerFeatures
-from common.transport import free_tcp_endpoint, open_session, query_status
+from common.transport import ENV_SHM, free_tcp_endpoint, open_session, query_status
+from deploy.status import collect
+from tests.conftest import launch_umay_up
 
 UMAY = [sys.executable, "-m", "deploy"]
 RUN_TIMEOUT_S = 900
@@ -31,7 +34,10 @@ def unique_prefix() -> str:
     return f"test/{uuid.uuid4().hex[:12]}"
 
 
-def umay_run(tmp_path: Path, *args: str) -> tuple[subprocess.CompletedProcess, dict | None]:
+def umay_run(
+    tmp_path: Path, *args: str, env: dict[str, str] | None = None
+) -> tuple[subprocess.CompletedProcess, dict | None]:
+    """``umay run`` under a unique prefix; ``env``: extra environment variables."""
     result = tmp_path / f"result-{uuid.uuid4().hex[:6]}.json"
     proc = subprocess.run(
         [
@@ -51,6 +57,7 @@ def umay_run(tmp_path: Path, *args: str) -> tuple[subprocess.CompletedProcess, d
         capture_output=True,
         text=True,
         timeout=RUN_TIMEOUT_S,
+        env=None if env is None else {**os.environ, **env},
     )
     data = json.loads(result.read_text()) if result.exists() else None
     return proc, data
@@ -87,6 +94,48 @@ def test_two_lockstep_runs_give_identical_results(tmp_path: Path) -> None:
     a = {k: v for k, v in first.items() if k != "wall_time_s"}
     b = {k: v for k, v in second.items() if k != "wall_time_s"}
     assert a == b
+
+
+def test_camera_frames_go_by_reference_and_the_loop_converges(tmp_path: Path) -> None:
+    """One host: the sim sends every colour frame and depth image by reference (its
+    shared-memory ring), vision reads them all in place, none is overwritten while read, and
+    the lockstep loop converges."""
+    proc, keys, endpoint = launch_umay_up(tmp_path / "logs", "lockstep")
+    session = open_session(connect=[endpoint])
+    try:
+        deadline, views = time.monotonic() + RUN_TIMEOUT_S, {}
+        while time.monotonic() < deadline and proc.poll() is None:
+            views = {v.name: v for v in collect(session, keys, 0.5) if v.status}
+            controller = views.get("controller")
+            if controller and controller.status.fields.get("converged"):
+                break
+            time.sleep(0.5)
+        assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
+        assert views["controller"].status.fields["converged"], views
+        sim, vision = views["sim"].status, views["vision"].status
+        sent = sim.published[keys.rgb].count + sim.published[keys.depth].count
+        assert sim.fields["frames_by_ref"] == sent > 0 and sim.fields["frames_by_copy"] == 0
+        assert sim.fields["frames_copy_reason"] == "" and sim.fields["whole_frames_served"] == 0
+        for key in (keys.rgb, keys.depth):
+            stats = vision.received[key]
+            assert stats.by_ref == stats.count > 0 and stats.by_copy == stats.fetched == 0, key
+        assert vision.fields["frames_overwritten"] == 0 and vision.rejected == 0
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=30)
+        session.close()
+
+
+def test_frames_by_copy_give_the_same_run(tmp_path: Path) -> None:
+    """Frames by reference off (``UMAY_ZENOH_SHM=0``): the frames go whole, and the lockstep
+    run is the same, frame for frame, as with them on."""
+    by_reference = lockstep_result("dynamic", tmp_path)
+    _, by_copy = umay_run(tmp_path, "--mode", "dynamic", env={ENV_SHM: "0"})
+    assert by_copy is not None
+    drop = {"wall_time_s"}
+    assert {k: v for k, v in by_copy.items() if k not in drop} == {
+        k: v for k, v in by_reference.items() if k not in drop
+    }
 
 
 @pytest.mark.parametrize(

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from common.codec import FRAME_MAX_BYTES, decode, encode
+from common.codec import FRAME_MAX_BYTES, decode, encode, is_by_reference
 from common.keys import Keys
 from common.messages import Header, JointState
 from common.transport import free_tcp_endpoint, open_session
@@ -94,10 +94,12 @@ def test_run_record_writes_an_indexed_zstd_mcap_with_every_data_key(
         assert meta["prefix"] == prefix
         assert json.loads(meta["overrides_json"]) == SMALL_RUN
         assert "[controller]" in meta["scenario_toml"]
-        # Every payload is the wire message: it decodes with its key's model.
+        # Every payload is the wire message: it decodes with its key's model. Camera frames,
+        # which the sim sent by reference, are stored whole: a recording needs no ring.
         frames = 0
         for _schema, channel, message in reader.iter_messages():
             model = model_for_key(keys, channel.topic)
+            assert not is_by_reference(message.data)
             decoded = decode(message.data, model, FRAME_MAX_BYTES)
             assert message.publish_time == round(decoded.header.send_time_s * 1e9)
             frames += channel.topic == keys.rgb

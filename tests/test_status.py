@@ -65,8 +65,13 @@ def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> N
             assert st["processing_ms_p50"] is not None and st["processing_ms_p99"] is not None
         sim_fields = out["sim"]["status"]["fields"]
         assert {"sim_time_s", "real_time_factor", "render_ms", "dropped_frames"} <= set(sim_fields)
-        assert sim_fields["shm_fallbacks"] == 0  # a pool of 8 frames: never full here
-        assert {"markers", "lost_reasons", "depth_age_s"} <= set(out["vision"]["status"]["fields"])
+        # Camera frames by reference (one host), none whole.
+        assert sim_fields["frames_by_ref"] > 0 and sim_fields["frames_by_copy"] == 0
+        assert sim_fields["frames_copy_reason"] == "" and sim_fields["whole_frames_served"] == 0
+        vision_fields = out["vision"]["status"]["fields"]
+        assert {"markers", "lost_reasons", "depth_age_s"} <= set(vision_fields)
+        assert vision_fields["frames_by_ref"] > 0 and vision_fields["frames_by_copy"] == 0
+        assert vision_fields["frames_overwritten"] == 0
         assert {"mode", "error_px_rms", "converged"} <= set(out["controller"]["status"]["fields"])
         assert {"deadman", "saturated_joints"} <= set(out["actuation"]["status"]["fields"])
 
@@ -87,12 +92,10 @@ def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> N
 
 
 @pytest.mark.parametrize("shm_mount", ["size=1m", "ro"])
-def test_without_room_for_shared_memory_frames_go_over_the_network(
-    tmp_path: Path, shm_mount: str
-) -> None:
-    """A host whose /dev/shm cannot hold the frame pool (1 MiB, as in a small container) or
+def test_without_room_for_shared_memory_frames_go_whole(tmp_path: Path, shm_mount: str) -> None:
+    """A host whose /dev/shm cannot hold the frame ring (1 MiB, as in a small container) or
     cannot be written at all (read-only, where Zenoh cannot even open a session with shared
-    memory): the sim says why in its status, and the frames reach vision over the network, so
+    memory): the sim says why in its status, and the frames reach vision whole, by copy, so
     the loop still runs. The pipeline runs in a mount namespace of its own with that
     /dev/shm; the test's session, outside it, queries the status over TCP. Needs root (to
     mount), as CI has."""
@@ -115,10 +118,13 @@ def test_without_room_for_shared_memory_frames_go_over_the_network(
         assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
         assert all(views.get(name) and views[name].alive for name in SERVICES), views
         sim = views["sim"].status.fields
-        assert sim["shm_unavailable"].startswith("no shared-memory pool"), sim
+        reason = "no room for a ring" if shm_mount.startswith("size") else "Read-only"
+        assert reason in sim["frames_copy_reason"], sim
         rgb = views["vision"].status.received[keys.rgb]
-        assert rgb.count >= 10 and rgb.shm == 0 and rgb.dropped == 0
-        assert sim["shm_fallbacks"] >= 2 * rgb.count  # every rgb and depth frame
+        assert rgb.count >= 10 and rgb.by_ref == 0 and rgb.by_copy == rgb.count
+        assert rgb.fetched == 0 and rgb.dropped == 0
+        assert sim["frames_by_ref"] == 0
+        assert sim["frames_by_copy"] >= 2 * rgb.count  # every rgb and depth frame
         assert views["controller"].status.published[keys.twist].count >= 10
     finally:
         proc.send_signal(signal.SIGTERM)

@@ -7,6 +7,7 @@ import signal
 import socket
 import subprocess
 import sys
+import textwrap
 import threading
 import time
 from pathlib import Path
@@ -50,6 +51,31 @@ def test_tick_restarts_with_a_cap(tmp_path: Path) -> None:
     assert child.given_up and child.restarts == 2, events
     assert child.exit_codes == [3, 3, 3]
     assert any("giving up" in e for e in events)
+
+
+def test_the_frame_ring_of_a_child_killed_outright_is_removed(tmp_path: Path) -> None:
+    """A sim killed by SIGKILL cannot unlink its shared-memory frame ring: the supervisor
+    removes it when it sees the child gone."""
+    sup = Supervisor(None, "test/x", "tcp/127.0.0.1:1", tmp_path, services=("sim",))
+    child = sup.children["sim"]
+    child.argv = [sys.executable, "-c", textwrap.dedent("""
+        import os, signal, numpy as np
+        from common.frame_ring import RingWriter
+        ring = RingWriter()
+        ring.write(np.zeros(64, np.uint8), (8, 8), "uint8")
+        print(ring.segment, flush=True)
+        os.kill(os.getpid(), signal.SIGKILL)
+        """)]  # fmt: skip
+    sup.start()
+    pid = child.process.pid
+    deadline = time.monotonic() + 20
+    while not sup.exited():
+        assert time.monotonic() < deadline, "the child did not die"
+        time.sleep(0.05)
+    segment = (tmp_path / "sim.log").read_text().split()[-1]
+    assert segment.startswith(f"umay-frames-{pid}-")
+    assert not (Path("/dev/shm") / segment).exists()
+    assert child.exit_codes == [-9]
 
 
 def test_hang_reason_judges_only_a_child_that_has_answered() -> None:

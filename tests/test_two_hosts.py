@@ -1,8 +1,11 @@
 """Two hosts on one machine: the sim runs in its own network namespace ("host B"), joined to
-this one ("host A") by a veth pair; vision, controller and actuation run on host A. Every
-service is a client of one router on host A's veth address, logged in with its own ACL
-credentials, so the only path between the hosts is TCP through that router. The lockstep run
-must converge exactly as on one host. Needs root (CAP_NET_ADMIN), as CI has."""
+this one ("host A") by a veth pair, with a hostname and a ``/dev/shm`` of its own (UTS and
+mount namespaces), so that nothing of host B's shared memory is in reach of host A; vision,
+controller and actuation run on host A. Every service is a client of one router on host A's
+veth address, logged in with its own ACL credentials, so the only path between the hosts is
+TCP through that router. The lockstep run must converge exactly as on one host, vision getting
+every camera frame whole from the sim (it cannot map the sim's frame ring). Needs root
+(CAP_NET_ADMIN, CAP_SYS_ADMIN), as CI has."""
 
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ import pytest
 from common.codec import DEFAULT_MAX_BYTES, decode
 from common.keys import Keys
 from common.messages import EndEffectorTwist
+from common.transport import query_status
 from tests.router_deployment import (
     SMALL_IMAGE,
     start_router,
@@ -82,7 +86,9 @@ def test_sim_on_another_host_through_a_router_converges(
         lambda s: twists.append(decode(s.payload.to_bytes(), EndEffectorTwist, DEFAULT_MAX_BYTES)),
     )
     try:
-        in_netns = ("ip", "netns", "exec", second_host.name)
+        own_shm_and_name = 'mount -t tmpfs tmpfs /dev/shm && hostname host-b && exec "$@"'
+        in_netns = ("ip", "netns", "exec", second_host.name, "unshare", "-m", "-u")
+        in_netns += ("sh", "-c", own_shm_and_name, "sh")
         sim = start_service("sim", router, keys.prefix, tmp_path, *SMALL_IMAGE, wrapper=in_netns)
         procs.append(sim)
         for name in ("vision", "controller", "actuation"):
@@ -97,6 +103,14 @@ def test_sim_on_another_host_through_a_router_converges(
         last = twists[-1]
         print(f"converged at frame {last.header.frame_seq}, pixel RMS {last.error_px_rms:.3f} px")
         assert last.error_px_rms < 0.25
+        # The sim sent references; vision, out of their reach, asked for every frame whole.
+        status = {s.service: s for s in query_status(monitor, keys, 2.0)}
+        sim_fields, vision = status["sim"].fields, status["vision"]
+        assert sim_fields["frames_by_ref"] > 0 and sim_fields["whole_frames_served"] > 0
+        rgb = vision.received[keys.rgb]
+        assert rgb.by_ref == 0 and rgb.fetched == rgb.by_copy == rgb.count > last.header.frame_seq
+        assert vision.fields["frames_by_ref"] == 0 and vision.rejected == 0
+        assert vision.fields["frames_fetched"] == vision.fields["frames_by_copy"] > rgb.count
     finally:
         sub.undeclare()
         monitor.close()

@@ -84,11 +84,12 @@ def limit_joint_velocities(
     upper_rad: FloatArray = kin.JOINT_UPPER_RAD,
     vmax_rad_s: FloatArray = kin.JOINT_VELOCITY_LIMIT_RAD_S,
     slow_zone_rad: float = np.deg2rad(10.0),
-) -> tuple[FloatArray, list[int]]:
-    """Position limits, then speed limits; returns the rates and all joints that were limited."""
+) -> tuple[FloatArray, list[int], list[int]]:
+    """The hard limits, which always hold: position limits, then speed limits. Returns the
+    rates, the joints slowed near a position limit and the joints that were over speed."""
     qdot, slowed = limit_joint_positions(qdot_rad_s, q_rad, lower_rad, upper_rad, slow_zone_rad)
     qdot, over = limit_speed(qdot, vmax_rad_s)
-    return qdot, sorted(set(slowed + over))
+    return qdot, slowed, over
 
 
 @dataclass(frozen=True)
@@ -135,8 +136,7 @@ def twist_to_joint_velocities(
     accelerated = False
     if previous_rad_s is not None and np.isfinite(max_accel_rad_s2):
         qdot, accelerated = limit_acceleration(qdot, previous_rad_s, max_accel_rad_s2, dt_s)
-    qdot, slowed = limit_joint_positions(qdot, q_rad)
-    qdot, over = limit_speed(qdot)
+    qdot, slowed, over = limit_joint_velocities(qdot, q_rad)
     return JointCommand(qdot, Clamps(slowed, over, accelerated), w, delta)
 
 

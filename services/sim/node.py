@@ -38,7 +38,7 @@ from common.messages import (
     SimTruth,
 )
 from common.runtime import ServiceContext
-from common.transport import Node, TypedPublisher, alive_services
+from common.transport import ENV_SHM, Node, TypedPublisher, alive_services
 from services.sim.events import TIME_EPSILON_S
 from services.sim.world import World
 
@@ -90,17 +90,30 @@ class SimService:
             "dropped_frames": self.dropped_frames,
             "watchdog_stops": self.watchdog_stops,
             "motor_clamps": self.motor_clamps,
-            # frames put as ordinary messages: no shared-memory pool, or it was full
-            "shm_fallbacks": sum(
-                p.frames.fallbacks for p in (self.pub_rgb, self.pub_depth) if p.frames is not None
-            ),
-            "shm_unavailable": next(
-                (p.frames.unavailable for p in (self.pub_rgb, self.pub_depth) if p.frames), ""
+            # camera frames (colour and depth) by reference through the shared-memory ring, and
+            # whole (no ring: why in frames_copy_reason); whole frames sent to subscribers
+            # that could not map the ring
+            "frames_by_ref": sum(p.meter.by_ref for p in self.frame_publishers),
+            "frames_by_copy": sum(p.meter.by_copy for p in self.frame_publishers),
+            "frames_copy_reason": self.frames_copy_reason(),
+            "whole_frames_served": sum(
+                p.frames.served for p in self.frame_publishers if p.frames is not None
             ),
             "real_time_factor": round(
                 self.world.sim_time_s / max(time.monotonic() - self.started_s, 1e-9), 3
             ),
         }
+
+    @property
+    def frame_publishers(self) -> tuple[TypedPublisher, TypedPublisher]:
+        return (self.pub_rgb, self.pub_depth)
+
+    def frames_copy_reason(self) -> str:
+        """Why camera frames go whole instead of by reference ("": they do not)."""
+        rings = [p.frames for p in self.frame_publishers]
+        if any(r is None for r in rings):
+            return f"frames by reference off (${ENV_SHM}=0)"
+        return next((r.unavailable for r in rings if r is not None and r.unavailable), "")
 
     # --- publishing one camera frame ----------------------------------------------------
     def publish_frame(self) -> None:
@@ -117,8 +130,9 @@ class SimService:
         capture_time_s = time.time()
         header = self.node.header(t, seq)
         # Joint state first, so a consumer has it when the frame's features arrive; then the
-        # images, without copying their pixels before the codec's one copy (ImageData.view_of:
-        # render() gives fresh arrays every frame, never changed afterwards).
+        # images, without copying their pixels before the one copy into the frame ring's slot
+        # (or the whole payload, without a ring) (ImageData.view_of: render() gives fresh
+        # arrays every frame, never changed afterwards).
         messages: list[tuple[TypedPublisher, object]] = [
             (
                 self.pub_joints,
@@ -256,8 +270,7 @@ class SimService:
         ``sim.realtime_command_wait_s`` for that frame's joint command. pybullet keeps the
         interpreter lock while it renders, so a command arriving during a render could not even
         be received before the render ends: without the wait every command would reach the
-        motors one render late (``umay bench``, 320×240: 84 ms p50 frame → command applied
-        without the wait, 23 ms with it)."""
+        motors one render late (docs/performance.md has the figures)."""
         started = time.monotonic()
         next_frame_s = 0.0
         wait_s = self.scenario.sim.realtime_command_wait_s

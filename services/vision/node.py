@@ -4,6 +4,13 @@ One event loop: depth images are kept (the last few, by the colour frame they we
 with); each colour frame is measured with the depth image it names (``depth_frame_seq``). If
 that image has not arrived yet the frame waits for it, at most ``DEPTH_WAIT_S``, then makes do
 with the newest one, so a lost depth image delays one frame instead of stalling the stream.
+
+Frames sent by reference (:mod:`common.frame_ring`) are read in place, as views of the sim's
+shared-memory ring, which holds each stream's last 16 frames: the frames vision keeps (one
+colour frame at a time, the last ``DEPTH_CACHE`` depth images) are far newer than that. After
+measuring a frame, vision checks that neither image was overwritten meanwhile (a stall of half
+a second would do it); if one was, the measurement is thrown away and the frame counted as
+rejected, with the reason, instead of publishing features of torn pixels.
 """
 
 from __future__ import annotations
@@ -58,6 +65,7 @@ class VisionService:
         self.waiting_since_s = 0.0
         self.depth_waits = 0  # colour frames that had to wait for their depth image
         self.depth_missed = 0  # ... and went on without it
+        self.frames_overwritten = 0  # measurements dropped: a ring slot changed while read
         self.depth_age_s: float | None = None
         self.states: dict[str, str] = {"hand": "lost", "target": "lost"}
         self.reasons: dict[str, str] = {"hand": "", "target": ""}
@@ -69,6 +77,12 @@ class VisionService:
             "depth_age_s": self.depth_age_s,
             "depth_waits": self.depth_waits,
             "depth_missed": self.depth_missed,
+            # camera frames (colour and depth) read in place in the sim's ring, received
+            # whole, and of those fetched from the sim (its ring was out of reach)
+            "frames_by_ref": sum(m.by_ref for m in self.node.received.values()),
+            "frames_by_copy": sum(m.by_copy for m in self.node.received.values()),
+            "frames_fetched": sum(m.fetched for m in self.node.received.values()),
+            "frames_overwritten": self.frames_overwritten,
         }
 
     def degraded(self) -> str:
@@ -85,7 +99,7 @@ class VisionService:
                 max(0.0, frame.header.sim_time_s - depth_frame.header.sim_time_s),
             )
         self.depth_age_s = None if depth is None else depth.age_s
-        measured, self.tracker = observe(
+        measured, tracker = observe(
             frame.rgb.to_array(),
             frame.intrinsics,
             depth,
@@ -94,6 +108,20 @@ class VisionService:
             self.tracker,
             frame.header.sim_time_s,
         )
+        images = [(self.ctx.keys.rgb, frame.rgb)]
+        if depth_frame is not None:
+            images.append((self.ctx.keys.depth, depth_frame.depth_m))
+        overwritten = [(key, image) for key, image in images if not image.intact()]
+        if overwritten:  # the pixels changed under observe(): forget what it measured
+            self.frames_overwritten += 1
+            for key, image in overwritten:
+                self.node.reject(
+                    key,
+                    f"frame {frame.header.frame_seq}: ring slot {image.ring_ref.slot} "
+                    f"overwritten while vision read it; measurement dropped",
+                )
+            return
+        self.tracker = tracker
         for name, m in measured.items():
             self.states[name], self.reasons[name] = m.state, m.reason
         header = self.node.header(frame.header.sim_time_s, frame.header.frame_seq)

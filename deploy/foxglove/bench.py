@@ -1,0 +1,53 @@
+"""``umay bench --view``: the loop measured with a live view running and a client connected,
+to show what watching costs the loop (nothing, by design: the view is an observer)."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from common.keys import Keys
+from deploy.bench import BenchError
+from deploy.foxglove import convert as c
+from deploy.foxglove.client import FoxgloveClient
+from deploy.foxglove.node import ViewStartError, view_process
+from deploy.foxglove.options import DEFAULT_HOST
+
+
+@contextlib.contextmanager
+def watched_by_a_view(
+    keys: Keys,
+    endpoint: str,
+    log_dir: Path,
+    scenario_path: str | None,
+    overrides: list[str],
+    startup_timeout_s: float = 60.0,
+) -> Iterator[dict[str, Any]]:
+    """``umay view`` on the run, and a client that subscribes to every channel and reads all
+    it gets (the Foxglove app's load). Yields a dict that, once left, holds the client's
+    message counts per topic."""
+    with socket.socket() as s:
+        s.bind((DEFAULT_HOST, 0))
+        port = s.getsockname()[1]
+    report: dict[str, Any] = {"port": port}
+    with contextlib.ExitStack() as stack:
+        try:
+            stack.enter_context(
+                view_process(keys.prefix, endpoint, port, log_dir / "view.log", scenario_path,
+                             overrides)
+            )  # fmt: skip
+        except ViewStartError as exc:
+            raise BenchError(str(exc)) from exc
+        client = FoxgloveClient(f"ws://{DEFAULT_HOST}:{port}", keep=False).start()
+        try:
+            if not client.wait_for(
+                lambda cl: cl.counts.get(c.COLOUR_IMAGE, 0) > 0, startup_timeout_s
+            ):
+                raise BenchError(f"the view client got no image; see {log_dir}/view.log")
+            yield report
+        finally:
+            client.stop()
+            report["client_messages"] = dict(sorted(client.counts.items()))

@@ -1,0 +1,85 @@
+"""``umay export RUN.mcap --foxglove OUT.mcap``: a project recording as an MCAP file that
+Foxglove shows (images with overlays, the moving arm, the plots).
+
+The project's recordings keep the wire payloads (message encodings ``msgpack`` and
+``umay-frame``, which no viewer decodes); this writes the live view's channels instead, in
+the same schemas, converted by the same functions (:mod:`deploy.foxglove.convert`), with log
+times from the simulation. Every frame is converted (no rate limit, unlike the live view).
+The recording itself is left as it is: replay needs it.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import foxglove
+
+from common.codec import FRAME_MAX_BYTES, MessageError, decode
+from common.config import DEFAULT_SCENARIO, Scenario, load_scenario
+from common.runtime import parse_overrides
+from deploy.foxglove import convert as c
+from deploy.foxglove.channels import FoxgloveChannels
+from deploy.recording import METADATA_NAME, RecordingReader, split_data_key
+
+
+@dataclass
+class ExportReport:
+    written: dict[str, int] = field(default_factory=dict)  # per Foxglove topic
+    skipped: int = 0  # recorded messages the view does not show (timing)
+    rejected: int = 0  # recorded payloads that do not decode
+    notes: list[str] = field(default_factory=list)
+
+
+def recorded_scenario(reader: RecordingReader) -> tuple[Scenario, list[str]]:
+    """The scenario the recording ran (its metadata), with its overrides; the default one
+    (with a note) when it holds none."""
+    import json
+
+    meta = reader.metadata().get(METADATA_NAME, {})
+    overrides = json.loads(meta.get("overrides_json", "[]"))
+    notes = []
+    text = meta.get("scenario_toml")
+    if not text:
+        notes.append("the recording holds no scenario: the default one was used")
+        return load_scenario(DEFAULT_SCENARIO, parse_overrides(overrides)), notes
+    with tempfile.TemporaryDirectory(prefix="umay-export-") as tmp:
+        path = Path(tmp) / "scenario.toml"
+        path.write_text(text)
+        return load_scenario(path, parse_overrides(overrides)), notes
+
+
+def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 85) -> ExportReport:
+    """Write ``out`` from ``recording``; raises NotARecordingError for a file that is not
+    MCAP, ScenarioError for a recorded scenario that does not load."""
+    reader = RecordingReader(recording)
+    scenario, notes = recorded_scenario(reader)
+    report = ExportReport(notes=notes)
+    state = c.ViewState(scenario)
+    context = foxglove.Context()
+    channels = FoxgloveChannels(context)
+    with foxglove.open_mcap(str(out), allow_overwrite=True, context=context) as writer:
+        meta = reader.metadata().get(METADATA_NAME, {})
+        writer.write_metadata(
+            "umay_export",
+            {"source": str(recording), "prefix": meta.get("prefix", ""), "time": "simulation"},
+        )
+        for _schema, channel, message in reader.messages():
+            split = split_data_key(channel.topic)
+            if split is None or split[1] not in c.VIEWED_KEYS:
+                report.skipped += 1
+                continue
+            _prefix, suffix, model = split
+            try:
+                msg = decode(message.data, model, FRAME_MAX_BYTES)
+            except MessageError:
+                report.rejected += 1
+                continue
+            for o in state.on_message(suffix, msg, jpeg_quality):
+                channels.log(o)
+                report.written[o.topic] = report.written.get(o.topic, 0) + 1
+    channels.close()
+    if reader.damage:
+        report.notes.append(f"recording {reader.damage}")
+    return report

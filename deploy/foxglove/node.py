@@ -1,0 +1,306 @@
+"""``umay view``: the live Foxglove view, an observer beside the loop (the imperative shell).
+
+A process of its own: it subscribes to the run's data keys over Zenoh, turns them into
+Foxglove messages (:mod:`deploy.foxglove.convert`) and serves them with the official
+``foxglove-sdk`` WebSocket server. It publishes nothing on Zenoh, so the loop never waits for
+it:
+
+- it shows at most ``rate_hz`` messages per key and second (``image_hz`` colour images,
+  ``depth_hz`` depth images: JPEG encoding is its main cost, on the loop's cores), and none
+  while no client listens: a sample it does not want is dropped in the Zenoh callback
+  before it is copied or decoded; the rest are decoded there and kept newest-only per key,
+  so a view that falls behind skips messages instead of queueing them (``dropped`` in its
+  status);
+- the SDK keeps a bounded queue per client and drops the oldest data for a slow one.
+
+It answers ``<prefix>/view/status`` like a service, and once a second asks the services for
+their status, shown as log lines (``/log``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import foxglove
+from foxglove.websocket import Capability
+
+from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decode
+from common.config import Scenario
+from common.keys import DEPTH, RGB, Keys
+from common.transport import Node, query_status
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
+from deploy.foxglove import convert as c
+from deploy.foxglove.channels import FoxgloveChannels
+from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_arguments
+
+log = logging.getLogger("umay.view")
+
+STATUS_PERIOD_S = 1.0
+FRAME_KEYS = (RGB, DEPTH)
+
+
+class PortInUseError(OSError):
+    """The WebSocket port cannot be bound; the message says which and what to do."""
+
+
+def start_server(host: str, port: int, context: foxglove.Context) -> foxglove.WebSocketServer:
+    """The SDK's WebSocket server on ``host:port`` (0: any free port), announcing the time
+    (simulated) to clients. :class:`PortInUseError` when the port is taken."""
+    try:
+        return foxglove.start_server(
+            name="umay",
+            host=host,
+            port=port,
+            context=context,
+            capabilities=[Capability.Time],
+        )
+    except RuntimeError as exc:  # the SDK reports bind failures as RuntimeError
+        text = str(exc)
+        if "in use" in text.lower() or "bind" in text.lower():
+            raise PortInUseError(
+                f"cannot serve on {host}:{port}: {text.removeprefix('FoxgloveError: ')} "
+                "(another umay view? choose another --port)"
+            ) from None
+        raise
+
+
+class ViewNode:
+    """Zenoh in, Foxglove out. Zenoh callbacks only admit (rate limit, someone listening),
+    decode and keep the newest message per key; only :meth:`run`'s thread touches
+    :attr:`state`."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        keys: Keys,
+        session: Any,
+        server: foxglove.WebSocketServer,
+        channels: FoxgloveChannels,
+        rate_hz: float,
+        image_hz: float,
+        depth_hz: float,
+        jpeg_quality: int,
+    ) -> None:
+        self.state = c.ViewState(scenario)
+        self.keys = keys
+        self.session = session
+        self.server = server
+        self.channels = channels
+        self.jpeg_quality = jpeg_quality
+        self.shown = 0
+        self.rejected = 0
+        self.dropped: dict[str, int] = dict.fromkeys(c.VIEWED_KEYS, 0)
+        self._accepted_s: dict[str, float] = dict.fromkeys(c.VIEWED_KEYS, -1e9)
+        self._latest: dict[str, Any] = {}
+        self._cond = threading.Condition()
+        self.node = Node("view", keys, session, self.status_fields)  # status and liveliness
+        periods = {RGB: 1.0 / image_hz, DEPTH: 1.0 / depth_hz}
+        self._subscribers = [
+            session.declare_subscriber(
+                f"{keys.prefix}/{suffix}",
+                self._on_sample(suffix, model, periods.get(suffix, 1.0 / rate_hz)),
+            )
+            for suffix, model in c.VIEWED_KEYS.items()
+        ]
+
+    def status_fields(self) -> dict[str, Any]:
+        return {
+            "port": self.server.port,
+            "messages_shown": self.shown,
+            "dropped": dict(self.dropped),
+            "rejected": self.rejected,
+        }
+
+    def _wanted(self, suffix: str) -> bool:
+        if suffix == RGB:
+            return self.channels.wanted(c.COLOUR_IMAGE)
+        if suffix == DEPTH:
+            return self.channels.wanted(c.DEPTH_IMAGE)
+        return self.channels.any_wanted()
+
+    def _on_sample(self, suffix: str, model: type, period_s: float) -> Any:
+        max_bytes = FRAME_MAX_BYTES if suffix in FRAME_KEYS else DEFAULT_MAX_BYTES
+
+        def on_sample(sample: Any) -> None:
+            now = time.monotonic()
+            if now - self._accepted_s[suffix] < period_s or not self._wanted(suffix):
+                self.dropped[suffix] += 1  # before the copy and the decode: costs nothing
+                return
+            self._accepted_s[suffix] = now
+            try:
+                message = decode(sample.payload.to_bytes(), model, max_bytes)
+            except MessageError:
+                self.rejected += 1
+                return
+            with self._cond:
+                if self._latest.pop(suffix, None) is not None:
+                    self.dropped[suffix] += 1  # the view is behind: the newer one wins
+                self._latest[suffix] = message
+                self._cond.notify()
+
+        return on_sample
+
+    def on_event(self, suffix: str, message: Any) -> None:
+        outs = self.state.on_message(suffix, message, self.jpeg_quality)
+        image = getattr(message, "rgb", None) or getattr(message, "depth_m", None)
+        if suffix in FRAME_KEYS and image is not None and not image.intact():
+            self.dropped[suffix] += 1  # a ring slot overwritten while it was converted
+            return
+        self.channels.log_all(outs)
+        self.shown += len(outs)
+        if suffix == c.keys.JOINT_STATE:
+            self.server.broadcast_time(c.time_ns(self.state.sim_time_s))
+
+    def poll_status(self, stop: threading.Event) -> None:
+        """Every second: the services' status as log lines (a thread of its own: a query
+        waits for answers)."""
+        while not stop.wait(STATUS_PERIOD_S):
+            if not self.channels.wanted(c.LOG):
+                continue
+            try:
+                statuses = query_status(self.session, self.keys, 0.5)
+            except Exception:  # the session closing under us at the end
+                log.debug("status query failed", exc_info=True)
+                continue
+            self.channels.log_all(c.status_logs(statuses, self.state.sim_time_s))
+
+    def run(self, stop: threading.Event) -> None:
+        threading.Thread(target=self.poll_status, args=(stop,), daemon=True).start()
+        self.node.ready()
+        try:
+            while not stop.is_set():
+                with self._cond:
+                    if not self._latest:
+                        self._cond.wait(0.1)
+                    batch, self._latest = list(self._latest.items()), {}
+                for suffix, message in batch:
+                    self.on_event(suffix, message)
+        finally:
+            for sub in self._subscribers:
+                sub.undeclare()
+            self.node.close()  # also closes the session
+
+
+def main(argv: list[str] | None = None) -> int:
+    return serve(view_arguments(argv))
+
+
+def serve(args: argparse.Namespace) -> int:
+    """``umay view``: exit 0 when stopped (Ctrl-C, SIGTERM), 2 on bad options or scenario, 1
+    when the port is taken or Zenoh cannot open."""
+    from common.config import ScenarioError, load_scenario
+    from common.keys import default_prefix
+    from common.runtime import parse_overrides
+    from common.transport import open_session
+
+    problem = check_view_options(args)
+    if problem is not None:
+        print(f"umay view: {problem}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        scenario = load_scenario(args.scenario, parse_overrides(args.set))
+    except ScenarioError as exc:
+        print(f"umay view: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    keys = Keys(args.prefix or default_prefix())
+    context = foxglove.Context()
+    channels = FoxgloveChannels(context)
+    try:
+        server = start_server(args.host, args.port, context)
+    except PortInUseError as exc:
+        print(f"umay view: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        session = open_session(connect=args.connect)
+        view = ViewNode(
+            scenario, keys, session, server, channels,
+            args.rate_hz, args.image_hz, args.depth_hz, args.jpeg_quality,
+        )  # fmt: skip
+        print(
+            f"umay view: Foxglove WebSocket at ws://{args.host}:{server.port} for {keys.prefix}; "
+            f"layout {LAYOUT_PATH}",
+            flush=True,
+        )
+        view.run(stop)  # closes the session on the way out
+    finally:
+        server.stop()
+    return EXIT_OK
+
+
+LAYOUT_PATH = Path(__file__).resolve().parent / "layout.json"
+
+
+# --- launching it beside `umay up` / `umay run` --------------------------------------------
+def wait_for_port(host: str, port: int, proc: subprocess.Popen, timeout_s: float) -> bool:
+    """True once ``host:port`` accepts connections; False if ``proc`` ends or time runs out."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            return False
+        with socket.socket() as s:
+            s.settimeout(0.2)
+            if s.connect_ex((host, port)) == 0:
+                return True
+        time.sleep(0.1)
+    return False
+
+
+class ViewStartError(RuntimeError):
+    """The view process did not start serving; the message has its last output."""
+
+
+@contextlib.contextmanager
+def view_process(
+    prefix: str,
+    endpoint: str,
+    port: int,
+    log_path: Path,
+    scenario_path: str | None = None,
+    overrides: list[str] | None = None,
+    host: str = DEFAULT_HOST,
+    extra: list[str] | None = None,
+    startup_timeout_s: float = 30.0,
+) -> Iterator[subprocess.Popen]:
+    """``umay view`` as a child process for the run on ``prefix`` at ``endpoint``, its output
+    in ``log_path``; stopped (SIGTERM, then SIGKILL) on the way out. :class:`ViewStartError`
+    when it does not serve within ``startup_timeout_s``."""
+    argv = [sys.executable, "-m", "deploy", "view", "--prefix", prefix, "--connect", endpoint,
+            "--host", host, "--port", str(port)]  # fmt: skip
+    if scenario_path:
+        argv += ["--scenario", str(scenario_path)]
+    for item in overrides or []:
+        argv += ["--set", item]
+    argv += extra or []
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    with log_path.open("ab") as out:
+        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=dict(os.environ))
+    try:
+        if not wait_for_port(host, port, proc, startup_timeout_s):
+            tail = log_path.read_text(errors="replace").strip().splitlines()[-3:]
+            raise ViewStartError(
+                f"the view did not start serving on {host}:{port}: " + " / ".join(tail)
+            )
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(5.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
