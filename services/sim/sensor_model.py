@@ -32,6 +32,7 @@ The words are read as 16-bit uniforms k/65536 and turned into the distributions 
 from __future__ import annotations
 
 import math
+import os
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -63,6 +64,14 @@ _helper_enabled = True  # False: both bands on the calling thread (same images)
 _local = threading.local()
 _helper: ThreadPoolExecutor | None = None
 _helper_lock = threading.Lock()
+
+
+def _forget_helper() -> None:  # a forked child has no helper thread: start a new one
+    global _helper, _helper_lock
+    _helper, _helper_lock = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_helper)
 
 
 def axial_sigma_m(z_m: NDArray[np.floating]) -> NDArray[np.float64]:
@@ -123,9 +132,11 @@ def noisy_depth(
         _noisy_band(z, pieces, axial, (mid, h), out, model)
 
     pending = _on_helper(lower_band)
-    pieces = [(0, _uniform_u16(rng, lo * w)), shared] if lateral else []
-    _noisy_band(z, pieces, _uniform_u16(rng, _even(mid * w)), (0, mid), out, model)
-    _join(pending, lower_band)
+    try:
+        pieces = [(0, _uniform_u16(rng, lo * w)), shared] if lateral else []
+        _noisy_band(z, pieces, _uniform_u16(rng, _even(mid * w)), (0, mid), out, model)
+    finally:
+        _join(pending, lower_band)
     return out
 
 
@@ -176,8 +187,10 @@ def exposed_rgb(
         band((h // 2, h), np.random.Generator(np.random.PCG64(seed)))
 
     pending = _on_helper(lower_band)
-    band((0, h // 2), rng)
-    _join(pending, lower_band)
+    try:
+        band((0, h // 2), rng)
+    finally:
+        _join(pending, lower_band)
     return out
 
 
