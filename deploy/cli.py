@@ -78,7 +78,7 @@ def _overrides(args: argparse.Namespace) -> list[str]:
 
 def _validated(args: argparse.Namespace, command: str):
     """(overrides, scenario), or None after saying what is wrong: nothing is launched."""
-    from deploy.run import prepare
+    from deploy.launch.run import prepare
 
     try:
         overrides = _overrides(args)
@@ -91,7 +91,7 @@ def _validated(args: argparse.Namespace, command: str):
 def cmd_run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from deploy.run import format_result, result_table, run_once, write_result
+    from deploy.launch.run import format_result, result_table, run_once, write_result
 
     validated = _validated(args, "run")
     if validated is None:
@@ -110,7 +110,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     listen = args.listen
     with contextlib.ExitStack() as stack:
         if args.view:
-            from deploy.run import default_listen_endpoint
+            from deploy.launch.run import default_listen_endpoint
 
             listen = listen or default_listen_endpoint()
             if not _start_view(stack, args, "run", prefix, listen, overrides):
@@ -132,7 +132,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.result:
         write_result(result, args.result)
     if args.plot:
-        from deploy.plots import plot_recording
+        from deploy.recording.plots import plot_recording
 
         for path in plot_recording(record, Path(args.plot), scenario.controller.converged_px):
             print(f"figure: {path}")
@@ -140,8 +140,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    from deploy.run import default_listen_endpoint
-    from deploy.up import run_up
+    from deploy.launch.run import default_listen_endpoint
+    from deploy.launch.up import run_up
 
     validated = _validated(args, "up")
     if validated is None:
@@ -205,7 +205,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     from deploy.foxglove.export import export_foxglove
-    from deploy.recording import NotARecordingError
+    from deploy.recording.record import NotARecordingError
 
     if not Path(args.file).is_file():
         print(f"umay export: {args.file}: no such file", file=sys.stderr)
@@ -233,8 +233,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from deploy.plots import plot_recording
-    from deploy.recording import NotARecordingError
+    from deploy.recording.plots import plot_recording
+    from deploy.recording.record import NotARecordingError
 
     path = Path(args.file)
     if not path.is_file():
@@ -327,7 +327,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.live import Live
 
-    from deploy.status import as_json, collect, table
+    from deploy.launch.status import as_json, collect, table
 
     keys = Keys(args.prefix or default_prefix())
     session = open_session(connect=args.connect)
@@ -354,7 +354,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from deploy.recording import Recorder, run_metadata
+    from deploy.recording.record import Recorder, run_metadata
 
     if args.keys is not None:
         try:
@@ -391,7 +391,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from deploy.recording import NotARecordingError, format_info, read_info
+    from deploy.recording.record import NotARecordingError, format_info, read_info
 
     try:
         info = read_info(args.file)
@@ -409,7 +409,13 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from deploy.replay import REPLAYABLE, ReplayError, ReplayFailed, format_report, replay_service
+    from deploy.recording.replay import (
+        REPLAYABLE,
+        ReplayError,
+        ReplayFailed,
+        format_report,
+        replay_service,
+    )
 
     if args.service not in REPLAYABLE:
         choices = ", ".join(REPLAYABLE)
@@ -469,7 +475,11 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     if args.json:
         check_output_file("--json", args.json)
-    from deploy.accuracy import default_conditions, evaluate, format_table  # loads pybullet
+    from deploy.experiments.accuracy import (
+        default_conditions,
+        evaluate,
+        format_table,
+    )  # loads pybullet
 
     conditions = default_conditions(args.seed)
     with Progress(transient=True) as bar:
@@ -489,7 +499,7 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from deploy.bench import BenchError, format_report, median_of_runs, run_bench, write_json
-    from deploy.run import prepare
+    from deploy.launch.run import prepare
 
     size = args.size.lower().split("x")
     if len(size) != 2 or not all(p.isdigit() for p in size):
@@ -548,7 +558,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.json:
             write_json(result, args.json)
         if args.figure:
-            from deploy.plots import write_bench_figure
+            from deploy.recording.plots import write_bench_figure
 
             write_bench_figure(runs[0], Path(args.figure))  # frame by frame: the first run
             print(f"figure: {args.figure}" + (" (the first run)" if len(runs) > 1 else ""))
@@ -668,7 +678,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--root", default=None, help="the repository (default: this one)")
     p.set_defaults(func=cmd_docs)
 
-    from deploy.compare_cli import add_campaign_parser, add_compare_parser
+    from deploy.experiments.cli import add_campaign_parser, add_compare_parser
 
     add_compare_parser(sub)  # umay compare: every strategy on every scenario of a suite
     add_campaign_parser(sub)  # umay campaign: every strategy from random starts

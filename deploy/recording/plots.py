@@ -41,7 +41,7 @@ from common.messages import (
     EndEffectorTwist,
     Features,
 )
-from deploy.recording import DATA_SUFFIXES, RecordingReader
+from deploy.recording.record import DATA_SUFFIXES, RecordingReader
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ One MCAP channel per key (topic = the Zenoh key), the payload bytes exactly as t
 pixels, see :mod:`common.codec`), the pydantic JSON schema of the key's model as the channel
 schema (encoding ``jsonschema``), receive time as ``log_time`` and the header's
 ``send_time_s`` as ``publish_time``; zstd-compressed chunks with a summary and indexes, so
-Foxglove Studio, the ``mcap`` CLI and :mod:`deploy.replay` can all read it.
+Foxglove Studio, the ``mcap`` CLI and :mod:`deploy.recording.replay` can all read it.
 
 Camera frames are always stored whole: a frame the sim sent by reference (a descriptor of a
 slot in its shared-memory ring, see :mod:`common.transport`) is turned back into the ordinary

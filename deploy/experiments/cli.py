@@ -1,6 +1,6 @@
 """``umay compare`` on the command line: parse, validate (exit 2, nothing launched), run with a
-progress bar, write the outputs. Kept apart from :mod:`deploy.compare` so that building the
-``umay`` parser imports nothing heavy."""
+progress bar, write the outputs. Kept apart from :mod:`deploy.experiments.compare` so that
+building the ``umay`` parser imports nothing heavy."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import threading
 import time
 from pathlib import Path
 
-from deploy.compare import ALL_MODES
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
+from deploy.experiments.compare import ALL_MODES
 
-DEFAULT_SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios" / "suite"
+DEFAULT_SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios" / "suite"
 # Relative difference allowed by default between float results and --reference's: lockstep runs
 # repeat bit for bit on one machine, but another CPU's BLAS/LAPACK kernels round the last bits
 # differently and a hundred frames of closed loop carry that into later digits (1.9e-5 at most
@@ -81,7 +81,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
 
     from common.config import ScenarioError
-    from deploy.compare import (
+    from deploy.experiments.compare import (
         CompareError,
         CompareRow,
         Job,
@@ -192,7 +192,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 # --- umay campaign ---------------------------------------------------------------------------
 def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
     """The ``campaign`` subcommand: random starts, every strategy, a failure taxonomy."""
-    from deploy.campaign import DEFAULT_DISTRIBUTION
+    from deploy.experiments.campaign import DEFAULT_DISTRIBUTION
 
     p = sub.add_parser(
         "campaign",
@@ -218,8 +218,20 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     interrupted."""
     from rich.console import Console
 
-    from deploy.campaign import failure_cause, plan_campaign, run_campaign, write_campaign
-    from deploy.compare import CompareError, CompareRow, Job, format_cell, make_figures, parse_modes
+    from deploy.experiments.campaign import (
+        failure_cause,
+        plan_campaign,
+        run_campaign,
+        write_campaign,
+    )
+    from deploy.experiments.compare import (
+        CompareError,
+        CompareRow,
+        Job,
+        format_cell,
+        make_figures,
+        parse_modes,
+    )
     from deploy.paths import OutputPathError, check_output_dir
 
     console = Console(stderr=True)
