@@ -205,7 +205,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     from deploy.foxglove.export import export_foxglove
-    from deploy.recording.record import NotARecordingError
+    from deploy.recording.read import NotARecordingError
 
     if not Path(args.file).is_file():
         print(f"umay export: {args.file}: no such file", file=sys.stderr)
@@ -234,7 +234,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_plot(args: argparse.Namespace) -> int:
     from deploy.recording.plots import plot_recording
-    from deploy.recording.record import NotARecordingError
+    from deploy.recording.read import NotARecordingError
 
     path = Path(args.file)
     if not path.is_file():
@@ -391,7 +391,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from deploy.recording.record import NotARecordingError, format_info, read_info
+    from deploy.recording.read import NotARecordingError, format_info, read_info
 
     try:
         info = read_info(args.file)

@@ -21,7 +21,7 @@ from common.messages import (
     SimTruth,
 )
 from deploy.recording.plots import load_series, plot_recording
-from deploy.recording.record import NotARecordingError
+from deploy.recording.read import NotARecordingError
 
 PREFIX = "umay/test"
 K = CameraIntrinsics.from_fov(640, 480, 57.0)

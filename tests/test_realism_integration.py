@@ -23,7 +23,7 @@ from common.transport import free_tcp_endpoint, open_session
 from deploy.experiments.compare import rows_from_json
 from deploy.launch.run import run_once
 from deploy.launch.status import collect
-from deploy.recording.record import iter_messages
+from deploy.recording.read import iter_messages
 from tests.test_compare import MODES, RUN_TIMEOUT_S, UMAY
 from tests.test_integration import umay_run
 

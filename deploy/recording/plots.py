@@ -41,7 +41,8 @@ from common.messages import (
     EndEffectorTwist,
     Features,
 )
-from deploy.recording.record import DATA_SUFFIXES, RecordingReader
+from deploy.recording.channels import DATA_SUFFIXES
+from deploy.recording.read import RecordingReader
 
 log = logging.getLogger(__name__)
 
