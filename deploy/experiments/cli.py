@@ -309,11 +309,8 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     if args.json:
         check_output_file("--json", args.json)
-    from deploy.experiments.accuracy import (
-        default_conditions,
-        evaluate,
-        format_table,
-    )  # loads pybullet
+    # Imported only now: it loads pybullet.
+    from deploy.experiments.accuracy import default_conditions, evaluate, format_table
 
     conditions = default_conditions(args.seed)
     with Progress(transient=True) as bar:
