@@ -110,7 +110,7 @@ from common.transport import (
     query_status,
     typed_publisher,
 )
-from deploy.supervisor import Supervisor
+from deploy.launch.supervisor import Supervisor
 
 STAGES: tuple[str, ...] = (
     "render",

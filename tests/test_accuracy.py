@@ -1,5 +1,6 @@
 """Vision against the simulator's ground truth under the sensor conditions of the Kinect model
-(deploy/accuracy.py, ``umay accuracy``): a small sample here; docs/vision.md reports a large one."""
+(deploy/experiments/accuracy.py, ``umay accuracy``): a small sample here; docs/vision.md reports
+a large one."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from common.config import load_scenario
-from deploy.accuracy import default_conditions, evaluate, format_table
+from deploy.experiments.accuracy import default_conditions, evaluate, format_table
 
 
 def test_vision_accuracy_under_sensor_conditions() -> None:

@@ -25,7 +25,7 @@ from deploy.bench import (
     analyse_trace,
     median_of_runs,
 )
-from deploy.plots import bench_figure
+from deploy.recording.plots import bench_figure
 
 FRAMES = 20
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.compare import (
+from deploy.experiments.compare import (
     CSV_COLUMNS,
     CompareError,
     CompareRow,
@@ -34,8 +34,8 @@ from deploy.compare import (
     summarize_modes,
     summary_markdown,
 )
-from deploy.compare_plots import write_overlay
-from deploy.plots import load_series
+from deploy.experiments.compare_plots import write_overlay
+from deploy.recording.plots import load_series
 from tests.conftest import processes_mentioning
 from tests.test_plots import PNG_SIGNATURE, write_recording
 

@@ -29,7 +29,8 @@ from common.frame_ring import RING_SLOTS, RingReader, RingWriter
 from common.keys import Keys
 from common.messages import DepthFrame, Header, ImageData, RgbFrame
 from common.transport import ENV_SHM, Node, free_tcp_endpoint, open_session, typed_publisher
-from deploy.recording import Recorder, iter_messages
+from deploy.recording.read import iter_messages
+from deploy.recording.record import Recorder
 
 K = CameraIntrinsics.from_fov(64, 48, 57.0)
 ELSEWHERE = RingReader(host="another-host/boot")  # as a subscriber on another machine maps

@@ -25,8 +25,10 @@ from common.codec import FRAME_MAX_BYTES, decode, encode, is_by_reference
 from common.keys import Keys
 from common.messages import Header, JointState
 from common.transport import free_tcp_endpoint, open_session
-from deploy.recording import Recorder, iter_messages, model_for_key, read_info
-from deploy.replay import compare_messages
+from deploy.recording.channels import model_for_key
+from deploy.recording.read import iter_messages, read_info
+from deploy.recording.record import Recorder
+from deploy.recording.replay import compare_messages
 
 UMAY = [sys.executable, "-m", "deploy"]
 REFERENCE = Path(__file__).resolve().parent / "data" / "reference.mcap"

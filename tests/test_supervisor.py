@@ -21,8 +21,8 @@ from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
 from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
 from common.transport import Node, free_tcp_endpoint, open_session
-from deploy.status import collect
-from deploy.supervisor import Heard, Supervisor, backoff_s, hang_reason, wants_restart
+from deploy.launch.status import collect
+from deploy.launch.supervisor import Heard, Supervisor, backoff_s, hang_reason, wants_restart
 from tests.conftest import launch_umay_up, processes_mentioning
 
 
@@ -346,7 +346,7 @@ def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path:
     code = (
         "from pathlib import Path\n"
         "from common.config import load_scenario\n"
-        "from deploy.run import run_once\n"
+        "from deploy.launch.run import run_once\n"
         f"run_once(None, load_scenario(), [], 'test/{tmp_path.name}', "
         f"Path({str(tmp_path / 'file' / 'logs')!r}), listen='{free_tcp_endpoint()}', quiet=True)\n"
     )

@@ -25,9 +25,9 @@ from common.keys import Keys
 from common.messages import EndEffectorTwist, SimTruth
 from common.runtime import parse_overrides
 from common.transport import DEFAULT_ENDPOINT, free_tcp_endpoint, open_session
-from deploy.evaluate import RunResult, pose, summarize
-from deploy.reachability import check_scenario
-from deploy.supervisor import Supervisor
+from deploy.experiments.evaluate import RunResult, pose, summarize
+from deploy.experiments.reachability import check_scenario
+from deploy.launch.supervisor import Supervisor
 from services.controller.ibvs import ACQUIRING, ACQUISITION_FAILED
 
 M = TypeVar("M", bound=BaseModel)
@@ -156,7 +156,7 @@ def run_once(
 ) -> RunResult:
     """Launch the four services, servo until converged or timeout, stop them, judge the run.
 
-    ``record``: write every data message of the run to this MCAP file (see deploy.recording).
+    ``record``: write every data message of the run to this MCAP file (see deploy.recording.record).
     ``stop``: set from another thread to end the run early (reason "error", detail
     "interrupted"); the services are stopped as after any run.
     """
@@ -170,7 +170,7 @@ def run_once(
     session = open_session(connect=[], listen=[endpoint])
     recorder = None
     if record is not None:
-        from deploy.recording import Recorder, run_metadata
+        from deploy.recording.record import Recorder, run_metadata
 
         metadata = run_metadata(scenario_path, overrides, prefix)
         recorder = Recorder(record, session, keys, metadata=metadata)
