@@ -36,12 +36,12 @@ from common.messages import (
     JointVelocityCommand,
     RgbFrame,
     SimTiming,
-    SimTruth,
 )
 from common.runtime import ServiceContext
 from common.transport import ENV_SHM, Node, TypedPublisher, alive_services
 from services.sim.motors import motor_velocities
 from services.sim.schedule import DepthSchedule, substeps_per_frame
+from services.sim.truth import truth_message
 from services.sim.world import World
 
 log = logging.getLogger("umay.sim")
@@ -162,18 +162,9 @@ class SimService:
         self.pub_rgb.put(rgb_message)
         messages.append((self.pub_rgb, rgb_message))
         # Ground truth (evaluation only) after the frame, off the loop's critical path.
-        truth = self.world.truth()
-        truth_message = SimTruth(
-            header=header,
-            hand_marker_pose=truth.hand_marker_pose.reshape(-1).tolist(),
-            target_marker_pose=truth.target_marker_pose.reshape(-1).tolist(),
-            hand_corners_px=truth.hand_corners_px.tolist(),
-            target_corners_px=truth.target_corners_px.tolist(),
-            ee_position_m=truth.ee_position_m.tolist(),
-            joint_position_rad=q.tolist(),
-        )
-        self.pub_truth.put(truth_message)
-        messages.append((self.pub_truth, truth_message))
+        truth = truth_message(self.world.truth(), header, q)
+        self.pub_truth.put(truth)
+        messages.append((self.pub_truth, truth))
         self._last_frame = messages
         # After the frame, off its path: how it was made and the commands applied before it.
         self.pub_timing.put(

@@ -1,0 +1,55 @@
+"""``umay run --inprocess``: a whole lockstep run in this process, no services, no Zenoh.
+
+The loop is :class:`services.pipeline.Pipeline` (the services' pure steps composed as the
+lockstep run chains them), the end of the run and its result are :mod:`deploy.run_end` (the
+logic ``umay run`` uses), so a run here ends on the same frame, for the same reason, with the
+same result as ``umay run --clock lockstep``; only the wall-clock fields differ. Made to be
+called many times in one process (domain studies): each run opens one world and closes it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+from common.config import ClockMode, Scenario
+from common.messages import EndEffectorTwist, SimTruth
+from deploy.evaluate import RunResult
+from deploy.run_end import EndLimits, HoldState, RunEnd, judge_twist, run_result
+from services.pipeline import Pipeline
+
+log = logging.getLogger("umay.run")
+
+
+def run_scenario_inprocess(scenario: Scenario, stop: threading.Event | None = None) -> RunResult:
+    """Servo ``scenario`` (lockstep clock) until the run ends; its result. ``stop``: set from
+    another thread to end the run early (reason "error", detail "interrupted"). An exception
+    in the loop ends the run as "error" naming it, as a service's exit ends ``umay run``."""
+    if scenario.run.clock is not ClockMode.LOCKSTEP:
+        raise ValueError("an in-process run is lockstep: set run.clock = 'lockstep'")
+    started = time.monotonic()
+    limits = EndLimits.of(scenario)
+    truths: dict[int, SimTruth] = {}
+    twists: dict[int, EndEffectorTwist] = {}
+    hold = HoldState()
+    end: RunEnd | None = None
+    reason, detail = "error", ""
+    try:
+        with Pipeline(scenario) as pipeline:
+            while end is None:
+                if stop is not None and stop.is_set():
+                    detail = "interrupted"
+                    break
+                frame = pipeline.step()
+                assert frame.truth is not None
+                truths[frame.frame_seq] = frame.truth
+                twists[frame.frame_seq] = frame.twist
+                hold, end = judge_twist(limits, hold, frame.twist)
+    except Exception as exc:  # the run's result says what failed, as for a service's exit
+        log.exception("in-process run of %s failed", scenario.name)
+        if end is None:  # else the run had ended: its verdict stands
+            detail = f"in-process run failed: {type(exc).__name__}: {exc}"
+    if end is not None:
+        reason, detail = end.reason, end.detail
+    return run_result(scenario, reason, detail, end, truths, twists, time.monotonic() - started)
