@@ -9,13 +9,16 @@ called many times in one process (domain studies): each run opens one world and 
 
 from __future__ import annotations
 
+import argparse
 import logging
+import sys
 import threading
 import time
 
 from common.config import ClockMode, Scenario
 from common.messages import EndEffectorTwist, SimTruth
 from deploy.evaluate import RunResult
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_CONVERGED, EXIT_NOT_CONVERGED
 from deploy.run_end import EndLimits, HoldState, RunEnd, judge_twist, run_result
 from services.pipeline import Pipeline
 
@@ -53,3 +56,40 @@ def run_scenario_inprocess(scenario: Scenario, stop: threading.Event | None = No
     if end is not None:
         reason, detail = end.reason, end.detail
     return run_result(scenario, reason, detail, end, truths, twists, time.monotonic() - started)
+
+
+def cmd_run_inprocess(args: argparse.Namespace, scenario: Scenario) -> int:
+    """``umay run --inprocess`` after the scenario was validated: the same report, result JSON
+    and exit codes as ``umay run``. Options that need the services are refused."""
+    from rich.console import Console
+
+    from deploy.paths import check_output_file
+    from deploy.run import format_result, result_table, write_result
+
+    refused = [
+        option
+        for option, given in (
+            ("--record", args.record),
+            ("--plot", args.plot),
+            ("--view", args.view),
+        )
+        if given
+    ]
+    if scenario.run.clock is not ClockMode.LOCKSTEP:
+        refused.append("--clock realtime")
+    if refused:
+        print(
+            f"umay run: --inprocess runs lockstep without services: not with {', '.join(refused)}",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
+    if args.result:
+        check_output_file("--result", args.result)
+    result = run_scenario_inprocess(scenario)  # Ctrl-C: the world is closed on the way out
+    if args.quiet:
+        print(format_result(result))
+    else:
+        Console().print(result_table(result))
+    if args.result:
+        write_result(result, args.result)
+    return EXIT_CONVERGED if result.converged else EXIT_NOT_CONVERGED
