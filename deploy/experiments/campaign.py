@@ -329,7 +329,7 @@ def close_at_end(row: CompareRow) -> bool:
 
 
 def waited_for(detail: str) -> str:
-    """``hand partial`` out of a stuck run's detail (see deploy.launch.run.stuck_detail)."""
+    """``hand partial`` out of a stuck run's detail (see deploy.launch.run_end.stuck_detail)."""
     head = "waiting for: "
     if head not in detail:
         return detail or "?"

@@ -76,10 +76,16 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     from deploy.launch.run import format_result, result_table, run_once, write_result
 
+    if args.inprocess:
+        args.clock = args.clock or "lockstep"  # an in-process run is lockstep
     validated = _validated(args, "run")
     if validated is None:
         return EXIT_BAD_INPUT
     overrides, scenario = validated
+    if args.inprocess:
+        from deploy.launch.run_inprocess import cmd_run_inprocess
+
+        return cmd_run_inprocess(args, scenario)
     record = Path(args.record) if args.record else None
     if args.result:
         check_output_file("--result", args.result)
@@ -291,6 +297,9 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no live progress line")
     p.add_argument("--plot", default=None, metavar="DIR", help="write the run's figures here")
     p.add_argument("--record", default=None, metavar="OUT.mcap", help="record the run to MCAP")
+    p.add_argument(
+        "--inprocess", action="store_true", help="lockstep in this process: no services, no Zenoh"
+    )
     _view_options(p)
     p.set_defaults(func=cmd_run)
 
