@@ -672,6 +672,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_compare_parser(sub)  # umay compare: every strategy on every scenario of a suite
     add_campaign_parser(sub)  # umay campaign: every strategy from random starts
+    from deploy.experiments.domains_cli import add_domains_parser
+
+    add_domains_parser(sub)  # umay domains: convergence domains over large displacements
 
     p = sub.add_parser("router", help="run a Zenoh router (multi-host setups)")
     p.add_argument(
