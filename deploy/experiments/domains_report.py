@@ -238,8 +238,7 @@ def write_heatmaps(study: Study, out_dir: Path) -> list[Path]:
             else:
                 label = "refused" if c.refused else ""
             ax.text(j, i, label, ha="center", va="center", fontsize=6.5)
-        cmap = matplotlib.colormaps["RdYlGn"].copy()
-        cmap.set_bad("0.85")
+        cmap = matplotlib.colormaps["RdYlGn"].with_extremes(bad="0.85")
         image = ax.imshow(np.ma.masked_invalid(rates), cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
         ax.set_xticks(range(len(d.rotations_deg)), [f"{r:g}" for r in d.rotations_deg])
         ax.set_yticks(range(len(d.distances_m)), [f"{100 * x:g}" for x in d.distances_m])
@@ -311,3 +310,38 @@ def report_markdown(study: Study, figures: Sequence[str], recordings: dict[str, 
         for r in failures
     ] or ["None."]
     return "\n".join(parts) + "\n"
+
+
+def verdict_markdown(study: Study) -> str:
+    """What the evidence favours, and where, as sentences built from the study's numbers: per
+    strategy its success and largest rotation at the fixed distance and its commonest failure
+    cause; per rotation band the strategy with the highest success (ties named together)."""
+    d = study.study
+    lines = []
+    for mode in study_modes(study):
+        mine = [r for r in study.runs if r.mode == mode]
+        ok = sum(r.outcome == "converged" for r in mine)
+        largest = largest_rotation_deg(study, mode)
+        failures = Counter(cause_family(r.cause) for r in mine if r.outcome != "converged")
+        worst = ", ".join(f"{c} ({n})" for c, n in failures.most_common(2)) or "none"
+        reach = "no rotation" if largest is None else f"up to {largest:g}°"
+        lines.append(
+            f"- **{mode}**: {_rate(ok, len(mine))} on goal; in ≥ {100 * d.success_goal:.0f}% of "
+            f"draws at {100 * d.fixed_distance_m:g} cm: {reach}; commonest failures: {worst}."
+        )
+    pairs = runs_with_starts(study)
+    for lo, hi in rotation_bands(d.rotations_deg):
+        rates = {}
+        for mode in study_modes(study):
+            mine = [r for s, r in pairs if r.mode == mode and _in_band(s.rotation_deg, lo, hi)]
+            if mine:
+                rates[mode] = sum(r.outcome == "converged" for r in mine) / len(mine)
+        if not rates:
+            lines.append(f"- Rotations {lo:g}–{hi:g}°: no start could be run.")
+            continue
+        best = max(rates.values())
+        leaders = [m for m, v in rates.items() if round(v, 3) == round(best, 3)]
+        lines.append(
+            f"- Rotations {lo:g}–{hi:g}°: best {', '.join(leaders)} ({100 * best:.0f}% on goal)."
+        )
+    return "\n".join(lines)
