@@ -7,7 +7,8 @@ line of sight × depth change along it), the draws per cell and the seed. Draw `
 same grid and the same starts whatever the grid's size or the order the runs are scheduled
 in. A start no motion can reach or the camera cannot see is refused with its reason (the
 checks of :mod:`~deploy.experiments.campaign` and :mod:`~deploy.experiments.reachability`);
-every other start is run with every strategy (:class:`RunTask`, a plain picklable value any executor can ship).
+every other start is run with every strategy (:class:`RunTask`, a plain picklable value any
+executor can ship).
 
 Every run is judged into one :class:`DomainRecord` with one named cause
 (:func:`deploy.experiments.campaign.failure_cause`).

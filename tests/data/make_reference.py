@@ -1,6 +1,6 @@
-"""Regenerate ``tests/data/reference.mcap``, the recording ``tests/test_recording.py`` replays
-into vision and controller (``umay replay --check``) as the regression check for perception and
-control changes.
+"""Regenerate ``tests/data/reference.mcap``, the recording
+``tests/integration/test_recording.py`` replays into vision and controller (``umay replay
+--check``) as the regression check for perception and control changes.
 
 Regenerate it (from the repository root) when a change to vision or the controller is *meant*
 to change their output, or when the scenario schema changes so that the recorded scenario no

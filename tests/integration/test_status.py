@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from common.keys import SERVICES, Keys
-from common.transport import check_endpoints, free_tcp_endpoint, open_session
+from common.transport import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
 from deploy.launch.supervisor import Supervisor
 from tests.conftest import launch_umay_up
@@ -151,14 +151,6 @@ def test_a_bad_prefix_is_refused_by_name(prefix: str, reason: str) -> None:
         assert reason in proc.stderr and "Traceback" not in proc.stderr
 
 
-def test_endpoints_are_checked_by_zenohs_parser() -> None:
-    assert check_endpoints("tcp/127.0.0.1:7447") == ["tcp/127.0.0.1:7447"]
-    assert check_endpoints("tcp/a:1, udp/b:2") == ["tcp/a:1", "udp/b:2"]
-    for bad, named in (("foo", "'foo'"), ("tcp/a:1,,tcp/b:2", "''"), ("", "''")):
-        with pytest.raises(ValueError, match=f"invalid endpoint {named}: expected <protocol>/"):
-            check_endpoints(bad)
-
-
 @pytest.mark.parametrize(
     "args, message",
     [
@@ -182,7 +174,7 @@ def test_bad_endpoints_and_durations_are_refused_by_name(
         text=True,
         timeout=30,
         cwd=tmp_path,
-        env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])},
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[2])},
     )
     assert proc.returncode == 2, proc.stderr
     assert message in proc.stderr and "Traceback" not in proc.stderr
@@ -200,8 +192,3 @@ def test_a_session_that_cannot_open_is_reported_without_a_traceback() -> None:
     assert proc.returncode == 1, proc.stderr
     assert "umay status: Zenoh: Unicast not supported for nolink protocol" in proc.stderr
     assert "Traceback" not in proc.stderr
-
-
-def test_good_prefixes_pass() -> None:
-    for prefix in ("umay/umay1", "test/3f2a9c", "robot-2/arm_left"):
-        assert Keys(prefix).twist == f"{prefix}/controller/twist"

@@ -16,25 +16,13 @@ import pytest
 from zenoh import SampleKind
 
 from common.codec import encode
-from common.config import RestartPolicy, SupervisorConfig
+from common.config import SupervisorConfig
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
-from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
 from common.transport import Node, free_tcp_endpoint, open_session
 from deploy.launch.status import collect
-from deploy.launch.supervisor import Heard, Supervisor, backoff_s, hang_reason, wants_restart
+from deploy.launch.supervisor import Supervisor
 from tests.conftest import launch_umay_up, processes_mentioning
-
-
-def test_restart_policy_and_backoff() -> None:
-    assert wants_restart(RestartPolicy.ALWAYS, 0)
-    assert wants_restart(RestartPolicy.ON_FAILURE, 1) and wants_restart(
-        RestartPolicy.ON_FAILURE, -9
-    )
-    assert not wants_restart(RestartPolicy.ON_FAILURE, 0)
-    assert not wants_restart(RestartPolicy.NEVER, -9)
-    cfg = SupervisorConfig(backoff_initial_s=0.1, backoff_max_s=1.0)
-    assert [backoff_s(n, cfg) for n in range(6)] == [0.1, 0.2, 0.4, 0.8, 1.0, 1.0]
 
 
 def test_tick_restarts_with_a_cap(tmp_path: Path) -> None:
@@ -76,19 +64,6 @@ def test_the_frame_ring_of_a_child_killed_outright_is_removed(tmp_path: Path) ->
     assert segment.startswith(f"umay-frames-{pid}-")
     assert not (Path("/dev/shm") / segment).exists()
     assert child.exit_codes == [-9]
-
-
-def test_hang_reason_judges_only_a_child_that_has_answered() -> None:
-    assert hang_reason(None, 0.0, 100.0, 5.0) is None  # never answered: still starting
-    idle = Heard(pid=1, at_s=10.0, loop_busy_s=0.0)
-    assert hang_reason(idle, None, 11.0, 5.0) is None
-    assert hang_reason(idle, 11.0, 15.9, 5.0) is None  # one query unanswered for 4.9 s
-    assert hang_reason(idle, 11.0, 16.5, 5.0) == "no status answer for 5.5 s"
-    assert hang_reason(idle, 11.0, 16.5, 0.0) is None  # 0: hang checks off
-    stuck = Heard(pid=1, at_s=10.0, loop_busy_s=6.25)
-    assert hang_reason(stuck, None, 10.1, 5.0) == "event loop stuck in one step for 6.2 s"
-    assert hang_reason(Heard(1, 10.0, 4.0), None, 10.1, 5.0) is None  # a long step, not a hang
-    assert hang_reason(Heard(1, 10.0, None), None, 10.1, 5.0) is None  # loop not started
 
 
 def test_a_child_stuck_in_one_step_is_killed_and_its_run_says_why(tmp_path: Path) -> None:
@@ -284,13 +259,6 @@ def _alive(pid: int) -> bool:
             return f.read().split(")")[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
-
-
-def test_supervisor_pid_is_read_only_when_it_is_a_pid() -> None:
-    assert supervisor_pid({ENV_SUPERVISOR_PID: "4242"}) == 4242
-    for value in ("", "abc", "-5", "1", "0"):  # 1: init, never a supervisor
-        assert supervisor_pid({ENV_SUPERVISOR_PID: value}) is None
-    assert supervisor_pid({}) is None
 
 
 def _umay_run_until_services_run(tmp_path: Path) -> tuple[subprocess.Popen, list[int]]:

@@ -3,10 +3,7 @@ distributed lockstep run."""
 
 from __future__ import annotations
 
-import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +13,6 @@ from common import kinematics as kin
 from common.config import ActuationConfig, load_scenario
 from common.messages import EndEffectorTwist, Header
 from common.runtime import parse_overrides
-from deploy.experiments.evaluate import RunResult
 from deploy.launch.run_end import EndLimits, HoldState, judge_twist, timeout_detail
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from services.actuation.limiter import LimiterState, actuation_step
@@ -24,7 +20,7 @@ from services.pipeline import STAGES, Pipeline
 from services.sim.motors import motor_velocities
 from services.sim.schedule import DepthSchedule, substeps_per_frame
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 MOVING = "deploy/scenarios/suite/12_moving_target.toml"
 WALL_FIELDS = {"wall_time_s"}
 
@@ -172,52 +168,3 @@ def test_many_runs_in_one_process_leave_no_descriptors_or_threads_behind() -> No
         assert result.reason == "timeout" and result.frames == 4
         counts.append((open_fds(), threading.active_count()))
     assert counts[-1] == counts[1], counts  # the first run may open lasting caches
-
-
-def distributed(tmp_path: Path, name: str, *options: str) -> RunResult:
-    out = tmp_path / f"{name}.json"
-    argv = [sys.executable, "-m", "deploy", "run", "--clock", "lockstep", "--quiet"]
-    argv += [*options, "--result", str(out), "--log-dir", str(tmp_path / "logs")]
-    proc = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=600)
-    assert proc.returncode in (0, 1), proc.stderr
-    return RunResult.model_validate_json(out.read_text())
-
-
-def same_run(a: RunResult, b: RunResult) -> None:
-    left, right = a.model_dump(exclude=WALL_FIELDS), b.model_dump(exclude=WALL_FIELDS)
-    assert left == right  # the float fields to the last bit
-
-
-@pytest.mark.parametrize(
-    "scenario_path, overrides",
-    [(None, ()), (MOVING, ()), (None, ("run.timeout_s=0.5",))],
-    ids=["default", "moving_target", "timeout"],
-)
-def test_the_inprocess_run_is_the_distributed_lockstep_run(
-    tmp_path: Path, scenario_path: str | None, overrides: tuple[str, ...]
-) -> None:
-    options = ["--scenario", scenario_path] if scenario_path else []
-    for o in overrides:
-        options += ["--set", o]
-    reference = distributed(tmp_path, "distributed", *options)
-    inprocess = run_scenario_inprocess(short(scenario_path, *overrides))
-    same_run(inprocess, reference)
-    expected = "timeout" if overrides else "converged"
-    assert inprocess.reason == expected and inprocess.frames > 0
-
-
-def test_umay_run_inprocess_writes_the_same_result_and_exit_code(tmp_path: Path) -> None:
-    out = tmp_path / "r.json"
-    argv = [sys.executable, "-m", "deploy", "run", "--inprocess", "--quiet", "--result", str(out)]
-    proc = subprocess.run(
-        [*argv, "--set", "run.timeout_s=0.3"], cwd=REPO, capture_output=True, text=True,
-        timeout=600,
-    )  # fmt: skip
-    assert proc.returncode == 1, proc.stderr  # not converged
-    written = json.loads(out.read_text())
-    assert written["reason"] == "timeout" and "frames" in proc.stdout
-    same_run(RunResult(**written), run_scenario_inprocess(short(None, "run.timeout_s=0.3")))
-    refused = subprocess.run(
-        [*argv, "--clock", "realtime"], cwd=REPO, capture_output=True, text=True, timeout=600
-    )
-    assert refused.returncode == 2 and "--inprocess" in refused.stderr

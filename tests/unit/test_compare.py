@@ -1,17 +1,11 @@
-"""``umay compare``: the pure core on synthetic rows, bad input, Ctrl-C, and a small real
-comparison (2 scenarios × every strategy at 320×240) whose outputs must be complete and
-consistent."""
+"""``umay compare``'s pure core on synthetic rows: the CSV and JSON, the summary, differences
+against a reference, the plan of runs, the overlay figure."""
 
 from __future__ import annotations
 
 import csv
 import io
-import json
 import shutil
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -36,18 +30,14 @@ from deploy.experiments.compare import (
 )
 from deploy.experiments.compare_plots import write_overlay
 from deploy.recording.plots import load_series
-from tests.conftest import processes_mentioning
-from tests.test_plots import PNG_SIGNATURE, write_recording
+from tests.unit.test_plots import PNG_SIGNATURE, write_recording
 
-UMAY = [sys.executable, "-m", "deploy"]
-SUITE = Path(__file__).resolve().parent.parent / "deploy" / "scenarios" / "suite"
+SUITE = Path(__file__).resolve().parents[2] / "deploy" / "scenarios" / "suite"
 MODES = ("constant", "dynamic", "pmj", "mpj", "points3d")
 # The CI comparison: the baseline and the moving target (so the tracking columns are filled),
 # at 320×240 and with short timeouts; about 2 minutes on 2 cores.
 SMALL_SUITE = ("01_baseline.toml", "12_moving_target.toml")
 CHEAP = ["camera.width_px=320", "camera.height_px=240", "run.timeout_s=12.0"]
-CHEAP_ARGS = [a for item in CHEAP for a in ("--set", item)]
-RUN_TIMEOUT_S = 1200
 
 
 def rows_from_csv(text: str) -> list[CompareRow]:
@@ -269,102 +259,3 @@ def test_overlay_figure_is_a_png(tmp_path: Path) -> None:
     path = write_overlay(series, tmp_path / "overlay.png", 0.25, title="two strategies")
     assert path is not None and path.read_bytes()[:8] == PNG_SIGNATURE
     assert write_overlay({}, tmp_path / "none.png") is None
-
-
-# --- command line ---------------------------------------------------------------------------
-@pytest.mark.parametrize(
-    ("args", "message"),
-    [
-        (["--modes", "dynamic", "warp"], "unknown strategy 'warp'"),
-        (["--scenarios", "/nonexistent/suite"], "no such directory"),
-        (["--jobs", "0"], "--jobs"),
-        (["--tolerance", "-1e-4"], "--tolerance"),
-        (["--tolerance", "nan"], "--tolerance"),
-        (["--set", "controller.gain=-3"], "controller.gain"),
-        (["--out", "/proc/no-such-dir/out"], "--out /proc/no-such-dir/out: cannot write"),
-    ],
-)
-def test_bad_input_exits_2_naming_it_and_launches_nothing(
-    tmp_path: Path, args: list[str], message: str
-) -> None:
-    out = tmp_path / "out"
-    started = time.monotonic()
-    proc = subprocess.run(
-        [*UMAY, "compare", "--out", str(out), *args], capture_output=True, text=True, timeout=120
-    )
-    assert proc.returncode == 2, proc.stderr
-    assert message in proc.stderr
-    assert not out.exists()  # nothing written, nothing launched
-    assert time.monotonic() - started < 60
-
-
-def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:
-    folder = _suite_copy(tmp_path, ("01_baseline.toml",))
-    out = tmp_path / "out"
-    args = ["--scenarios", str(folder), "--modes", "dynamic", "mpj", "--jobs", "2"]
-    # Runs that cannot end before the interrupt: a threshold they never reach, a long timeout
-    # (a converging run took 8.6 s, less than the pipelines took to show up on a loaded CI).
-    never_done = ["--set", "controller.converged_px=0.0001", "--set", "run.timeout_s=600"]
-    proc = subprocess.Popen(
-        [*UMAY, "compare", *args, "--out", str(out), *CHEAP_ARGS, *never_done],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        deadline = time.monotonic() + 120
-        while len(processes_mentioning(str(folder))) < 8 and time.monotonic() < deadline:
-            time.sleep(0.2)  # two pipelines of four services each
-        assert len(processes_mentioning(str(folder))) >= 8, "the pipelines never started"
-        time.sleep(2.0)
-        proc.send_signal(signal.SIGINT)
-        _, stderr = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 130, stderr
-    assert "interrupted" in stderr
-    assert processes_mentioning(str(folder)) == []
-    assert not (out / "results.csv").exists()
-
-
-# --- a small real comparison ----------------------------------------------------------------
-def test_small_comparison_outputs_are_complete_and_consistent(tmp_path: Path) -> None:
-    folder = _suite_copy(tmp_path, SMALL_SUITE)
-    out = tmp_path / "out"
-    started = time.monotonic()
-    args = ["--scenarios", str(folder), "--jobs", "2", "--out", str(out), *CHEAP_ARGS]
-    proc = subprocess.run(
-        [*UMAY, "compare", *args],
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-    )
-    print(f"\nsmall comparison: {time.monotonic() - started:.0f} s\n{proc.stderr[-3000:]}")
-    assert proc.returncode == 0, proc.stderr
-
-    rows = rows_from_csv((out / "results.csv").read_text())
-    assert rows == rows_from_json((out / "results.json").read_text())
-    assert [(r.scenario, r.mode) for r in rows] == [
-        (s, m) for s in ("baseline", "moving_target") for m in MODES
-    ]
-    for r in rows:
-        assert r.clock == "lockstep" and r.frames > 0 and r.final_position_error_m is not None
-        assert r.moving_target == (r.scenario == "moving_target")
-        assert (r.tracking_position_error_m is not None) == r.moving_target
-        assert r.reason in ("converged", "timeout"), r
-        assert r.on_goal == (r.converged and r.final_position_error_m <= 0.005)
-
-    summary = (out / "summary.md").read_text()
-    for s in summarize_modes(rows, MODES):
-        assert f"| {s.mode} | {s.converged}/{s.runs} | {s.on_goal}/{s.runs} |" in summary
-        assert s.runs == 2
-    assert summary.count("\n| baseline | ") == len(MODES)
-
-    for mode in MODES:
-        for name in ("image_trajectory.png", "ee_velocity.png"):
-            path = out / "figures" / mode / name
-            assert path.read_bytes()[:8] == PNG_SIGNATURE, path
-    assert (out / "figures" / "overlay.png").read_bytes()[:8] == PNG_SIGNATURE
-    assert "figures/overlay.png" in summary
-    json.loads((out / "results.json").read_text())  # plain JSON, not only pydantic's

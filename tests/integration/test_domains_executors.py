@@ -14,7 +14,7 @@ from pathlib import Path
 from deploy.experiments.domains import DEFAULT_STUDY, DomainRecord, study_differences
 from tests.domains_fakes import KILL_DIR_ENV
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 BASE_SCENARIO = (DEFAULT_STUDY.parent / "../scenarios/suite/01_baseline.toml").resolve()
 
 

@@ -15,7 +15,7 @@ from services.vision.measurement import measure_markers
 from services.vision.occlusion import hidden_behind, occluder_fraction
 from services.vision.quad import order_corners
 from services.vision.tracking import DepthImage, TrackerState, observe
-from tests.test_vision_features import (
+from tests.unit.test_vision_features import (
     GREEN,
     RED,
     SHAPE,

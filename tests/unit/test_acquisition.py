@@ -9,7 +9,7 @@ from common.camera import CameraIntrinsics, project
 from common.config import ControllerConfig
 from services.controller import acquisition as acq
 from services.controller.ibvs import ACQUISITION_FAILED, IbvsController, MarkerObservation
-from tests.test_ibvs import moved, not_seen, observe, square_points
+from tests.unit.test_ibvs import moved, not_seen, observe, square_points
 
 K = CameraIntrinsics.from_fov(640, 480, 57.0)
 DT_S = 1 / 30

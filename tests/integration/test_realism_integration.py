@@ -24,8 +24,9 @@ from deploy.experiments.compare import rows_from_json
 from deploy.launch.run import run_once
 from deploy.launch.status import collect
 from deploy.recording.read import iter_messages
-from tests.test_compare import MODES, RUN_TIMEOUT_S, UMAY
-from tests.test_integration import umay_run
+from tests.integration.test_compare_run import RUN_TIMEOUT_S, UMAY
+from tests.integration.test_integration import umay_run
+from tests.unit.test_compare import MODES
 
 
 def test_kinect_noise_and_depth_at_1hz_every_strategy_converges(tmp_path: Path) -> None:

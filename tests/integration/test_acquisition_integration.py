@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tests.test_integration import umay_run
+from tests.integration.test_integration import umay_run
 
 # The default target; the hand 4 cm towards the camera along its line of sight to the target
 # and 3 cm to the robot's right of its goal (deploy.experiments.suite_design.solve_start),

@@ -1,0 +1,183 @@
+"""``umay bench``'s analysis on synthetic traces: stages, hops, drops, the figure and the
+medians of runs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytest
+
+from common.codec import encode
+from common.messages import AppliedCommand, Header, PublishedStamps, SimTiming
+from deploy.bench import (
+    LATENCY_STAGES,
+    HopStamp,
+    Trace,
+    analyse_trace,
+    median_of_runs,
+)
+from deploy.recording.plots import bench_figure
+
+
+def header(seq: int, send: float, recv: float = 0.0) -> Header:
+    return Header(seq=seq, sim_time_s=seq / 30, send_time_s=send, frame_seq=seq, recv_time_s=recv)
+
+
+def test_stages_add_up_to_the_latency_and_missing_answers_count_as_drops() -> None:
+    trace = Trace()
+    for k in range(4):
+        t0 = 1000.0 + k
+        applied = []
+        if k > 0:  # frame k reports the command of frame k-1 as applied
+            applied = [
+                AppliedCommand(
+                    frame_seq=k - 1,
+                    send_time_s=t0 - 1 + 0.120,
+                    recv_time_s=t0 - 1 + 0.121,
+                    applied_time_s=t0 - 1 + 0.122,
+                )
+            ]
+        trace.timings[k] = SimTiming(
+            header=header(k, t0 + 0.2),
+            render_start_s=t0,
+            capture_time_s=t0 + 0.1,
+            frame_send_time_s=t0 + 0.101,
+            with_depth=True,
+            applied=applied,
+        )
+        for a in applied:
+            trace.applied[a.frame_seq] = a
+        if k == 2:
+            continue  # vision never answered frame 2
+        trace.features[k] = HopStamp(recv_time_s=t0 + 0.102, send_time_s=t0 + 0.110)
+        trace.twists[k] = HopStamp(recv_time_s=t0 + 0.111, send_time_s=t0 + 0.115)
+        trace.commands[k] = HopStamp(recv_time_s=t0 + 0.116, send_time_s=t0 + 0.120)
+    r = analyse_trace(trace, [0, 1, 2])
+    assert r["frames"] == 3 and r["frames_complete"] == 2
+    assert r["dropped"]["vision"] == 1
+    assert r["dropped"]["controller"] == r["dropped"]["actuation"] == r["dropped"]["apply"] == 0
+    assert r["stages_ms"]["render"]["p50"] == pytest.approx(100.0)
+    assert r["stages_ms"]["vision"]["p50"] == pytest.approx(8.0)
+    assert r["latency_ms"]["p50"] == pytest.approx(22.0)
+    assert [row["frame_seq"] for row in r["frames_ms"]] == [0, 1]  # the complete ones
+    assert all(row["latency_ms"] == pytest.approx(22.0) for row in r["frames_ms"])
+    assert r["frames_over_goal"] == 2  # both complete frames took 22 ms, over 10
+    assert all(row["vision"] == pytest.approx(8.0) for row in r["frames_ms"])
+    # capture → colour frame sent (1 ms) → vision has it (1 ms): the frame's hand-off
+    assert r["frame_handoff_ms"]["p50"] == pytest.approx(2.0) and r["frame_handoff_ms"]["n"] == 2
+    total = sum(r["stages_ms"][s]["mean"] for s in LATENCY_STAGES)
+    assert total == pytest.approx(r["latency_ms"]["mean"], abs=1e-3)
+
+
+def test_the_services_stamps_fill_the_hops_first_message_per_frame() -> None:
+    """A service's stamps go to the hop of their key; a frame's first message counts (a lockstep
+    resend answers the same frame again), and stamps of no frame (-1) or of other keys none."""
+    trace = Trace()
+    trace.add_stamps(
+        PublishedStamps(
+            service="vision",
+            stamps={
+                "vision/features": [(3, 1.0, 1.5), (3, 2.0, 2.5), (-1, 3.0, 3.5), (4, 4.0, 4.5)]
+            },
+        )
+    )
+    trace.add_stamps(PublishedStamps(service="sim", stamps={"sim/rgb": [(5, 0.0, 1.0)]}))
+    trace.add_stamps(
+        PublishedStamps(
+            service="actuation",
+            stamps={"actuation/joint_command": [(3, 7.0, 7.5)]},
+        )
+    )
+    assert trace.features == {3: HopStamp(1.0, 1.5), 4: HopStamp(4.0, 4.5)}
+    assert trace.commands == {3: HopStamp(7.0, 7.5)} and trace.twists == {}
+
+
+def test_the_applied_commands_velocities_come_with_the_sims_timing() -> None:
+    """The commands the bench compares with the in-process ones are those the sim applied."""
+
+    @dataclass
+    class Payload:
+        data: bytes
+
+        def to_bytes(self) -> bytes:
+            return self.data
+
+    @dataclass
+    class Sample:  # what Trace.on_timing reads of a zenoh.Sample
+        payload: Payload
+
+    applied = [
+        AppliedCommand(
+            frame_seq=k, send_time_s=1.0, recv_time_s=1.1, applied_time_s=1.2, velocity_rad_s=v
+        )
+        for k, v in ((6, [0.1] * 6), (-1, [0.0] * 6), (7, None))
+    ]
+    trace = Trace()
+    timing = SimTiming(
+        header=header(8, 1.3),
+        render_start_s=1.0,
+        capture_time_s=1.1,
+        frame_send_time_s=1.2,
+        with_depth=True,
+        applied=applied,
+    )
+    trace.on_timing(Sample(Payload(encode(timing))))
+    assert set(trace.applied) == {6, 7} and trace.velocities == {6: [0.1] * 6}
+    trace.on_timing(Sample(Payload(b"x")))  # not a message
+    assert trace.rejected == 1
+
+
+@pytest.mark.parametrize("clock", ["lockstep", "realtime"])
+def test_the_figure_stacks_the_stages_and_shows_the_baseline_only_in_lockstep(clock) -> None:
+    row = {"latency_ms": 3.0, "render": 50.0, "publish": 1.0, "vision": 2.0}
+    result = {
+        "config": {"clock": clock, "width_px": 320, "height_px": 240, "transport": "shm"},
+        "distributed": {"frames_ms": [{"frame_seq": k, **row} for k in range(3)]},
+        "inprocess": {"frames_ms": [{"frame_seq": k, "latency_ms": 1.5} for k in range(3)]},
+        "ratio": {"p50": 2.0},
+    }
+    (ax,) = bench_figure(result).axes
+    bars = [p for c in ax.containers for p in c]
+    assert len(bars) == 3 * 2  # publish and vision per frame, not the render
+    assert max(b.get_y() + b.get_height() for b in bars) == pytest.approx(3.0)
+    assert len(ax.get_lines()) == (1 if clock == "lockstep" else 0)
+    assert ("2.00" in ax.get_title()) == (clock == "lockstep")
+    assert bench_figure({"distributed": {"frames_ms": []}, "inprocess": {}}) is None
+
+
+def test_medians_of_runs_leave_the_frame_rows_to_each_run() -> None:
+    def row(latency_ms: float, handoff_ms: float) -> dict[str, float]:
+        return {"latency_ms": latency_ms, "publish": 0.1, "frame_transport": handoff_ms - 0.1}
+
+    run = {
+        "distributed": {
+            "latency_ms": {"p50": 10.0},
+            "dropped": {"vision": 0},
+            "frames_ms": [row(9.0, 0.5), row(11.0, 0.7)],
+        },
+        "inprocess": {"per_frame_ms": {"p50": 8.0}, "frames_ms": [{}]},
+    }
+    other = {
+        "distributed": {
+            **run["distributed"],
+            "latency_ms": {"p50": 14.0},
+            "dropped": {"vision": 2},
+            "frames_ms": [row(12.0, 0.4), row(14.0, 2.0), row(7.0, 0.6)],
+        },
+        "inprocess": {**run["inprocess"], "per_frame_ms": {"p50": 6.0}},
+    }
+    m = median_of_runs([run, other])
+    assert (
+        m["distributed"]["latency_ms"]["p50"] == 12.0
+        and m["inprocess"]["per_frame_ms"]["p50"] == 7.0
+    )
+    assert "frames_ms" not in m["distributed"] and "frames_ms" not in m["inprocess"]
+    assert m["dropped_max"]["distributed"]["vision"] == 2 and m["runs"] == 2
+    # The tail over every frame of the runs, not a median of each run's.
+    pooled = m["distributed"]["pooled"]
+    assert pooled["latency_ms"]["n"] == 5 and pooled["latency_ms"]["max"] == pytest.approx(14.0)
+    assert pooled["latency_ms"]["p50"] == pytest.approx(11.0)
+    assert pooled["frames_over_goal"] == 3  # 11, 12 and 14 ms
+    # The frame's hand-off (publish + frame_transport) pooled the same way.
+    assert pooled["frame_handoff_ms"]["n"] == 5
+    assert pooled["frame_handoff_ms"]["p50"] == pytest.approx(0.6)

@@ -1,0 +1,39 @@
+"""The supervisor's decisions on their own: restart policy and backoff, when a child counts as
+hung, and which supervisor PID a service trusts."""
+
+from __future__ import annotations
+
+from common.config import RestartPolicy, SupervisorConfig
+from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
+from deploy.launch.supervisor import Heard, backoff_s, hang_reason, wants_restart
+
+
+def test_restart_policy_and_backoff() -> None:
+    assert wants_restart(RestartPolicy.ALWAYS, 0)
+    assert wants_restart(RestartPolicy.ON_FAILURE, 1) and wants_restart(
+        RestartPolicy.ON_FAILURE, -9
+    )
+    assert not wants_restart(RestartPolicy.ON_FAILURE, 0)
+    assert not wants_restart(RestartPolicy.NEVER, -9)
+    cfg = SupervisorConfig(backoff_initial_s=0.1, backoff_max_s=1.0)
+    assert [backoff_s(n, cfg) for n in range(6)] == [0.1, 0.2, 0.4, 0.8, 1.0, 1.0]
+
+
+def test_hang_reason_judges_only_a_child_that_has_answered() -> None:
+    assert hang_reason(None, 0.0, 100.0, 5.0) is None  # never answered: still starting
+    idle = Heard(pid=1, at_s=10.0, loop_busy_s=0.0)
+    assert hang_reason(idle, None, 11.0, 5.0) is None
+    assert hang_reason(idle, 11.0, 15.9, 5.0) is None  # one query unanswered for 4.9 s
+    assert hang_reason(idle, 11.0, 16.5, 5.0) == "no status answer for 5.5 s"
+    assert hang_reason(idle, 11.0, 16.5, 0.0) is None  # 0: hang checks off
+    stuck = Heard(pid=1, at_s=10.0, loop_busy_s=6.25)
+    assert hang_reason(stuck, None, 10.1, 5.0) == "event loop stuck in one step for 6.2 s"
+    assert hang_reason(Heard(1, 10.0, 4.0), None, 10.1, 5.0) is None  # a long step, not a hang
+    assert hang_reason(Heard(1, 10.0, None), None, 10.1, 5.0) is None  # loop not started
+
+
+def test_supervisor_pid_is_read_only_when_it_is_a_pid() -> None:
+    assert supervisor_pid({ENV_SUPERVISOR_PID: "4242"}) == 4242
+    for value in ("", "abc", "-5", "1", "0"):  # 1: init, never a supervisor
+        assert supervisor_pid({ENV_SUPERVISOR_PID: value}) is None
+    assert supervisor_pid({}) is None
