@@ -132,16 +132,6 @@ def camera_twist_to_base_ee(
     return np.concatenate([v_e, omega_b])
 
 
-def base_ee_twist_to_camera(
-    twist_base_ee: FloatArray, t_base_cam: FloatArray, p_ee_base_m: FloatArray
-) -> FloatArray:
-    """Inverse of :func:`camera_twist_to_base_ee` (used to predict feature motion)."""
-    rot, origin = t_base_cam[:3, :3], t_base_cam[:3, 3]
-    omega_b = twist_base_ee[3:]
-    v_origin = twist_base_ee[:3] + skew(omega_b) @ (origin - p_ee_base_m)
-    return np.concatenate([rot.T @ v_origin, rot.T @ omega_b])
-
-
 def clamp_twist(twist: FloatArray, max_linear_m_s: float, max_angular_rad_s: float) -> FloatArray:
     """Scale the whole twist down (direction kept) so both norms respect their limits."""
     scale = 1.0

@@ -14,7 +14,6 @@ from services.controller.ibvs import (
     USES_DESIRED,
     IbvsController,
     MarkerObservation,
-    base_ee_twist_to_camera,
     camera_twist_to_base_ee,
     choose_pairing,
     clamp_twist,
@@ -24,6 +23,7 @@ from services.controller.ibvs import (
     pairing_costs_px2,
     point_feature_jacobian,
 )
+from tests.twists import base_ee_twist_to_camera
 
 K = CameraIntrinsics.from_fov(640, 480, 57.0)
 RNG = np.random.default_rng(7)

@@ -13,11 +13,11 @@ import numpy as np
 from common import kinematics as kin
 from common.camera import pixel_to_normalized
 from services.controller.ibvs import (
-    base_ee_twist_to_camera,
     interaction_matrix,
     point_feature_jacobian,
 )
 from services.vision.measurement import measure_markers
+from tests.twists import base_ee_twist_to_camera
 
 
 def predicted_px(dq, jac, p_ee, l_s, t_base_cam, k) -> np.ndarray:
