@@ -41,21 +41,23 @@ Three measurements in one command, on the same scenario and image size:
    Frames dropped per stage are counted by ``frame_seq``; CPU time and peak RSS per service
    come from ``/proc/<pid>`` of the supervisor's children.
 
-2. **In-process baseline**: the same pure stage functions, one after another in this process,
-   on the same frames (a lockstep run renders the same images: the loop is deterministic),
-   timed from images ready to command applied: vision ``tracking.observe``, forward
-   kinematics + ``IbvsController.step``, ``inverse.twist_to_joint_velocities``, and setting
-   the motors. What is fair: a single-process program needs no messages, so the headline
-   baseline (``inprocess.per_frame_ms``) is the functions alone, and the ratio
-   distributed / in-process charges distribution with everything it adds, serialization
-   included. The same loop also times the codec work the distributed path does per frame
-   (building, encoding and decoding each message once); ``ratio.vs_with_codec`` divides by
-   functions + codec, i.e. what is left is transport, process boundaries and scheduling. In
+2. **In-process baseline**: the same pipeline in this process, on the same frames (a lockstep
+   run renders the same images: the loop is deterministic): :class:`services.pipeline.Pipeline`
+   composes the services' own pure steps, the ones their node shells call, and times each,
+   from images ready to command applied: vision (``vision_step`` and its features message),
+   the controller (``control_step`` and its twist message), actuation (``actuation_step``,
+   the inverse under the acceleration limit) and setting the motors. What is fair: a
+   single-process program needs no transport, so the headline baseline
+   (``inprocess.per_frame_ms``) is the steps alone, and the ratio distributed / in-process
+   charges distribution with everything it adds, serialization included. The same loop also
+   times the codec work the distributed path does per frame (the sim's messages built, every
+   message encoded once and decoded where it is received); ``ratio.vs_with_codec`` divides by
+   steps + codec, i.e. what is left is transport, process boundaries and scheduling. In
    lockstep the in-process commands are compared with the distributed ones (they must agree).
-   Vision is also called a second time at once on the same inputs (``observe`` is pure),
-   outside the frame's time: ``stages_ms.vision_warm`` is its cost with its code and data
-   warm, against ``vision``, the first call's after the render, as every service's call is
-   after an idle wait.
+   Vision is also called a second time at once on the same inputs (its step is pure), outside
+   the frame's time: ``stages_ms.vision_warm`` is its cost with its code and data warm,
+   against ``vision``, the first call's after the render, as every service's call is after an
+   idle wait.
 
 3. **Synthetic 30 Hz source**: frames of the in-process run replayed at the camera's 30 Hz
    (as a recording replayed with ``--speed 1`` would be) into vision → controller → actuation
@@ -84,7 +86,6 @@ from typing import Any, NamedTuple
 import numpy as np
 import zenoh
 
-from common import kinematics as kin
 from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decode, encode
 from common.config import ClockMode, Scenario
 from common.keys import FEATURES, JOINT_COMMAND, SERVICES, TWIST, Keys
@@ -110,7 +111,7 @@ from common.transport import (
     query_status,
     typed_publisher,
 )
-from deploy.supervisor import Supervisor
+from deploy.launch.supervisor import Supervisor
 
 STAGES: tuple[str, ...] = (
     "render",
@@ -544,28 +545,12 @@ class SourceFrame:
 def run_inprocess(
     scenario: Scenario, frames: int, warmup: int, keep: int
 ) -> tuple[dict[str, Any], list[SourceFrame]]:
-    """The pure stage functions in one process on the lockstep frames (see the module doc);
-    returns the statistics and the first ``keep`` frames (for the synthetic source)."""
-    from services.actuation.inverse import twist_to_joint_velocities
-    from services.controller.ibvs import IbvsController, MarkerObservation
-    from services.controller.node import observation
-    from services.sim.events import TIME_EPSILON_S
-    from services.sim.world import World
-    from services.vision.node import to_message
-    from services.vision.tracking import DepthImage, TrackerState, observe
+    """The in-process pipeline (:class:`services.pipeline.Pipeline`, the services' pure steps)
+    on the lockstep frames, timed stage by stage (see the module doc); returns the statistics
+    and the first ``keep`` frames (for the synthetic source)."""
+    from services.controller.step import observation
+    from services.pipeline import Pipeline
 
-    world = World(scenario)
-    cam, act = scenario.camera, scenario.actuation
-    controller = IbvsController(
-        scenario.controller, cam.assumed_pose(), scenario.target.approach_height_m
-    )
-    tracker = TrackerState()
-    substeps = max(1, round(1.0 / cam.rgb_hz / world.physics_dt_s))
-    depth_period_s = 1.0 / cam.depth_rate_hz
-    next_depth_s = 0.0
-    depth: tuple[np.ndarray, float] | None = None
-    previous_rad_s, previous_sim_s = np.zeros(kin.N_JOINTS), None
-    limit = kin.JOINT_VELOCITY_LIMIT_RAD_S
     times: dict[str, list[float]] = {
         s: [] for s in ("render", *INPROCESS_STAGES, *CODEC_STAGES, "vision_warm")
     }
@@ -575,129 +560,79 @@ def run_inprocess(
     kept: list[SourceFrame] = []
     load_before = machine_load()
     clock = time.perf_counter
-    try:
+    warm_s = [0.0]
+
+    def vision_again(measure: Callable[[], object]) -> None:
+        # The same call again at once, outside the frame's time: vision's cost with its code
+        # and data warm, against the first call's after the render (the step is pure).
+        w0 = clock()
+        measure()
+        warm_s[0] = clock() - w0
+
+    with Pipeline(scenario, truth=False) as pipeline:
+        world = pipeline.world
         for seq in range(warmup + frames):
-            world.update_scene()
-            t = world.sim_time_s
-            q, qdot = world.joint_state()
-            with_depth = t + TIME_EPSILON_S >= next_depth_s
-            r0 = clock()
-            rgb, depth_m = world.render(with_depth)
-            t0 = clock()  # images ready
-            if depth_m is not None:
-                while next_depth_s <= t + TIME_EPSILON_S:
-                    next_depth_s += depth_period_s
-                depth = (depth_m, t)
+            f = pipeline.step(after_vision=vision_again)
             if len(kept) < keep:
-                kept.append(SourceFrame(rgb, depth_m, q, qdot, t))
-            # vision
-            image = None
-            if depth is not None:
-                image = DepthImage(depth[0], world.depth_intrinsics, max(0.0, t - depth[1]))
-            inputs = (rgb, world.intrinsics, image, scenario.vision, scenario.marker.size_m)
-            measured, next_tracker = observe(*inputs, tracker, t)
-            t1 = clock()
-            # The same call again at once, outside the frame's time: vision's cost with its
-            # code and data warm, against the first call's after the render (observe is pure).
-            observe(*inputs, tracker, t)
-            tracker = next_tracker
-            w1 = clock()
-            # controller
-            hand, target = (
-                MarkerObservation(
-                    m.state, m.corners_px, m.depths_m, m.points_m, m.occluded, m.fitted
-                )
-                for m in (measured["hand"], measured["target"])
+                kept.append(SourceFrame(f.rgb, f.depth_m, f.q_rad, f.qdot_rad_s, f.sim_time_s))
+            # The codec work the distributed path does for this frame, timed apart: the sim's
+            # messages built and encoded, and each message decoded where it is received.
+            header = Header(
+                seq=seq, sim_time_s=f.sim_time_s, send_time_s=time.time(), frame_seq=seq
             )
-            p_ee = kin.forward_kinematics(q)[:3, 3]
-            out = controller.step(hand, target, world.intrinsics, p_ee, t)
-            t2 = clock()
-            # actuation (as ActuationService.on_pair)
-            if out.valid:
-                cmd = twist_to_joint_velocities(
-                    out.twist_base_ee,
-                    q,
-                    act.damping,
-                    act.manipulability_threshold,
-                    previous_rad_s=previous_rad_s,
-                    max_accel_rad_s2=act.max_joint_acceleration_rad_s2,
-                    dt_s=0.0 if previous_sim_s is None else max(0.0, t - previous_sim_s),
-                ).velocity_rad_s
-            else:
-                cmd = np.zeros(kin.N_JOINTS)
-            previous_rad_s, previous_sim_s = cmd, t
-            t3 = clock()
-            world.set_joint_velocities(np.clip(cmd, -limit, limit))
-            t4 = clock()
-            # The codec work the distributed path does for this frame, timed apart.
-            header = Header(seq=seq, sim_time_s=t, send_time_s=time.time(), frame_seq=seq)
             c0 = clock()
-            frame_payloads = [
-                encode(JointState(header=header, position_rad=q.tolist(), velocity_rad_s=qdot))
-            ]
-            if depth_m is not None:
+            joints = JointState(
+                header=header, position_rad=f.q_rad.tolist(), velocity_rad_s=f.qdot_rad_s.tolist()
+            )
+            frame_payloads = [encode(joints)]
+            if f.depth_m is not None:
                 frame_payloads.append(
                     encode(
                         DepthFrame(
                             header=header,
                             intrinsics=world.depth_intrinsics,
-                            depth_m=ImageData.view_of(depth_m),
+                            depth_m=ImageData.view_of(f.depth_m),
                         )
                     )
                 )
             frame_payloads.append(
                 encode(
-                    RgbFrame(header=header, intrinsics=world.intrinsics, rgb=ImageData.view_of(rgb))
+                    RgbFrame(
+                        header=header,
+                        intrinsics=world.intrinsics,
+                        rgb=ImageData.view_of(f.rgb),
+                        depth_frame_seq=f.depth_frame_seq,
+                    )
                 )
             )
-            decoded_rgb = decode(frame_payloads[-1], RgbFrame, FRAME_MAX_BYTES)
-            decoded_rgb.rgb.to_array()
-            if depth_m is not None:
+            decode(frame_payloads[-1], RgbFrame, FRAME_MAX_BYTES).rgb.to_array()
+            if f.depth_m is not None:
                 decode(frame_payloads[1], DepthFrame, FRAME_MAX_BYTES).depth_m.to_array()
             for _ in PIPELINE[1:]:  # the controller and actuation both decode the joint state
                 decode(frame_payloads[0], JointState, DEFAULT_MAX_BYTES)
             c1 = clock()
-            features = Features(
-                header=header,
-                intrinsics=world.intrinsics,
-                hand=to_message(measured["hand"]),
-                target=to_message(measured["target"]),
-                depth_age_s=None if image is None else image.age_s,
-            )
-            observation(decode(encode(features), Features, DEFAULT_MAX_BYTES).hand)
+            observation(decode(encode(f.features), Features, DEFAULT_MAX_BYTES).hand)
             c2 = clock()
-            twist = EndEffectorTwist(
-                header=header,
-                linear_m_s=out.twist_base_ee[:3].tolist(),
-                angular_rad_s=out.twist_base_ee[3:].tolist(),
-                valid=out.valid,
-                hold_reason=out.hold_reason,
-                mode=controller.config.mode.value,
-                error_px_rms=out.error_px_rms,
-                converged=out.converged,
-            )
-            decode(encode(twist), EndEffectorTwist, DEFAULT_MAX_BYTES)
+            decode(encode(f.twist), EndEffectorTwist, DEFAULT_MAX_BYTES)
             c3 = clock()
-            command = JointVelocityCommand(header=header, velocity_rad_s=cmd.tolist())
+            command = JointVelocityCommand(
+                header=header, velocity_rad_s=f.actuation.velocity_rad_s.tolist()
+            )
             decode(encode(command), JointVelocityCommand, DEFAULT_MAX_BYTES)
             c4 = clock()
-            world.step(substeps)
             if seq < warmup:
                 continue
-            velocities[seq] = cmd.tolist()
+            velocities[seq] = f.actuation.velocity_rad_s.tolist()
+            for name in ("render", *INPROCESS_STAGES):
+                times[name].append(f.stage_s[name])
             for name, d in zip(
-                ("render", *INPROCESS_STAGES, *CODEC_STAGES, "vision_warm"),
-                (
-                    *(t0 - r0, t1 - t0, t2 - w1, t3 - t2, t4 - t3),
-                    *(c1 - c0, c2 - c1, c3 - c2, c4 - c3, w1 - t1),
-                ),
+                (*CODEC_STAGES, "vision_warm"),
+                (c1 - c0, c2 - c1, c3 - c2, c4 - c3, warm_s[0]),
                 strict=True,
             ):
                 times[name].append(d)
-            per_frame.append(t1 - t0 + t4 - w1)
+            per_frame.append(sum(f.stage_s[name] for name in INPROCESS_STAGES))
             with_codec.append(per_frame[-1] + c4 - c0)
-    finally:
-        world.close()
     return {
         "frames": frames,
         "stages_ms": {s: summary_ms(v) for s, v in times.items()},

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from deploy.compare import (
+from deploy.experiments.compare import (
     ALL_MODES,
     METRICS,
     CompareRow,

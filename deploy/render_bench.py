@@ -32,7 +32,9 @@ def _summary_ms(values_s: list[float]) -> dict[str, float | int]:
 
 def postures(scenario: Scenario, n: int) -> list[np.ndarray]:
     """``n`` joint configurations from the start posture towards the goal (not past it)."""
-    from deploy.accuracy import sample_postures  # the reachability solver loads on demand
+    from deploy.experiments.accuracy import (
+        sample_postures,
+    )  # the reachability solver loads on demand
 
     return sample_postures(scenario, n, np.random.default_rng(0))
 

@@ -81,7 +81,7 @@ from common.messages import (
 )
 from common.messages import JointState as UmayJointState
 from services.controller.ibvs import choose_pairing, desired_observation, pairing_costs_px2
-from services.controller.node import observation
+from services.controller.step import observation
 from services.sim.urdf import TORSO_CENTRE_M, TORSO_SIZE_M
 
 FloatArray = np.ndarray

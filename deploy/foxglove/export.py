@@ -21,7 +21,8 @@ from common.config import DEFAULT_SCENARIO, Scenario, load_scenario
 from common.runtime import parse_overrides
 from deploy.foxglove import convert as c
 from deploy.foxglove.channels import FoxgloveChannels
-from deploy.recording import METADATA_NAME, RecordingReader, split_data_key
+from deploy.recording.channels import METADATA_NAME, split_data_key
+from deploy.recording.read import RecordingReader
 
 
 @dataclass

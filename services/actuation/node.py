@@ -8,7 +8,8 @@ the time base for it is the sim time between consecutive commands, so after a st
 starts again from rest with a ramp. In lockstep the sim applies only the command that answers
 its frame (and physics waits for it), so there a deadman stop never reaches the motors and must
 not reset the limiter either: otherwise a slow render would change the trajectory and two
-lockstep runs would differ.
+lockstep runs would differ. The step itself is :func:`services.actuation.limiter.actuation_step`
+(pure, with the limiter's state as data); this shell pairs, counts, runs the deadman, publishes.
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ from common.messages import EndEffectorTwist, JointState, JointVelocityCommand
 from common.pairing import FramePairer
 from common.runtime import ServiceContext
 from common.transport import Node
-from services.actuation.inverse import Clamps, deadman_expired, twist_to_joint_velocities
+from services.actuation.inverse import Clamps, deadman_expired
+from services.actuation.limiter import LimiterState, actuation_step
 
 
 class ActuationService:
@@ -42,9 +44,7 @@ class ActuationService:
         self.saturated: list[int] = []
         self.manipulability = float("nan")
         self.last_output: JointVelocityCommand | None = None
-        # The command the motors follow now, and its sim time (None: at rest, no time base).
-        self.previous_rad_s = np.zeros(kin.N_JOINTS)
-        self.previous_sim_s: float | None = None
+        self.limiter = LimiterState()  # the command the motors follow now
         # Every stop and clamp, counted (commands, not joints).
         self.counts = {
             "hold_stops": 0,
@@ -82,30 +82,30 @@ class ActuationService:
         )
         if frame_seq >= 0:
             self.last_output = command
-        if frame_seq >= 0 or not self.lockstep:  # what the motors will follow
-            self.previous_rad_s = velocity
-            self.previous_sim_s = sim_time_s if frame_seq >= 0 else None  # deadman: from rest
+        if frame_seq >= 0:  # what the motors will follow
+            self.limiter = self.limiter.commanded(velocity, sim_time_s)
+        elif not self.lockstep:  # a deadman stop reaches the motors: start again from rest
+            self.limiter = LimiterState.at_rest()
         self.pub.put(command)
 
     def on_pair(self, twist: EndEffectorTwist, joints: JointState) -> None:
         t, seq = twist.header.sim_time_s, twist.header.frame_seq
-        if not twist.valid:
-            self.counts["hold_stops"] += 1
-            self.publish(np.zeros(kin.N_JOINTS), "hold", t, seq)
-            return
-        self.last_valid_twist_s = time.monotonic()
-        cmd = twist_to_joint_velocities(
+        if twist.valid:
+            self.last_valid_twist_s = time.monotonic()
+        step = actuation_step(
+            self.config,
+            self.limiter,
             np.array(twist.linear_m_s + twist.angular_rad_s),
+            twist.valid,
             np.array(joints.position_rad),
-            self.config.damping,
-            self.config.manipulability_threshold,
-            previous_rad_s=self.previous_rad_s,
-            max_accel_rad_s2=self.config.max_joint_acceleration_rad_s2,
-            dt_s=0.0 if self.previous_sim_s is None else max(0.0, t - self.previous_sim_s),
+            t,
         )
-        self.saturated, self.manipulability = cmd.saturated, cmd.manipulability
-        self.count(cmd.clamps, cmd.damping)
-        self.publish(cmd.velocity_rad_s, "track", t, seq)
+        if step.joint is None:
+            self.counts["hold_stops"] += 1
+        else:
+            self.saturated, self.manipulability = step.joint.saturated, step.joint.manipulability
+            self.count(step.joint.clamps, step.joint.damping)
+        self.publish(step.velocity_rad_s, step.reason, t, seq)
 
     def count(self, clamps: Clamps, damping: float) -> None:
         self.counts["position_limit_clamps"] += bool(clamps.position)

@@ -1,32 +1,20 @@
 """Controller service: features + joint encoders → end-effector twist (eye-to-hand IBVS).
 
 It uses only what the camera and the joint encoders give, plus the *assumed* camera pose (the
-scenario's camera mount, i.e. the calibration); never the simulator's ground truth.
+scenario's camera mount, i.e. the calibration); never the simulator's ground truth. The step
+itself is :func:`services.controller.step.control_step` (pure); this shell pairs and publishes.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from common import kinematics as kin
-from common.messages import EndEffectorTwist, Features, JointState, MarkerFeatures
+from common.messages import EndEffectorTwist, Features, JointState
 from common.pairing import FramePairer
 from common.runtime import ServiceContext
 from common.transport import Node
-from services.controller.ibvs import IbvsController, MarkerObservation, describe_hold, is_stuck
-
-ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
-
-
-def observation(m: MarkerFeatures) -> MarkerObservation:
-    return MarkerObservation(
-        m.state,
-        np.array(m.corners_px),
-        np.array(m.depth_m),
-        np.array(m.points_m),
-        m.occluded,
-        m.fitted,
-    )
+from services.controller.ibvs import IbvsController, describe_hold, is_stuck
+from services.controller.step import control_step, twist_message
 
 
 class ControllerService:
@@ -85,28 +73,15 @@ class ControllerService:
         )
 
     def on_pair(self, features: Features, joints: JointState) -> None:
-        frames = kin.frame_transforms(np.array(joints.position_rad))
-        out = self.controller.step(
-            observation(features.hand),
-            observation(features.target),
-            features.intrinsics,
-            frames[-1][:3, 3],
-            features.header.sim_time_s,
-            elbow_base_m=frames[ELBOW_FRAME][:3, 3],
-        )
+        out = control_step(self.controller, features, joints.position_rad)
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
         self.hold_reason, self.phase = out.hold_reason, out.phase
         self.hold_since_s, self.sim_time_s = out.hold_since_s, features.header.sim_time_s
-        self.last_output = EndEffectorTwist(
-            header=self.node.header(features.header.sim_time_s, features.header.frame_seq),
-            linear_m_s=out.twist_base_ee[:3].tolist(),
-            angular_rad_s=out.twist_base_ee[3:].tolist(),
-            valid=out.valid,
-            hold_reason=out.hold_reason,
-            mode=self.controller.config.mode.value,
-            error_px_rms=out.error_px_rms,
-            converged=out.converged,
+        self.last_output = twist_message(
+            out,
+            self.node.header(features.header.sim_time_s, features.header.frame_seq),
+            self.controller.config.mode.value,
         )
         self.pub.put(self.last_output)
         # For status only: after the twist is out, off the loop's latency.

@@ -36,14 +36,20 @@ VERTEX_SHADER = """
 uniform mat4 cam_from_shape;
 uniform vec4 pinhole;  // x_ndc = a·X/Z + b, y_ndc = c·Y/Z + d
 uniform vec2 depth_ab;  // z_ndc = A + B/Z: near → -1, far → +1
+uniform vec3 light_cam;  // towards the light, unit
+uniform vec4 colour;
+uniform vec2 shading;  // ambient, diffuse
 in vec3 in_position;
 in vec3 in_normal;
 out float z_m;
-out vec3 normal_cam;
+out vec3 shaded;
 void main() {
     vec4 p = cam_from_shape * vec4(in_position, 1.0);
     z_m = p.z;
-    normal_cam = mat3(cam_from_shape) * in_normal;
+    // Lambert per vertex: exact on flat faces (every box), Gouraud on a cylinder's sides. Per
+    // fragment it doubles llvmpipe's rasterisation time for no visible difference.
+    float lambert = max(dot(normalize(mat3(cam_from_shape) * in_normal), light_cam), 0.0);
+    shaded = colour.rgb * (shading.x + shading.y * lambert);
     gl_Position = vec4(pinhole.x * p.x + pinhole.y * p.z, pinhole.z * p.y + pinhole.w * p.z,
                        depth_ab.x * p.z + depth_ab.y, p.z);
 }
@@ -51,41 +57,36 @@ void main() {
 
 FRAGMENT_SHADER = """
 #version 330
-uniform vec3 light_cam;  // towards the light, unit
-uniform vec4 colour;
-uniform int segment_id;
-uniform vec2 shading;  // ambient, diffuse
 in float z_m;
-in vec3 normal_cam;
+in vec3 shaded;
 layout(location = 0) out vec4 out_colour;
 layout(location = 1) out float out_depth;
-layout(location = 2) out int out_id;
 void main() {
-    float lambert = max(dot(normalize(normal_cam), light_cam), 0.0);
-    out_colour = vec4(colour.rgb * (shading.x + shading.y * lambert), 1.0);
+    out_colour = vec4(shaded, 1.0);
     out_depth = z_m;
-    out_id = segment_id;
 }
 """
 
-
-# The background: drawn first over the whole image, without depth test or depth writes.
-BACKGROUND_VERTEX_SHADER = """
+# The id image has a pass of its own: frames, drawn every camera period, never need it.
+ID_VERTEX_SHADER = """
 #version 330
-in vec2 in_corner;
-void main() { gl_Position = vec4(in_corner, 1.0, 1.0); }
+uniform mat4 cam_from_shape;
+uniform vec4 pinhole;
+uniform vec2 depth_ab;
+in vec3 in_position;
+void main() {
+    vec4 p = cam_from_shape * vec4(in_position, 1.0);
+    gl_Position = vec4(pinhole.x * p.x + pinhole.y * p.z, pinhole.z * p.y + pinhole.w * p.z,
+                       depth_ab.x * p.z + depth_ab.y, p.z);
+}
 """
 
-BACKGROUND_FRAGMENT_SHADER = """
+ID_FRAGMENT_SHADER = """
 #version 330
-uniform vec3 colour;
-layout(location = 0) out vec4 out_colour;
-layout(location = 1) out float out_depth;
-layout(location = 2) out int out_id;
+uniform int segment_id;
+layout(location = 0) out int out_id;
 void main() {
-    out_colour = vec4(colour, 1.0);
-    out_depth = 0.0;  // nothing: a Kinect's invalid depth
-    out_id = -1;
+    out_id = segment_id + 1;  // 0 is the cleared background: read back as -1
 }
 """
 
@@ -129,9 +130,12 @@ def open_context() -> object:
 
 @dataclass
 class _Target:
-    """A framebuffer of one size with its three attachments and read-back arrays."""
+    """Framebuffers of one size: the frame's (colour, depth) and the id image's, each with its
+    z-buffer, plus a framebuffer of the colour attachment alone, to clear it to the background."""
 
-    fbo: object
+    frame: object
+    ids: object
+    clear_colour: object
     shape: tuple[int, int]  # rows, columns
 
 
@@ -142,23 +146,15 @@ class GlRenderer:
     removed); each frame only the shapes' poses change."""
 
     def __init__(self) -> None:
-        import moderngl
-
-        self._moderngl = moderngl
         self.ctx = open_context()
         ctx = self.ctx
         self.description = f"{ctx.info['GL_RENDERER']} (OpenGL {ctx.info['GL_VERSION']})"
         self.program = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER)
         self.program["shading"].value = (AMBIENT, DIFFUSE)
-        background = ctx.program(
-            vertex_shader=BACKGROUND_VERTEX_SHADER, fragment_shader=BACKGROUND_FRAGMENT_SHADER
+        self.id_program = ctx.program(
+            vertex_shader=ID_VERTEX_SHADER, fragment_shader=ID_FRAGMENT_SHADER
         )
-        background["colour"].value = BACKGROUND_RGB
-        corners = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
-        self._background = ctx.vertex_array(
-            background, [(ctx.buffer(corners.tobytes()), "2f", "in_corner")]
-        )
-        self._meshes: list[tuple[VisualShape, object]] = []
+        self._meshes: list[tuple[VisualShape, object, object]] = []
         self._buffers: list[object] = []
         self._targets: dict[tuple[int, int], _Target] = {}
 
@@ -180,8 +176,9 @@ class GlRenderer:
             vao = self.ctx.vertex_array(
                 self.program, [(buffer, "3f 3f", "in_position", "in_normal")]
             )
+            id_vao = self.ctx.vertex_array(self.id_program, [(buffer, "3f 12x", "in_position")])
             self._buffers.append(buffer)
-            self._meshes.append((shape, vao))
+            self._meshes.append((shape, vao, id_vao))
 
     def _target(self, k: CameraIntrinsics) -> _Target:
         size = (k.width_px, k.height_px)
@@ -190,9 +187,16 @@ class GlRenderer:
             colour = ctx.renderbuffer(size, components=4, dtype="f1")
             depth = ctx.renderbuffer(size, components=1, dtype="f4")
             ids = ctx.renderbuffer(size, components=1, dtype="i4")
-            z_buffer = ctx.depth_renderbuffer(size)
-            fbo = ctx.framebuffer(color_attachments=[colour, depth, ids], depth_attachment=z_buffer)
-            self._targets[size] = _Target(fbo, (k.height_px, k.width_px))
+            self._targets[size] = _Target(
+                frame=ctx.framebuffer(
+                    color_attachments=[colour, depth], depth_attachment=ctx.depth_renderbuffer(size)
+                ),
+                ids=ctx.framebuffer(
+                    color_attachments=[ids], depth_attachment=ctx.depth_renderbuffer(size)
+                ),
+                clear_colour=ctx.framebuffer(color_attachments=[colour]),
+                shape=(k.height_px, k.width_px),
+            )
         return self._targets[size]
 
     def draw(
@@ -203,27 +207,40 @@ class GlRenderer:
         near_m: float,
         far_m: float,
         light_direction_world: FloatArray,
+        ids: bool = False,
     ) -> _Target:
         """Draw every shape at its world pose (same order as :meth:`set_shapes`) into the
-        framebuffer of ``k``'s size; read nothing back yet."""
+        colour and depth framebuffer of ``k``'s size, or with ``ids`` into the id image's;
+        read nothing back yet."""
+        import moderngl
+
         target = self._target(k)
-        ctx, program = self.ctx, self.program
-        target.fbo.use()
-        # clear() would set all three attachments to one value; depth must read 0, ids -1.
-        target.fbo.clear(depth=1.0)
-        ctx.enable_only(self._moderngl.NOTHING)
-        self._background.render(self._moderngl.TRIANGLE_STRIP)
-        ctx.enable_only(self._moderngl.DEPTH_TEST)
+        ctx = self.ctx
+        # Clears, not a full-screen background quad (on a CPU rasteriser a clear costs a
+        # fraction of a quad's fragments): everything to 0 (depth 0 is a Kinect's invalid, id 0
+        # reads back as -1), then the colour attachment alone to the background's white.
+        fbo = target.ids if ids else target.frame
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        if ids:
+            program = self.id_program
+        else:
+            target.clear_colour.clear(*BACKGROUND_RGB, 1.0)
+            program = self.program
+            light = cam_from_world[:3, :3] @ np.asarray(light_direction_world, float)
+            program["light_cam"].value = tuple(light / np.linalg.norm(light))
+        fbo.use()
+        ctx.enable_only(moderngl.DEPTH_TEST)
         program["pinhole"].value = pinhole_uniforms(k)
         program["depth_ab"].value = depth_uniforms(near_m, far_m)
-        light = cam_from_world[:3, :3] @ np.asarray(light_direction_world, float)
-        program["light_cam"].value = tuple(light / np.linalg.norm(light))
-        for (shape, vao), pose in zip(self._meshes, poses, strict=True):
+        for (shape, vao, id_vao), pose in zip(self._meshes, poses, strict=True):
             cam_from_shape = cam_from_world @ pose
             program["cam_from_shape"].write(cam_from_shape.astype(np.float32).tobytes("F"))
-            program["colour"].value = shape.rgba
-            program["segment_id"].value = shape.segment_id
-            vao.render()
+            if ids:
+                program["segment_id"].value = shape.segment_id
+                id_vao.render()
+            else:
+                program["colour"].value = shape.rgba
+                vao.render()
         return target
 
     def read_colour_depth(self, target: _Target) -> tuple[np.ndarray, np.ndarray]:
@@ -231,14 +248,15 @@ class GlRenderer:
         fresh arrays (the caller may keep them)."""
         rgb = np.empty((*target.shape, 3), np.uint8)
         depth_m = np.empty(target.shape, np.float32)
-        target.fbo.read_into(rgb, components=3, attachment=0)
-        target.fbo.read_into(depth_m, components=1, attachment=1, dtype="f4")
+        target.frame.read_into(rgb, components=3, attachment=0)
+        target.frame.read_into(depth_m, components=1, attachment=1, dtype="f4")
         return rgb, depth_m
 
     def read_ids(self, target: _Target) -> np.ndarray:
-        """The id image (int32, -1 where nothing is drawn) of the last draw into ``target``."""
+        """The id image (int32, -1 where nothing is drawn) of the last id draw into ``target``."""
         ids = np.empty(target.shape, np.int32)
-        target.fbo.read_into(ids, components=1, attachment=2, dtype="i4")
+        target.ids.read_into(ids, components=1, attachment=0, dtype="i4")
+        ids -= 1
         return ids
 
     def release(self) -> None:

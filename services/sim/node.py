@@ -2,7 +2,8 @@
 and (for evaluation only) ground truth; applies joint velocity commands.
 
 The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the first colour frame
-at or after each tick of ``camera.depth_hz`` (registered, possibly at a lower resolution). Per
+at or after each tick of ``camera.depth_hz`` (registered, possibly at a lower resolution; the
+schedule is services/sim/schedule.py, the motors' limit services/sim/motors.py). Per
 frame the joint state goes out first, then the depth image if one was taken, then the colour
 frame, which names the newest depth image (``depth_frame_seq``).
 
@@ -35,11 +36,12 @@ from common.messages import (
     JointVelocityCommand,
     RgbFrame,
     SimTiming,
-    SimTruth,
 )
 from common.runtime import ServiceContext
 from common.transport import ENV_SHM, Node, TypedPublisher, alive_services
-from services.sim.events import TIME_EPSILON_S
+from services.sim.motors import motor_velocities
+from services.sim.schedule import DepthSchedule, substeps_per_frame
+from services.sim.truth import truth_message
 from services.sim.world import World
 
 log = logging.getLogger("umay.sim")
@@ -51,12 +53,9 @@ class SimService:
         self.scenario = ctx.scenario
         self.world = World(ctx.scenario)
         self.period_s = 1.0 / ctx.scenario.camera.rgb_hz
-        self.depth_period_s = 1.0 / ctx.scenario.camera.depth_rate_hz
-        self.substeps = max(1, round(self.period_s / self.world.physics_dt_s))
+        self.substeps = substeps_per_frame(ctx.scenario.camera.rgb_hz, self.world.physics_dt_s)
         self.frame_seq = 0
-        self.next_depth_s = 0.0
-        self.depth_frame_seq = -1  # frame_seq of the newest depth image
-        self.depth_images = 0
+        self.depth_schedule = DepthSchedule.of(ctx.scenario.camera)
         self._last_frame: list[tuple[TypedPublisher, object]] = []  # for a lockstep resend
         self.dropped_frames = 0
         self.render_ms = 0.0
@@ -81,7 +80,7 @@ class SimService:
             "clock": self.scenario.run.clock.value,
             "sim_time_s": round(self.world.sim_time_s, 4),
             "frame_seq": self.frame_seq,
-            "depth_images": self.depth_images,
+            "depth_images": self.depth_schedule.depth_images,
             "target_hidden": self.world.scene.target_hidden,
             "hand_occluded": self.world.scene.hand_occluded_since_s is not None,
             "renderer": self.world.renderer,
@@ -122,7 +121,7 @@ class SimService:
         seq, t = self.frame_seq, self.world.sim_time_s
         self.world.update_scene()
         q, qdot = self.world.joint_state()
-        with_depth = t + TIME_EPSILON_S >= self.next_depth_s
+        with_depth = self.depth_schedule.due(t)
         render_start_s = time.time()
         started = time.perf_counter()
         rgb, depth_m = self.world.render(with_depth)
@@ -140,10 +139,7 @@ class SimService:
             )
         ]
         if depth_m is not None:
-            while self.next_depth_s <= t + TIME_EPSILON_S:  # keep the schedule, do not drift
-                self.next_depth_s += self.depth_period_s
-            self.depth_frame_seq = seq
-            self.depth_images += 1
+            self.depth_schedule = self.depth_schedule.taken(t, seq)
             messages.append(
                 (
                     self.pub_depth,
@@ -161,23 +157,14 @@ class SimService:
             header=rgb_header,
             intrinsics=self.world.intrinsics,
             rgb=ImageData.view_of(rgb),
-            depth_frame_seq=self.depth_frame_seq,
+            depth_frame_seq=self.depth_schedule.depth_frame_seq,
         )
         self.pub_rgb.put(rgb_message)
         messages.append((self.pub_rgb, rgb_message))
         # Ground truth (evaluation only) after the frame, off the loop's critical path.
-        truth = self.world.truth()
-        truth_message = SimTruth(
-            header=header,
-            hand_marker_pose=truth.hand_marker_pose.reshape(-1).tolist(),
-            target_marker_pose=truth.target_marker_pose.reshape(-1).tolist(),
-            hand_corners_px=truth.hand_corners_px.tolist(),
-            target_corners_px=truth.target_corners_px.tolist(),
-            ee_position_m=truth.ee_position_m.tolist(),
-            joint_position_rad=q.tolist(),
-        )
-        self.pub_truth.put(truth_message)
-        messages.append((self.pub_truth, truth_message))
+        truth = truth_message(self.world.truth(), header, q)
+        self.pub_truth.put(truth)
+        messages.append((self.pub_truth, truth))
         self._last_frame = messages
         # After the frame, off its path: how it was made and the commands applied before it.
         self.pub_timing.put(
@@ -203,11 +190,8 @@ class SimService:
 
     def apply(self, command: JointVelocityCommand, recv_time_s: float) -> None:
         """``recv_time_s``: when the command arrived (wall clock), for :class:`SimTiming`."""
-        # The motors' own limit, whatever the command says.
-        limit = kin.JOINT_VELOCITY_LIMIT_RAD_S
-        wanted = np.array(command.velocity_rad_s)
-        self.motor_clamps += bool(np.any(np.abs(wanted) > limit))
-        self.last_command = np.clip(wanted, -limit, limit)
+        self.last_command, clamped = motor_velocities(command.velocity_rad_s)
+        self.motor_clamps += clamped
         self.last_command_s = time.monotonic()
         self.world.set_joint_velocities(self.last_command)
         self.applied.append(

@@ -502,7 +502,7 @@ class World:
         """Id image (int32, H×W) of what each pixel sees: pybullet's segmentation value
         ``body + ((link + 1) << 24)``, -1 for nothing; from either renderer."""
         if self._gl is not None:
-            return self._gl.read_ids(self._draw_gl(k))
+            return self._gl.read_ids(self._draw_gl(k, ids=True))
         seg = self._tiny_image(k, pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX)[4]
         return np.asarray(seg, dtype=np.int32).reshape(k.height_px, k.width_px)
 
@@ -519,8 +519,9 @@ class World:
             flags=flags,
         )
 
-    def _draw_gl(self, k: CameraIntrinsics) -> Any:
-        """Draw the scene as it is now through OpenGL (meshes re-read when bodies changed)."""
+    def _draw_gl(self, k: CameraIntrinsics, ids: bool = False) -> Any:
+        """Draw the scene as it is now through OpenGL, colour and depth or with ``ids`` the id
+        image (meshes re-read when bodies changed)."""
         assert self._gl is not None
         bodies = body_ids(self.client)
         if bodies != self._gl_bodies:
@@ -535,6 +536,7 @@ class World:
             cam.near_m,
             cam.far_m,
             np.array(LIGHT_DIRECTION),
+            ids=ids,
         )
 
     def close(self) -> None:

@@ -1,9 +1,11 @@
 """Vision service: colour frames + depth images → corners, depths and 3-D points of both markers.
 
-One event loop: depth images are kept (the last few, by the colour frame they were taken
-with); each colour frame is measured with the depth image it names (``depth_frame_seq``). If
-that image has not arrived yet the frame waits for it, at most ``DEPTH_WAIT_S``, then makes do
-with the newest one, so a lost depth image delays one frame instead of stalling the stream.
+The measurement itself is :func:`services.vision.step.vision_step` (pure); this shell adds
+the transport. One event loop: depth images are kept (the last few, by the colour frame they
+were taken with); each colour frame is measured with the depth image it names
+(``depth_frame_seq``). If that image has not arrived yet the frame waits for it, at most
+``DEPTH_WAIT_S``, then makes do with the newest one, so a lost depth image delays one frame
+instead of stalling the stream.
 
 Frames sent by reference (:mod:`common.frame_ring`) are read in place, as views of the sim's
 shared-memory ring, which holds each stream's last 16 frames: the frames vision keeps (one
@@ -19,35 +21,14 @@ import time
 from collections import OrderedDict
 
 from common.codec import FRAME_MAX_BYTES
-from common.messages import DepthFrame, Features, MarkerFeatures, RgbFrame
+from common.messages import DepthFrame, RgbFrame
 from common.runtime import ServiceContext
 from common.transport import Node
-from services.vision.measurement import MarkerMeasurement
-from services.vision.tracking import DepthImage, TrackerState, observe
+from services.vision.step import depth_for, depth_image, vision_step
+from services.vision.tracking import TrackerState
 
 DEPTH_WAIT_S = 0.5  # wall clock: how long a colour frame waits for its depth image
 DEPTH_CACHE = 4  # depth images kept
-
-
-def to_message(m: MarkerMeasurement) -> MarkerFeatures:
-    return MarkerFeatures(
-        state=m.state,  # type: ignore[arg-type]
-        corners_px=m.corners_px.tolist(),
-        depth_m=m.depths_m.tolist(),
-        depth_sigma_m=m.depth_sigmas_m.tolist(),
-        points_m=m.points_m.tolist(),
-        occluded=m.occluded,
-        fitted=m.fitted,
-        reason=m.reason,
-    )
-
-
-def depth_for(frame: RgbFrame, depths: OrderedDict[int, DepthFrame]) -> DepthFrame | None:
-    """The depth image ``frame`` names, else the newest one taken at or before it."""
-    if frame.depth_frame_seq in depths:
-        return depths[frame.depth_frame_seq]
-    older = [seq for seq in depths if seq <= frame.header.frame_seq]
-    return depths[max(older)] if older else None
 
 
 class VisionService:
@@ -93,13 +74,14 @@ class VisionService:
         depth_frame = depth_for(frame, self.depths)
         depth = None
         if depth_frame is not None:
-            depth = DepthImage(
+            depth = depth_image(
                 depth_frame.depth_m.to_array(),
                 depth_frame.intrinsics,
-                max(0.0, frame.header.sim_time_s - depth_frame.header.sim_time_s),
+                depth_frame.header.sim_time_s,
+                frame.header.sim_time_s,
             )
         self.depth_age_s = None if depth is None else depth.age_s
-        measured, tracker = observe(
+        step = vision_step(
             frame.rgb.to_array(),
             frame.intrinsics,
             depth,
@@ -112,7 +94,7 @@ class VisionService:
         if depth_frame is not None:
             images.append((self.ctx.keys.depth, depth_frame.depth_m))
         overwritten = [(key, image) for key, image in images if not image.intact()]
-        if overwritten:  # the pixels changed under observe(): forget what it measured
+        if overwritten:  # the pixels changed under the step: forget what it measured
             self.frames_overwritten += 1
             for key, image in overwritten:
                 self.node.reject(
@@ -121,19 +103,11 @@ class VisionService:
                     f"overwritten while vision read it; measurement dropped",
                 )
             return
-        self.tracker = tracker
-        for name, m in measured.items():
+        self.tracker = step.tracker
+        for name, m in step.measured.items():
             self.states[name], self.reasons[name] = m.state, m.reason
         header = self.node.header(frame.header.sim_time_s, frame.header.frame_seq)
-        self.pub.put(
-            Features(
-                header=header,
-                intrinsics=frame.intrinsics,
-                hand=to_message(measured["hand"]),
-                target=to_message(measured["target"]),
-                depth_age_s=self.depth_age_s,
-            )
-        )
+        self.pub.put(step.features(header, frame.intrinsics))
 
     def on_event(self, key: str, msg: RgbFrame | DepthFrame) -> None:
         if isinstance(msg, DepthFrame):

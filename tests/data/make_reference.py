@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from common.transport import free_tcp_endpoint  # noqa: E402
-from deploy.recording import format_info, read_info  # noqa: E402
+from deploy.recording.read import format_info, read_info  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "reference.mcap"
 SETTINGS = ["camera.width_px=480", "camera.height_px=360", "run.timeout_s=0.4"]

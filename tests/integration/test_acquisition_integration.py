@@ -10,8 +10,8 @@ from pathlib import Path
 from tests.integration.test_integration import umay_run
 
 # The default target; the hand 4 cm towards the camera along its line of sight to the target
-# and 3 cm to the robot's right of its goal (deploy.suite_design.solve_start), hiding about
-# two thirds of the red square from the first frame (it has never been seen whole).
+# and 3 cm to the robot's right of its goal (deploy.experiments.suite_design.solve_start),
+# hiding about two thirds of the red square from the first frame (it has never been seen whole).
 COVERING_Q0 = "robot.q0=[-1.676, 1.336, -1.56, 1.526, 0.235, -0.059]"
 SMALL = ["--set", "camera.width_px=320", "--set", "camera.height_px=240"]
 

@@ -8,8 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from deploy.campaign import CAUSES, cause_family
-from deploy.compare import differences, rows_from_json
+from deploy.experiments.campaign import CAUSES, cause_family
+from deploy.experiments.compare import differences, rows_from_json
 
 CHEAP = ["camera.width_px=320", "camera.height_px=240", "run.timeout_s=15.0"]
 

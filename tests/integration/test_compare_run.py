@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.compare import rows_from_json, summarize_modes
+from deploy.experiments.compare import rows_from_json, summarize_modes
 from tests.conftest import processes_mentioning
 from tests.unit.test_compare import CHEAP, MODES, SMALL_SUITE, _suite_copy, rows_from_csv
 from tests.unit.test_plots import PNG_SIGNATURE

@@ -22,7 +22,8 @@ from common.messages import EndEffectorTwist, Features, JointState
 from common.transport import open_session
 from deploy.foxglove import convert as c
 from deploy.foxglove.client import FoxgloveClient, decoder, protobuf_class
-from deploy.recording import iter_messages, split_data_key
+from deploy.recording.channels import split_data_key
+from deploy.recording.read import iter_messages
 from tests.conftest import launch_umay_up
 
 CORNER_TOL_PX = 0.01

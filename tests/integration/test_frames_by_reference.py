@@ -29,7 +29,8 @@ from common.frame_ring import RING_SLOTS, RingReader, RingWriter
 from common.keys import Keys
 from common.messages import DepthFrame, Header, ImageData, RgbFrame
 from common.transport import ENV_SHM, Node, free_tcp_endpoint, open_session, typed_publisher
-from deploy.recording import Recorder, iter_messages
+from deploy.recording.read import iter_messages
+from deploy.recording.record import Recorder
 
 K = CameraIntrinsics.from_fov(64, 48, 57.0)
 ELSEWHERE = RingReader(host="another-host/boot")  # as a subscriber on another machine maps
@@ -241,7 +242,7 @@ def test_vision_drops_a_measurement_whose_frame_was_overwritten_while_read(
         vision.on_event(net.keys.rgb, in_ring(colour_ring, colour(0)))
         assert vision.pub.meter.count == 1 and vision.node.rejected == 0  # measured, published
 
-        measure = vision_node.observe
+        measure = vision_node.vision_step
 
         def observe_while_the_ring_wraps(*args, **kwargs):
             out = measure(*args, **kwargs)
@@ -249,7 +250,7 @@ def test_vision_drops_a_measurement_whose_frame_was_overwritten_while_read(
                 in_ring(colour_ring, colour(1))
             return out
 
-        monkeypatch.setattr(vision_node, "observe", observe_while_the_ring_wraps)
+        monkeypatch.setattr(vision_node, "vision_step", observe_while_the_ring_wraps)
         vision.on_event(net.keys.rgb, in_ring(colour_ring, colour(1)))
         assert vision.pub.meter.count == 1  # nothing published from the torn frame
         assert vision.node.rejected == 1

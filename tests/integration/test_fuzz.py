@@ -48,8 +48,8 @@ from common.messages import (
     RgbFrame,
 )
 from common.transport import free_tcp_endpoint, open_session
-from deploy.run import run_once
-from deploy.status import collect
+from deploy.launch.run import run_once
+from deploy.launch.status import collect
 
 H = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
 K = CameraIntrinsics.from_fov(32, 24, 57.0)

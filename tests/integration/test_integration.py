@@ -22,7 +22,7 @@ from common.codec import encode
 from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, Header, JointState, MarkerFeatures
 from common.transport import ENV_SHM, free_tcp_endpoint, open_session, query_status
-from deploy.status import collect
+from deploy.launch.status import collect
 from tests.conftest import launch_umay_up
 
 UMAY = [sys.executable, "-m", "deploy"]

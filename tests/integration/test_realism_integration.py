@@ -20,10 +20,10 @@ from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, JointState, JointVelocityCommand
 from common.runtime import parse_overrides
 from common.transport import free_tcp_endpoint, open_session
-from deploy.compare import rows_from_json
-from deploy.recording import iter_messages
-from deploy.run import run_once
-from deploy.status import collect
+from deploy.experiments.compare import rows_from_json
+from deploy.launch.run import run_once
+from deploy.launch.status import collect
+from deploy.recording.read import iter_messages
 from tests.integration.test_compare_run import RUN_TIMEOUT_S, UMAY
 from tests.integration.test_integration import umay_run
 from tests.unit.test_compare import MODES

@@ -25,7 +25,9 @@ from common.codec import FRAME_MAX_BYTES, decode, encode, is_by_reference
 from common.keys import Keys
 from common.messages import Header, JointState
 from common.transport import free_tcp_endpoint, open_session
-from deploy.recording import Recorder, iter_messages, model_for_key, read_info
+from deploy.recording.channels import model_for_key
+from deploy.recording.read import iter_messages, read_info
+from deploy.recording.record import Recorder
 
 UMAY = [sys.executable, "-m", "deploy"]
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "reference.mcap"

@@ -15,8 +15,8 @@ import pytest
 
 from common.keys import SERVICES, Keys
 from common.transport import free_tcp_endpoint, open_session
-from deploy.status import collect
-from deploy.supervisor import Supervisor
+from deploy.launch.status import collect
+from deploy.launch.supervisor import Supervisor
 from tests.conftest import launch_umay_up
 
 

@@ -20,8 +20,8 @@ from common.config import SupervisorConfig
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
 from common.transport import Node, free_tcp_endpoint, open_session
-from deploy.status import collect
-from deploy.supervisor import Supervisor
+from deploy.launch.status import collect
+from deploy.launch.supervisor import Supervisor
 from tests.conftest import launch_umay_up, processes_mentioning
 
 
@@ -314,7 +314,7 @@ def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path:
     code = (
         "from pathlib import Path\n"
         "from common.config import load_scenario\n"
-        "from deploy.run import run_once\n"
+        "from deploy.launch.run import run_once\n"
         f"run_once(None, load_scenario(), [], 'test/{tmp_path.name}', "
         f"Path({str(tmp_path / 'file' / 'logs')!r}), listen='{free_tcp_endpoint()}', quiet=True)\n"
     )

@@ -1,10 +1,10 @@
 """Vision against the simulator's ground truth under the sensor conditions of the Kinect model
-(deploy/accuracy.py): a small sample here; docs/vision.md reports a large one."""
+(deploy/experiments/accuracy.py): a small sample here; docs/vision.md reports a large one."""
 
 from __future__ import annotations
 
 from common.config import load_scenario
-from deploy.accuracy import default_conditions, evaluate, format_table
+from deploy.experiments.accuracy import default_conditions, evaluate, format_table
 
 
 def test_vision_accuracy_under_sensor_conditions() -> None:

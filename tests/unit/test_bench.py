@@ -16,7 +16,7 @@ from deploy.bench import (
     analyse_trace,
     median_of_runs,
 )
-from deploy.plots import bench_figure
+from deploy.recording.plots import bench_figure
 
 
 def header(seq: int, send: float, recv: float = 0.0) -> Header:

@@ -7,7 +7,7 @@ import pytest
 
 from common import kinematics as kin
 from common.config import load_scenario
-from deploy.campaign import (
+from deploy.experiments.campaign import (
     CAUSES,
     DEFAULT_DISTRIBUTION,
     cause_family,
@@ -17,8 +17,13 @@ from deploy.campaign import (
     taxonomy_markdown,
     waited_for,
 )
-from deploy.compare import CompareRow
-from deploy.reachability import check_scenario, goal_pose, marker_in_image, view_angle_deg
+from deploy.experiments.compare import CompareRow
+from deploy.experiments.reachability import (
+    check_scenario,
+    goal_pose,
+    marker_in_image,
+    view_angle_deg,
+)
 
 DIST, BASE_PATH = load_distribution(DEFAULT_DISTRIBUTION)
 BASE = load_scenario(BASE_PATH)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.compare import (
+from deploy.experiments.compare import (
     CSV_COLUMNS,
     CompareError,
     CompareRow,
@@ -28,8 +28,8 @@ from deploy.compare import (
     summarize_modes,
     summary_markdown,
 )
-from deploy.compare_plots import write_overlay
-from deploy.plots import load_series
+from deploy.experiments.compare_plots import write_overlay
+from deploy.recording.plots import load_series
 from tests.unit.test_plots import PNG_SIGNATURE, write_recording
 
 SUITE = Path(__file__).resolve().parents[2] / "deploy" / "scenarios" / "suite"

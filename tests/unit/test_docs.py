@@ -12,7 +12,6 @@ from typing import Any
 import pytest
 
 from deploy.cli import main
-from deploy.compare import rows_from_json, strategy_table, summarize_modes
 from deploy.docs import (
     BLOCKS,
     END,
@@ -40,6 +39,7 @@ from deploy.docs import (
     run_label,
     update,
 )
+from deploy.experiments.compare import rows_from_json, strategy_table, summarize_modes
 
 
 def test_every_generated_table_agrees_with_its_json() -> None:

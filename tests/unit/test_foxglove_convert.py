@@ -27,7 +27,7 @@ from deploy.foxglove.channels import TOPICS
 from deploy.foxglove.client import protobuf_class
 from deploy.foxglove.layout import layout_json
 from services.controller.ibvs import desired_observation, feature_error_px_rms
-from services.controller.node import observation
+from services.controller.step import observation
 
 
 def header(t_s: float, seq: int = 0) -> Header:

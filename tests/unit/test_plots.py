@@ -20,8 +20,8 @@ from common.messages import (
     MarkerFeatures,
     SimTruth,
 )
-from deploy.plots import load_series, plot_recording
-from deploy.recording import NotARecordingError
+from deploy.recording.plots import load_series, plot_recording
+from deploy.recording.read import NotARecordingError
 
 PREFIX = "umay/test"
 K = CameraIntrinsics.from_fov(640, 480, 57.0)

@@ -11,7 +11,7 @@ import pytest
 
 from common.config import Scenario, load_scenario
 from common.runtime import parse_overrides
-from deploy.accuracy import WHOLE, sample_postures
+from deploy.experiments.accuracy import WHOLE, sample_postures
 from services.sim import world as world_module
 from services.sim.gl_renderer import GlUnavailable, depth_uniforms, pinhole_uniforms
 from services.sim.shapes import box_mesh, cylinder_mesh

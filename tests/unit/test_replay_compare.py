@@ -3,7 +3,7 @@ fields it ignores and how it names the ones that differ."""
 
 from __future__ import annotations
 
-from deploy.replay import compare_messages
+from deploy.recording.replay import compare_messages
 
 
 def test_compare_ignores_seq_and_send_time_and_names_field_paths() -> None:

@@ -6,8 +6,9 @@ from dataclasses import dataclass
 
 from common.codec import encode
 from common.messages import EndEffectorTwist, Header
-from deploy.evaluate import summarize
-from deploy.run import RunMonitor, stuck_detail, twist_phase
+from deploy.experiments.evaluate import summarize
+from deploy.launch.run import RunMonitor, twist_phase
+from deploy.launch.run_end import stuck_detail
 
 PERIOD_S = 1 / 30
 

@@ -9,9 +9,10 @@ rest of the robot, beyond the Kinect's near-mode limit (with a margin, see :func
 and apart in the image (vision refuses a target the hand overlaps, and the
 controller would then wait for it forever).
 
-Usage: ``python -m deploy.suite_design [SCENARIO.toml ...]`` prints the report of each file
-(default: every file of ``deploy/scenarios/suite``); ``python -m deploy.suite_design --solve
-X Y Z TURN_DEG [TILT_DEG] --scenario F`` prints the q0 of a start offset for F's target.
+Usage: ``python -m deploy.experiments.suite_design [SCENARIO.toml ...]`` prints the report of
+each file (default: every file of ``deploy/scenarios/suite``); ``python -m
+deploy.experiments.suite_design --solve X Y Z TURN_DEG [TILT_DEG] --scenario F`` prints the q0
+of a start offset for F's target.
 """
 
 from __future__ import annotations
@@ -25,9 +26,9 @@ import numpy as np
 
 from common import kinematics as kin
 from common.config import Scenario, ScenarioError, load_scenario
-from deploy.reachability import check_scenario, goal_pose, marker_in_image, square_turns
+from deploy.experiments.reachability import check_scenario, goal_pose, marker_in_image, square_turns
 
-SUITE_DIR = Path(__file__).resolve().parent / "scenarios" / "suite"
+SUITE_DIR = Path(__file__).resolve().parents[1] / "scenarios" / "suite"
 KINECT_RANGE_MARGIN_M = 0.03  # noisy depth: 3 cm clear of the near limit (the brief's 0.43 m)
 PERFECT_RANGE_MARGIN_M = 0.01  # exact depth is valid at any range; stay physically plausible
 MIN_GAP_PX = 12.0  # hand and target squares this far apart in the image at the start
@@ -139,7 +140,7 @@ def _nearest_range_m(pose: np.ndarray, scenario: Scenario) -> float:
 def check_start(scenario: Scenario) -> StartReport:
     """Render the start once and judge it (see the module docstring). Raises ScenarioError
     when the pre-launch check already refuses the scenario."""
-    from deploy.evaluate import square_orientation_error_deg
+    from deploy.experiments.evaluate import square_orientation_error_deg
     from services.sim.world import World
 
     check_scenario(scenario)
@@ -239,7 +240,9 @@ def format_report(name: str, r: StartReport) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m deploy.suite_design", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m deploy.experiments.suite_design", description=__doc__
+    )
     p.add_argument("files", nargs="*", help="scenario TOML files (default: the suite)")
     p.add_argument("--solve", nargs="+", type=float, metavar="X Y Z TURN [TILT]")
     p.add_argument("--scenario", default=None, help="for --solve: whose target")

@@ -2,7 +2,7 @@
 
 The thesis's experiment (§5.6-5.7: constant, dynamic, PMJ and MPJ Jacobians), extended with
 ``points3d`` and with a scenario suite (``deploy/scenarios/suite``). Each (scenario, strategy)
-pair is one lockstep :func:`deploy.run.run_once`: its own four service processes, its own
+pair is one lockstep :func:`deploy.launch.run.run_once`: its own four service processes, its own
 key prefix and its own listening port, so several pipelines share a machine without
 crosstalk, and every run is deterministic (only the wall time varies).
 
@@ -12,7 +12,7 @@ comparison before anything starts, :class:`CompareRow` is one run, :func:`rows_c
 :func:`best_per_metric` and :func:`summary_markdown` aggregate them, :func:`differences`
 compares two comparisons. Imperative shell: :func:`run_all` (a thread per running job, each
 waiting on its own processes), :func:`make_figures`, :func:`write_outputs`; the command line
-is in :mod:`deploy.compare_cli`.
+is in :mod:`deploy.experiments.cli`.
 
 Outputs in ``--out``: ``results.csv``, ``results.json``, ``summary.md``, ``logs/`` (each run's
 service logs) and ``figures/`` (per strategy, the thesis-style figures of the figures
@@ -38,7 +38,7 @@ from pydantic import BaseModel
 
 from common.config import EventAction, JacobianMode, Scenario, ScenarioError, load_scenario
 from common.runtime import parse_overrides
-from deploy.evaluate import RunResult
+from deploy.experiments.evaluate import RunResult
 
 ALL_MODES = tuple(m.value for m in JacobianMode)
 # What two lockstep comparisons of the same scenarios may disagree on: the wall time, and
@@ -165,9 +165,9 @@ def plan(
 ) -> Plan:
     """Every (scenario, mode) job, scenario-major, after validating each scenario with each
     mode (pydantic) and once with the pre-launch check
-    (:func:`deploy.reachability.check_scenario`). Raises :class:`CompareError` naming the file
-    and the reason."""
-    from deploy.reachability import check_scenario as check
+    (:func:`deploy.experiments.reachability.check_scenario`). Raises :class:`CompareError`
+    naming the file and the reason."""
+    from deploy.experiments.reachability import check_scenario as check
 
     files = scenario_files(directory)
     jobs: list[Job] = []
@@ -288,7 +288,7 @@ def differences(
 ) -> list[str]:
     """What differs between two comparisons, run by run and field by field: exactly, except
     that floats within ``rel_tol`` of each other (relative) count as equal (see
-    :data:`deploy.compare_cli.REFERENCE_REL_TOL`); the wall time and the scenario file's path
+    :data:`deploy.experiments.cli.REFERENCE_REL_TOL`); the wall time and the scenario file's path
     are ignored."""
     left, right = _by_run(a), _by_run(b)
     out = [f"{s} · {m}: only in the first" for s, m in left.keys() - right.keys()]
@@ -642,7 +642,7 @@ def run_job(
     """One closed-loop run under its own prefix, port and log directory."""
     import shutil
 
-    from deploy.run import run_once
+    from deploy.launch.run import run_once
 
     record = figure_recording(out_dir, job.mode) if job.record else None
     log_dir = out_dir / "logs" / job.scenario.name / job.mode
@@ -707,8 +707,8 @@ def make_figures(plan_: Plan, out_dir: Path) -> list[Path]:
     """Per strategy, the thesis-style figures of the figures scenario's run (Figs. 5.10-5.17:
     image trajectory, end-effector velocity, plus feature error and joint velocities), and
     ``overlay.png`` of every strategy's image trajectory, error and speed."""
-    from deploy.compare_plots import write_overlay
-    from deploy.plots import load_series, plot_series
+    from deploy.experiments.compare_plots import write_overlay
+    from deploy.recording.plots import load_series, plot_series
 
     job = next(j for j in plan_.jobs if j.record)
     converged_px = job.scenario.controller.converged_px

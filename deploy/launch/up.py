@@ -16,7 +16,7 @@ from common.config import Scenario
 from common.keys import Keys
 from common.transport import Node, alive_services, open_session
 from deploy.exit_codes import EXIT_ALREADY_RUNNING
-from deploy.supervisor import Supervisor
+from deploy.launch.supervisor import Supervisor
 
 
 def run_up(

@@ -1,11 +1,11 @@
 """One figure of every strategy's run on the same scenario (``umay compare``'s overlay.png).
 
-Four panels from the recordings (:func:`deploy.plots.load_series`): the hand marker's centre
-in the image (the thesis's Figs. 5.10-5.17 put one strategy per figure; here they share one,
-over the green start square and the red target square), the feature error over time (log
-scale, with the convergence threshold), the commanded end-effector speed over time, and how
-far the hand strays from the straight line between its start and its end in 3-D (ground
-truth): what the path ratio sums up, and what the image alone does not show.
+Four panels from the recordings (:func:`deploy.recording.plots.load_series`): the hand
+marker's centre in the image (the thesis's Figs. 5.10-5.17 put one strategy per figure; here
+they share one, over the green start square and the red target square), the feature error over
+time (log scale, with the convergence threshold), the commanded end-effector speed over time,
+and how far the hand strays from the straight line between its start and its end in 3-D
+(ground truth): what the path ratio sums up, and what the image alone does not show.
 
 Colours are Okabe-Ito (distinguishable with the common colour-vision deficiencies), kept away
 from the markers' green and red, and every strategy also has its own line style and marker,
@@ -22,7 +22,7 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from deploy.plots import HAND_GREEN, TARGET_RED, RunSeries
+from deploy.recording.plots import HAND_GREEN, TARGET_RED, RunSeries
 
 OVERLAY_DPI = 100
 MARGIN_PX = 25.0  # around the trails in the zoomed image panel
@@ -189,7 +189,7 @@ def write_overlay(
     title: str = "",
 ) -> Path | None:
     """Draw :func:`overlay_figure` of each strategy's recorded series
-    (:func:`deploy.plots.load_series`), save it as PNG at ``path``; None (nothing written)
+    (:func:`deploy.recording.plots.load_series`), save it as PNG at ``path``; None (nothing written)
     when there is nothing to draw."""
     fig = overlay_figure(series, converged_px, title)
     if fig is None:

@@ -1,20 +1,25 @@
 """``umay compare`` on the command line: parse, validate (exit 2, nothing launched), run with a
-progress bar, write the outputs. Kept apart from :mod:`deploy.compare` so that building the
-``umay`` parser imports nothing heavy."""
+progress bar, write the outputs; ``umay campaign`` and ``umay accuracy`` likewise. Kept apart
+from :mod:`deploy.experiments.compare` so that building the ``umay`` parser imports nothing
+heavy."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
-from deploy.compare import ALL_MODES
+from common.config import ScenarioError
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
+from deploy.experiments.compare import ALL_MODES
+from deploy.paths import check_output_file
 
-DEFAULT_SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios" / "suite"
+DEFAULT_SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios" / "suite"
 # Relative difference allowed by default between float results and --reference's: lockstep runs
 # repeat bit for bit on one machine, but another CPU's BLAS/LAPACK kernels round the last bits
 # differently and a hundred frames of closed loop carry that into later digits (1.9e-5 at most
@@ -81,7 +86,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
 
     from common.config import ScenarioError
-    from deploy.compare import (
+    from deploy.experiments.compare import (
         CompareError,
         CompareRow,
         Job,
@@ -192,7 +197,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 # --- umay campaign ---------------------------------------------------------------------------
 def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
     """The ``campaign`` subcommand: random starts, every strategy, a failure taxonomy."""
-    from deploy.campaign import DEFAULT_DISTRIBUTION
+    from deploy.experiments.campaign import DEFAULT_DISTRIBUTION
 
     p = sub.add_parser(
         "campaign",
@@ -218,8 +223,20 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     interrupted."""
     from rich.console import Console
 
-    from deploy.campaign import failure_cause, plan_campaign, run_campaign, write_campaign
-    from deploy.compare import CompareError, CompareRow, Job, format_cell, make_figures, parse_modes
+    from deploy.experiments.campaign import (
+        failure_cause,
+        plan_campaign,
+        run_campaign,
+        write_campaign,
+    )
+    from deploy.experiments.compare import (
+        CompareError,
+        CompareRow,
+        Job,
+        format_cell,
+        make_figures,
+        parse_modes,
+    )
     from deploy.paths import OutputPathError, check_output_dir
 
     console = Console(stderr=True)
@@ -273,3 +290,58 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     for path in write_campaign(cplan, rows, out_dir, figures, note):
         print(path)
     return EXIT_OK
+
+
+def cmd_accuracy(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from common.config import load_scenario
+    from common.runtime import parse_overrides
+
+    if args.frames < 1 or args.seed < 0:
+        print("umay accuracy: --frames must be at least 1, --seed 0 or more", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        overrides = parse_overrides(args.set)
+        scenarios = [load_scenario(p, overrides) for p in (args.scenario or [None])]
+    except ScenarioError as exc:
+        print(f"umay accuracy: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.json:
+        check_output_file("--json", args.json)
+    # Imported only now: it loads pybullet.
+    from deploy.experiments.accuracy import default_conditions, evaluate, format_table
+
+    conditions = default_conditions(args.seed)
+    with Progress(transient=True) as bar:
+        task = bar.add_task("postures", total=args.frames * len(scenarios))
+        results = evaluate(
+            scenarios,
+            args.frames,
+            conditions,
+            args.seed,
+            progress=lambda done, _total: bar.update(task, completed=done),
+        )
+    print(format_table(results))
+    if args.json:
+        Path(args.json).write_text(json.dumps([r.model_dump() for r in results], indent=2) + "\n")
+    return 0
+
+
+def add_accuracy_parser(sub: argparse._SubParsersAction) -> None:
+    """``umay accuracy``: vision against the simulator's truth."""
+    p = sub.add_parser("accuracy", help="vision against ground truth under sensor conditions")
+    p.add_argument("--scenario", action="append", default=None, help="scenario TOML (repeatable)")
+    p.add_argument("--frames", type=int, default=100, help="postures per scenario")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None, metavar="OUT.json", help="write the results here")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_accuracy)
+
+
+# Command name -> what adds its parser; deploy.cli puts them in the help's order.
+COMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
+    "accuracy": add_accuracy_parser,
+    "compare": add_compare_parser,
+    "campaign": add_campaign_parser,
+}

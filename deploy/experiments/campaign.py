@@ -4,9 +4,10 @@ The suite's starts were chosen by hand; a campaign draws them from a distributio
 repository (``deploy/campaigns/random_starts.toml``, documented there): targets anywhere on
 the table within the image at any yaw, the hand up to 15 cm from its goal and turned up to 45°
 about the optical axis, overlap with the target allowed. Each start runs with every strategy
-through :mod:`deploy.compare`'s machinery (one lockstep pipeline per run, results.json/csv,
-summary.md, figures), and every run that does not end on its goal gets exactly one named cause
-(:func:`failure_cause`); starts the pre-launch check refuses are counted with its reason.
+through :mod:`deploy.experiments.compare`'s machinery (one lockstep pipeline per run,
+results.json/csv, summary.md, figures), and every run that does not end on its goal gets
+exactly one named cause (:func:`failure_cause`); starts the pre-launch check refuses are
+counted with its reason.
 
 Functional core (pure): :class:`Distribution`, :func:`draw_start` (a start from its own
 generator, ``default_rng([seed, i])``: the same starts whatever N), :func:`failure_cause`,
@@ -29,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from common import kinematics as kin
 from common.config import Scenario, ScenarioError, load_scenario
 from common.runtime import parse_overrides
-from deploy.compare import (
+from deploy.experiments.compare import (
     ON_GOAL_M,
     CompareError,
     CompareRow,
@@ -39,7 +40,7 @@ from deploy.compare import (
     job_overrides,
     markdown_table,
 )
-from deploy.reachability import (
+from deploy.experiments.reachability import (
     MAX_VIEW_ANGLE_DEG,
     arm_hides_hand_marker,
     check_scenario,
@@ -50,7 +51,7 @@ from deploy.reachability import (
     view_angle_deg,
 )
 
-DEFAULT_DISTRIBUTION = Path(__file__).resolve().parent / "campaigns" / "random_starts.toml"
+DEFAULT_DISTRIBUTION = Path(__file__).resolve().parents[1] / "campaigns" / "random_starts.toml"
 IK_STEPS = 20  # the start is reached from the goal in this many small IK moves
 # A run that failed with a joint this near its limit failed on it: the actuation slows a joint
 # linearly inside its last 10° (services/actuation/inverse.py), so the servo's last pixels
@@ -328,7 +329,7 @@ def close_at_end(row: CompareRow) -> bool:
 
 
 def waited_for(detail: str) -> str:
-    """``hand partial`` out of a stuck run's detail (see deploy.run.stuck_detail)."""
+    """``hand partial`` out of a stuck run's detail (see deploy.launch.run_end.stuck_detail)."""
     head = "waiting for: "
     if head not in detail:
         return detail or "?"
@@ -445,7 +446,7 @@ def starts_json(starts: Sequence[Start]) -> str:
 def run_campaign(
     cplan: CampaignPlan, n_jobs: int, out_dir: Path, stop, on_start, on_done
 ) -> list[CompareRow]:
-    from deploy.compare import run_all
+    from deploy.experiments.compare import run_all
 
     return run_all(cplan.plan.jobs, n_jobs, out_dir, stop, on_start, on_done)
 
@@ -454,7 +455,7 @@ def write_campaign(
     cplan: CampaignPlan, rows: Sequence[CompareRow], out_dir: Path, figures, note: str
 ) -> list[Path]:
     """compare's outputs, plus campaign.md (the taxonomy), causes.json and starts.json."""
-    from deploy.compare import write_outputs
+    from deploy.experiments.compare import write_outputs
 
     written = write_outputs(cplan.plan, rows, out_dir, figures, note) if rows else []
     modes = cplan.plan.modes

@@ -20,15 +20,16 @@ from rich.text import Text
 
 from common import kinematics as kin
 from common.codec import DEFAULT_MAX_BYTES, MessageError, decode
-from common.config import EventAction, Scenario, load_scenario
+from common.config import Scenario, load_scenario
 from common.keys import Keys
 from common.messages import EndEffectorTwist, SimTruth
 from common.runtime import parse_overrides
 from common.transport import DEFAULT_ENDPOINT, free_tcp_endpoint, open_session
-from deploy.evaluate import RunResult, pose, summarize
-from deploy.reachability import check_scenario
-from deploy.supervisor import Supervisor
-from services.controller.ibvs import ACQUIRING, ACQUISITION_FAILED
+from deploy.experiments.evaluate import RunResult, pose
+from deploy.experiments.reachability import check_scenario
+from deploy.launch.run_end import EndLimits, HoldState, RunEnd, judge_twist, run_result
+from deploy.launch.supervisor import Supervisor
+from services.controller.ibvs import ACQUIRING
 
 M = TypeVar("M", bound=BaseModel)
 log = logging.getLogger("umay.run")
@@ -56,22 +57,33 @@ def prepare(scenario_path: str | None, overrides: list[str]) -> Scenario:
 
 @dataclass
 class RunMonitor:
-    """Collects ground truth and twists per frame (Zenoh callback threads write, run reads)."""
+    """Collects ground truth and twists per frame (Zenoh callback threads write, run reads) and
+    decides the end of the run twist by twist (:func:`deploy.launch.run_end.judge_twist`)."""
 
     truths: dict[int, SimTruth] = field(default_factory=dict)
     twists: dict[int, EndEffectorTwist] = field(default_factory=dict)
     decided: threading.Event = field(default_factory=threading.Event)
-    converged_frame: int | None = None
-    timeout_frame: int | None = None
     timeout_s: float = 30.0
     not_before_s: float = 0.0  # convergence counts once the scenario's events are over
     stuck_after_s: float = 4.0  # a hold this long (sim s) ends the run: stuck
     rejected: int = 0
-    hold_since_s: float | None = None  # sim time the current run of holding twists began
-    hold_reason: str = ""  # of the latest holding twist
-    ended: str = ""  # why the run ended before converging or timing out: stuck, ...
-    ended_detail: str = ""
-    ended_frame: int | None = None
+    hold: HoldState = field(default_factory=HoldState)
+    end: RunEnd | None = None  # why the run ended, and at which frame
+
+    @property
+    def ended(self) -> str:
+        """Why the run ended before converging or timing out (stuck, ...), else ""."""
+        if self.end is None or self.end.reason in ("converged", "timeout"):
+            return ""
+        return self.end.reason
+
+    @property
+    def ended_detail(self) -> str:
+        return self.end.detail if self.ended else ""
+
+    @property
+    def ended_frame(self) -> int | None:
+        return self.end.frame if self.ended and self.end is not None else None
 
     def _decode(self, sample, model: type[M]) -> M | None:
         try:
@@ -91,55 +103,17 @@ class RunMonitor:
         tw = self._decode(sample, EndEffectorTwist)
         if tw is None:
             return
-        seq = tw.header.frame_seq
-        self.twists[seq] = tw
+        self.twists[tw.header.frame_seq] = tw
         if self.decided.is_set():
             return
-        t = tw.header.sim_time_s
-        if tw.valid:
-            self.hold_since_s = None
-        else:
-            self.hold_since_s = t if self.hold_since_s is None else self.hold_since_s
-            self.hold_reason = tw.hold_reason
-        if tw.converged and t >= self.not_before_s:
-            self.converged_frame = seq
+        limits = EndLimits(self.timeout_s, self.not_before_s, self.stuck_after_s)
+        self.hold, end = judge_twist(limits, self.hold, tw)
+        if end is not None:
+            self.end = end
             self.decided.set()
-        elif tw.header.sim_time_s >= self.timeout_s:
-            self.timeout_frame = seq
-            self.decided.set()
-        elif not tw.valid and tw.hold_reason.startswith(ACQUISITION_FAILED):
-            self.end("acquisition_failed", f"{tw.hold_reason} (held at {t:.2f} s)", seq)
-        elif self.hold_since_s is not None and t - self.hold_since_s >= self.stuck_after_s:
-            self.end("stuck", stuck_detail(self.hold_reason, self.hold_since_s, t), seq)
-
-    def end(self, reason: str, detail: str, frame: int) -> None:
-        self.ended, self.ended_detail, self.ended_frame = reason, detail, frame
-        self.decided.set()
 
     def latest(self) -> EndEffectorTwist | None:
         return self.twists[max(self.twists)] if self.twists else None
-
-
-def stuck_detail(hold_reason: str, since_s: float, now_s: float) -> str:
-    """What a stuck run waited for and since when (sim time)."""
-    return (
-        f"held {now_s - since_s:.2f} s waiting for: {hold_reason or 'usable features'} "
-        f"(holding since sim time {since_s:.2f} s)"
-    )
-
-
-def timeout_detail(monitor: RunMonitor, timeout_s: float) -> str:
-    """Why a run that timed out had not converged, from the controller's last output."""
-    tw = monitor.latest()
-    if tw is None:
-        return f"no controller output within {timeout_s:g} s simulated"
-    if not tw.valid:
-        return f"{timeout_s:g} s simulated; last holding: {tw.hold_reason}"
-    phase = tw.hold_reason or "servoing"
-    return (
-        f"{timeout_s:g} s simulated; still {phase}, image error {tw.error_px_rms:.3f} px "
-        "above the convergence threshold"
-    )
 
 
 def run_once(
@@ -156,21 +130,22 @@ def run_once(
 ) -> RunResult:
     """Launch the four services, servo until converged or timeout, stop them, judge the run.
 
-    ``record``: write every data message of the run to this MCAP file (see deploy.recording).
+    ``record``: write every data message of the run to this MCAP file (see deploy.recording.record).
     ``stop``: set from another thread to end the run early (reason "error", detail
     "interrupted"); the services are stopped as after any run.
     """
     endpoint = listen or default_listen_endpoint()
     keys = Keys(prefix)
+    limits = EndLimits.of(scenario)
     monitor = RunMonitor(
-        timeout_s=scenario.run.timeout_s,
-        not_before_s=scenario.events_end_s,
-        stuck_after_s=scenario.controller.stuck_after_s,
+        timeout_s=limits.timeout_s,
+        not_before_s=limits.not_before_s,
+        stuck_after_s=limits.stuck_after_s,
     )
     session = open_session(connect=[], listen=[endpoint])
     recorder = None
     if record is not None:
-        from deploy.recording import Recorder, run_metadata
+        from deploy.recording.record import Recorder, run_metadata
 
         metadata = run_metadata(scenario_path, overrides, prefix)
         recorder = Recorder(record, session, keys, metadata=metadata)
@@ -194,12 +169,8 @@ def run_once(
         sup.start()
         while True:
             if monitor.decided.wait(0.2):
-                if monitor.converged_frame is not None:
-                    reason = "converged"
-                elif monitor.ended:
-                    reason, detail = monitor.ended, monitor.ended_detail
-                else:
-                    reason, detail = "timeout", timeout_detail(monitor, scenario.run.timeout_s)
+                assert monitor.end is not None
+                reason, detail = monitor.end.reason, monitor.end.detail
                 break
             if stop is not None and stop.is_set():
                 detail = "interrupted"
@@ -228,31 +199,7 @@ def run_once(
         if live is not None:
             live.stop()
     wall = time.monotonic() - started
-    if reason == "converged":
-        last = monitor.converged_frame
-    elif reason == "timeout" and monitor.timeout_frame is not None:
-        last = monitor.timeout_frame
-    elif monitor.ended and reason == monitor.ended:
-        last = monitor.ended_frame
-    else:
-        last = max(monitor.twists) if monitor.twists else None
-    if last is not None and last not in monitor.truths:
-        last = max((k for k in monitor.truths if k <= last), default=None)
-    return summarize(
-        scenario.name,
-        scenario.controller.mode.value,
-        scenario.run.clock.value,
-        reason,
-        last,
-        monitor.truths,
-        monitor.twists,
-        wall,
-        scenario.target.approach_height_m,
-        detail,
-        period_s=1.0 / scenario.camera.rgb_hz,
-        moving=[(e.at_s, e.end_s) for e in scenario.events if e.action is EventAction.MOVE_TARGET],
-        image_size_px=(scenario.camera.width_px, scenario.camera.height_px),
-    )
+    return run_result(scenario, reason, detail, monitor.end, monitor.truths, monitor.twists, wall)
 
 
 def progress_line(monitor: RunMonitor, scenario: Scenario, elapsed_s: float) -> Text:

@@ -54,9 +54,10 @@ from common.config import DEFAULT_SCENARIO, ScenarioError, load_scenario
 from common.keys import Keys
 from common.runtime import parse_overrides
 from common.transport import alive_services, free_tcp_endpoint, open_session
+from deploy.launch.supervisor import Supervisor
 from deploy.paths import check_output_dir
-from deploy.recording import NotARecordingError, RecordingReader, split_data_key
-from deploy.supervisor import Supervisor
+from deploy.recording.channels import split_data_key
+from deploy.recording.read import NotARecordingError, RecordingReader
 
 JOINT_STATE = "sim/joint_state"
 # Wall-clock stamps and counters differ from run to run by nature.

@@ -25,7 +25,7 @@ from pydantic import BaseModel
 from common import kinematics as kin
 from common.camera import CameraIntrinsics
 from common.config import KinectConfig, Scenario, VisionConfig
-from deploy.reachability import check_scenario
+from deploy.experiments.reachability import check_scenario
 from services.sim.sensor_model import axial_sigma_m, exposed_rgb, noisy_depth
 from services.sim.world import World
 from services.vision.measurement import MarkerMeasurement, measure_markers

@@ -16,7 +16,7 @@ function per figure draws from those arrays; :func:`plot_recording` writes them 
 Drawing uses :class:`matplotlib.figure.Figure` on the Agg canvas directly, never pyplot, so
 it needs no display, touches no global backend state and is safe to call from any thread.
 
-Usage: ``umay plot RUN.mcap --out DIR`` (:func:`deploy.cli.cmd_plot`).
+Usage: ``umay plot RUN.mcap --out DIR`` (:func:`deploy.recording.cli.cmd_plot`).
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ from common.messages import (
     EndEffectorTwist,
     Features,
 )
-from deploy.recording import DATA_SUFFIXES, RecordingReader
+from deploy.recording.channels import DATA_SUFFIXES
+from deploy.recording.read import RecordingReader
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,18 @@
+"""argparse types that commands of more than one folder share (``umay status`` and ``umay
+record`` both take a duration)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+
+def positive_seconds(value: str) -> float:
+    """argparse type of a duration: a finite number of seconds above 0."""
+    try:
+        seconds = float(value)
+    except ValueError:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise argparse.ArgumentTypeError(f"{value!r}: seconds, a finite number above 0")
+    return seconds

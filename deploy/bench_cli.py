@@ -1,0 +1,133 @@
+"""``umay bench`` on the command line: its parser and handler, apart from :mod:`deploy.bench`
+so that building the ``umay`` parser imports nothing heavy. It moves beside the bench's modules
+when ``deploy/bench.py`` becomes a folder of its own."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from common.config import ClockMode, ScenarioError
+from deploy.exit_codes import EXIT_BAD_INPUT
+from deploy.paths import FIGURE_SUFFIXES, check_output_dir, check_output_file
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from deploy.bench import BenchError, format_report, median_of_runs, run_bench, write_json
+    from deploy.launch.run import prepare
+
+    size = args.size.lower().split("x")
+    if len(size) != 2 or not all(p.isdigit() for p in size):
+        print(f"umay bench: --size {args.size!r}: expected WxH, e.g. 640x480", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.mode not in {c.value for c in ClockMode}:
+        print(f"umay bench: --mode {args.mode!r}: lockstep or realtime", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.frames < 2 or args.warmup < 0 or (args.synthetic_frames or 0) < 0 or args.repeat < 1:
+        print(
+            "umay bench: --frames >= 2, --repeat >= 1, --warmup and --synthetic-frames >= 0",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
+    overrides = [
+        f"camera.width_px={size[0]}",
+        f"camera.height_px={size[1]}",
+        f"run.clock='{args.mode}'",
+        *args.set,
+    ]
+    try:
+        scenario = prepare(args.scenario, overrides)
+    except ScenarioError as exc:
+        print(f"umay bench: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.json:
+        check_output_file("--json", args.json)
+    if args.figure:
+        check_output_file("--figure", args.figure, FIGURE_SUFFIXES)
+    check_output_dir("--log-dir", args.log_dir)
+    runs = []
+    for i in range(args.repeat):
+        try:
+            result = run_bench(
+                args.scenario,
+                scenario,
+                overrides,
+                args.frames,
+                args.warmup,
+                Path(args.log_dir),
+                shm=not args.no_shm,
+                synthetic_frames=args.synthetic_frames,
+                command=" ".join(["umay", *sys.argv[1:]]),
+                reference_renderer=not args.no_reference,
+                view=args.view,
+            )
+        except BenchError as exc:
+            print(f"umay bench: {exc}", file=sys.stderr)
+            return 1
+        runs.append(result)
+        if args.repeat > 1:
+            print(f"--- run {i + 1} of {args.repeat}\n{format_report(result)}\n", flush=True)
+    result = runs[0] if len(runs) == 1 else {**median_of_runs(runs), "each_run": runs}
+    print(format_report(result))
+    try:  # checked before the runs; this fails only if the disk changed since (full, say)
+        if args.json:
+            write_json(result, args.json)
+        if args.figure:
+            from deploy.recording.plots import write_bench_figure
+
+            write_bench_figure(runs[0], Path(args.figure))  # frame by frame: the first run
+            print(f"figure: {args.figure}" + (" (the first run)" if len(runs) > 1 else ""))
+    except OSError as exc:
+        print(f"umay bench: could not write the results: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def add_bench_parser(sub: argparse._SubParsersAction) -> None:
+    """``umay bench``: the loop's latency and throughput."""
+    p = sub.add_parser("bench", help="loop latency and throughput per stage, vs in-process")
+    p.add_argument("--frames", type=int, default=100, help="measured frames (after warm-up)")
+    p.add_argument("--warmup", type=int, default=5, help="frames left out at the start")
+    p.add_argument("--size", default="640x480", help="colour image WxH (default 640x480)")
+    p.add_argument("--mode", default="lockstep", help="clock: lockstep|realtime")
+    p.add_argument(
+        "--no-shm",
+        action="store_true",
+        help="shared memory off everywhere: camera frames whole, by copy, not by reference",
+    )
+    p.add_argument(
+        "--no-reference",
+        action="store_true",
+        help="skip the TinyRenderer reference (its render cost and its loop)",
+    )
+    p.add_argument("--repeat", type=int, default=1, help="runs; the table shows their medians")
+    p.add_argument(
+        "--view",
+        action="store_true",
+        help="with a live view (umay view) and a Foxglove client connected during the loop",
+    )
+    p.add_argument(
+        "--synthetic-frames",
+        type=int,
+        default=None,
+        help="frames of the 30 Hz synthetic source (default: --frames; 0: skip it)",
+    )
+    p.add_argument("--json", default=None, metavar="OUT.json", help="write the results here")
+    p.add_argument(
+        "--figure",
+        default=None,
+        metavar="OUT.png",
+        help="the frames' stages as a figure, .png, .svg or .pdf (1st run)",
+    )
+    p.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
+    p.add_argument("--log-dir", default="out/logs/bench", help="the services' log files")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_bench)
+
+
+# Command name -> what adds its parser; deploy.cli puts them in the help's order.
+COMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
+    "bench": add_bench_parser,
+}

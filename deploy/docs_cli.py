@@ -1,0 +1,38 @@
+"""``umay docs`` on the command line: its parser and handler, apart from :mod:`deploy.docs`
+(which loads the comparison's modules) so that building the ``umay`` parser stays light."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from deploy.exit_codes import EXIT_BAD_INPUT
+
+
+def cmd_docs(args: argparse.Namespace) -> int:
+    from deploy.docs import REPO_ROOT, DocsError, update
+
+    try:
+        outdated = update(Path(args.root) if args.root else REPO_ROOT, check=args.check)
+    except DocsError as exc:
+        print(f"umay docs: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for o in outdated:
+        print(o if args.check else f"rewrote {o.document}: {o.block}", file=sys.stderr)
+    return 1 if args.check and outdated else 0
+
+
+def add_docs_parser(sub: argparse._SubParsersAction) -> None:
+    """``umay docs``: the docs' generated tables."""
+    p = sub.add_parser("docs", help="rewrite the docs' tables from the JSON they come from")
+    p.add_argument("--check", action="store_true", help="change nothing; exit 1 if out of date")
+    p.add_argument("--root", default=None, help="the repository (default: this one)")
+    p.set_defaults(func=cmd_docs)
+
+
+# Command name -> what adds its parser; deploy.cli puts them in the help's order.
+COMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
+    "docs": add_docs_parser,
+}

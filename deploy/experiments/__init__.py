@@ -1,0 +1,1 @@
+"""Experiments: the comparison, campaigns, domain studies, accuracy and reachability."""

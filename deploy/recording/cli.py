@@ -1,0 +1,252 @@
+"""The recording commands of ``umay``: record, info, replay, plot and export (their parsers
+and handlers; :mod:`deploy.cli` puts them together)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+import zenoh
+
+from common.config import ScenarioError
+from common.keys import Keys, default_prefix
+from common.runtime import endpoints_argument, prefix_argument
+from common.transport import open_session, zenoh_reason
+from deploy.arguments import positive_seconds
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_NOT_CONVERGED
+from deploy.paths import check_output_dir, check_output_file
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+
+    from deploy.recording.record import Recorder, run_metadata
+
+    if args.keys is not None:
+        try:
+            zenoh.KeyExpr(args.keys)
+        except zenoh.ZError as exc:
+            print(f"umay record: --keys {args.keys!r}: {zenoh_reason(exc)}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    check_output_file("OUT.mcap", args.out)
+    keys = Keys(args.prefix or default_prefix())
+    metadata = {"prefix": keys.prefix, "recorded_by": "umay record"}
+    if args.scenario or args.set:
+        try:
+            metadata = run_metadata(args.scenario, args.set, keys.prefix)
+        except OSError as exc:
+            print(f"umay record: {args.scenario}: {exc.strerror}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    session = open_session(connect=args.connect)
+    try:
+        with Recorder(args.out, session, keys, args.keys, metadata) as recorder:
+            print(f"recording {recorder.key_expr} to {args.out} (Ctrl-C to stop)", file=sys.stderr)
+            stop.wait(args.duration)
+        counts = recorder.message_counts()
+    finally:
+        session.close()
+    for key, n in sorted(counts.items()):
+        print(f"{n:8d}  {key}")
+    print(f"{sum(counts.values()):8d}  messages in {args.out}")
+    if recorder.lost:
+        print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from deploy.recording.read import NotARecordingError, format_info, read_info
+
+    try:
+        info = read_info(args.file)
+    except FileNotFoundError:
+        print(f"umay info: {args.file}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except NotARecordingError as exc:
+        print(f"umay info: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as exc:  # the mcap reader raises several types for a bad file
+        print(f"umay info: {args.file}: not a readable MCAP file ({exc})", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    print(format_info(info))
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from deploy.recording.replay import (
+        REPLAYABLE,
+        ReplayError,
+        ReplayFailed,
+        format_report,
+        replay_service,
+    )
+
+    if args.service not in REPLAYABLE:
+        choices = ", ".join(REPLAYABLE)
+        print(
+            f"umay replay: unknown service {args.service!r} (choose from {choices})",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
+    if not Path(args.file).is_file():
+        print(f"umay replay: {args.file}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.speed == "max":
+        speed = None
+    else:
+        try:
+            speed = float(args.speed)
+        except ValueError:
+            speed = -1.0
+        if not (math.isfinite(speed) and speed > 0):
+            print(f"umay replay: --speed {args.speed!r}: a positive number or max", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    try:
+        report = replay_service(
+            args.file,
+            args.service,
+            speed,
+            args.check,
+            Path(args.log_dir),
+            overrides=args.set,
+            scenario_path=args.scenario,
+            tolerance=args.tolerance,
+        )
+    except (ReplayError, ScenarioError) as exc:
+        print(f"umay replay: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except ReplayFailed as exc:
+        print(f"umay replay: {exc}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    print(format_report(report))
+    return 0 if report.ok else EXIT_NOT_CONVERGED
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    from deploy.recording.plots import plot_recording
+    from deploy.recording.read import NotARecordingError
+
+    path = Path(args.file)
+    if not path.is_file():
+        print(f"umay plot: {path}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    check_output_dir("--out", args.out)
+    try:
+        written = plot_recording(path, Path(args.out))
+    except NotARecordingError as exc:
+        print(f"umay plot: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for p in written:
+        print(p)
+    if not written:
+        print(f"umay plot: {path} holds nothing to plot", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from deploy.foxglove.export import export_foxglove
+    from deploy.recording.read import NotARecordingError
+
+    if not Path(args.file).is_file():
+        print(f"umay export: {args.file}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if not args.foxglove:
+        print("umay export: say what to write: --foxglove OUT.mcap", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    check_output_file("--foxglove", args.foxglove)
+    if Path(args.foxglove).resolve() == Path(args.file).resolve():
+        print("umay export: --foxglove must not overwrite the recording", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        report = export_foxglove(args.file, args.foxglove, args.jpeg_quality)
+    except (NotARecordingError, ScenarioError) as exc:
+        print(f"umay export: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for topic, n in sorted(report.written.items()):
+        print(f"{n:8d}  {topic}")
+    print(f"{sum(report.written.values()):8d}  messages in {args.foxglove}")
+    for note in report.notes:
+        print(f"note: {note}", file=sys.stderr)
+    if report.rejected:
+        print(f"note: {report.rejected} recorded payloads did not decode", file=sys.stderr)
+    return 0 if report.written else EXIT_NOT_CONVERGED
+
+
+def add_export_parser(sub: argparse._SubParsersAction) -> None:
+    """``umay export``: a recording as an MCAP file Foxglove shows."""
+    p = sub.add_parser("export", help="a recording as an MCAP file Foxglove shows")
+    p.add_argument("file", metavar="RUN.mcap")
+    p.add_argument("--foxglove", default=None, metavar="OUT.mcap", help="write it here")
+    p.add_argument("--jpeg-quality", type=int, default=85, help="colour images' JPEG quality")
+    p.set_defaults(func=cmd_export)
+
+
+def add_plot_parser(sub: argparse._SubParsersAction) -> None:
+    """``umay plot``: the figures of a recording."""
+    p = sub.add_parser("plot", help="figures of a recorded run (PNG)")
+    p.add_argument("file", help="an MCAP recording (umay run --record / umay record)")
+    p.add_argument("--out", default="out/plots", help="output folder")
+    p.set_defaults(func=cmd_plot)
+
+
+def add_record_parser(sub: argparse._SubParsersAction) -> None:
+    """``umay record``: the running system's messages to MCAP."""
+    p = sub.add_parser("record", help="record the running system's messages to an MCAP file")
+    p.add_argument("out", metavar="OUT.mcap")
+    p.add_argument("--keys", default=None, help="key expression (default: <prefix>/**)")
+    p.add_argument(
+        "--duration", type=positive_seconds, default=None, help="seconds (default: Ctrl-C)"
+    )
+    p.add_argument("--prefix", type=prefix_argument)
+    p.add_argument(
+        "--connect",
+        type=endpoints_argument,
+        default=None,
+        help="Zenoh endpoint(s) of the running system",
+    )
+    p.add_argument("--scenario", default=None, help="scenario the system runs (for a replay)")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_record)
+
+
+def add_info_parser(sub: argparse._SubParsersAction) -> None:
+    """``umay info``: what a recording holds."""
+    p = sub.add_parser("info", help="channels, counts, rates and metadata of an MCAP recording")
+    p.add_argument("file", metavar="FILE.mcap")
+    p.set_defaults(func=cmd_info)
+
+
+def add_replay_parser(sub: argparse._SubParsersAction) -> None:
+    """``umay replay``: one service re-run on a recording."""
+    p = sub.add_parser("replay", help="re-run one service on a recording's inputs, compare")
+    p.add_argument("file", metavar="FILE.mcap")
+    p.add_argument("--service", required=True, help="vision|controller|actuation")
+    p.add_argument("--speed", default="max", help="playback speed factor, or max (lockstep)")
+    p.add_argument("--check", action="store_true", help="compare with the recorded outputs")
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        default=None,
+        help="default: controller 1e-12, vision and actuation 1e-9; 0 = bit-identical",
+    )
+    p.add_argument("--log-dir", default="out/logs/replay", help="the service's log file")
+    p.add_argument("--scenario", default=None, help="instead of the recorded scenario")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_replay)
+
+
+# Command name -> what adds its parser; deploy.cli puts them in the help's order.
+COMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
+    "export": add_export_parser,
+    "plot": add_plot_parser,
+    "record": add_record_parser,
+    "info": add_info_parser,
+    "replay": add_replay_parser,
+}

@@ -1,0 +1,76 @@
+"""Actuation's one step as a pure function of its state: a twist and the joint encoders →
+the joint velocity command, under the acceleration limit.
+
+The state (:class:`LimiterState`) is the command the motors follow now and its sim time: the
+acceleration limit bounds the change from it over the sim time between consecutive commands.
+Stops (hold) are immediate and leave the motors at rest, so tracking restarts with a ramp. The
+actuation node and the in-process pipeline (services/pipeline.py) both step it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from common import kinematics as kin
+from common.config import ActuationConfig
+from common.kinematics import FloatArray
+from services.actuation.inverse import JointCommand, twist_to_joint_velocities
+
+
+@dataclass(frozen=True)
+class LimiterState:
+    """The command the motors follow now, and its sim time (None: at rest, no time base)."""
+
+    previous_rad_s: FloatArray = field(default_factory=lambda: np.zeros(kin.N_JOINTS))
+    previous_sim_s: float | None = None
+
+    def commanded(self, velocity_rad_s: FloatArray, sim_time_s: float) -> LimiterState:
+        """After a command for a camera frame taken at ``sim_time_s``."""
+        return LimiterState(velocity_rad_s, sim_time_s)
+
+    @staticmethod
+    def at_rest() -> LimiterState:
+        """After a stop with no frame to time it (the deadman): from rest, no time base."""
+        return LimiterState()
+
+
+@dataclass(frozen=True)
+class ActuationStep:
+    """One frame's command: ``reason`` ``track`` or ``hold``; ``joint`` the inverse's detail
+    (clamps, manipulability) when tracking, None on a hold."""
+
+    velocity_rad_s: FloatArray
+    reason: Literal["track", "hold"]
+    joint: JointCommand | None
+    state: LimiterState  # for the next frame
+
+
+def actuation_step(
+    config: ActuationConfig,
+    state: LimiterState,
+    twist_base_ee: FloatArray,
+    valid: bool,
+    q_rad: FloatArray,
+    sim_time_s: float,
+) -> ActuationStep:
+    """The command answering the twist of the frame taken at ``sim_time_s`` (``valid`` False:
+    a hold, zero velocity at once)."""
+    if not valid:
+        zero = np.zeros(kin.N_JOINTS)
+        return ActuationStep(zero, "hold", None, state.commanded(zero, sim_time_s))
+    previous_sim_s = state.previous_sim_s
+    cmd = twist_to_joint_velocities(
+        twist_base_ee,
+        q_rad,
+        config.damping,
+        config.manipulability_threshold,
+        previous_rad_s=state.previous_rad_s,
+        max_accel_rad_s2=config.max_joint_acceleration_rad_s2,
+        dt_s=0.0 if previous_sim_s is None else max(0.0, sim_time_s - previous_sim_s),
+    )
+    return ActuationStep(
+        cmd.velocity_rad_s, "track", cmd, state.commanded(cmd.velocity_rad_s, sim_time_s)
+    )

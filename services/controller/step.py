@@ -1,0 +1,61 @@
+"""The controller's one step as a pure function of its state: a frame's wire features and the
+joint encoders → the end-effector twist.
+
+The controller node and the in-process pipeline (services/pipeline.py) both call it. The state
+is the :class:`IbvsController` itself (a dataclass: frozen Jacobian, convergence counter,
+target memory...). It uses only what the camera and the encoders give, plus the *assumed*
+camera pose held by the controller (the calibration); never the simulator's ground truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from common import kinematics as kin
+from common.kinematics import FloatArray
+from common.messages import EndEffectorTwist, Features, Header, MarkerFeatures
+from services.controller.ibvs import ControlOutput, IbvsController, MarkerObservation
+
+ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
+
+
+def observation(m: MarkerFeatures) -> MarkerObservation:
+    """One marker's wire features as the controller reads them."""
+    return MarkerObservation(
+        m.state,
+        np.array(m.corners_px),
+        np.array(m.depth_m),
+        np.array(m.points_m),
+        m.occluded,
+        m.fitted,
+    )
+
+
+def control_step(
+    controller: IbvsController, features: Features, q_rad: FloatArray | list[float]
+) -> ControlOutput:
+    """One control step (``controller`` advances) on ``features`` with the joints at ``q_rad``
+    (the joint state of the same frame)."""
+    frames = kin.frame_transforms(np.array(q_rad))
+    return controller.step(
+        observation(features.hand),
+        observation(features.target),
+        features.intrinsics,
+        frames[-1][:3, 3],
+        features.header.sim_time_s,
+        elbow_base_m=frames[ELBOW_FRAME][:3, 3],
+    )
+
+
+def twist_message(out: ControlOutput, header: Header, mode: str) -> EndEffectorTwist:
+    """What the controller publishes for one step."""
+    return EndEffectorTwist(
+        header=header,
+        linear_m_s=out.twist_base_ee[:3].tolist(),
+        angular_rad_s=out.twist_base_ee[3:].tolist(),
+        valid=out.valid,
+        hold_reason=out.hold_reason,
+        mode=mode,
+        error_px_rms=out.error_px_rms,
+        converged=out.converged,
+    )

@@ -1,0 +1,50 @@
+"""The sim's camera schedule as data: physics steps per camera frame, and which frames carry
+a depth image.
+
+The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the first colour
+frame at or after each tick of ``camera.depth_hz``. The ticks stay on their own grid (a late
+frame does not shift the next tick), so a lower depth rate never drifts against the colour
+stream. Pure: the sim node and the in-process pipeline (services/pipeline.py) both step it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from common.config import CameraConfig
+from services.sim.events import TIME_EPSILON_S
+
+
+def substeps_per_frame(rgb_hz: float, physics_dt_s: float) -> int:
+    """Physics steps in one camera period (at least one)."""
+    return max(1, round(1.0 / rgb_hz / physics_dt_s))
+
+
+@dataclass(frozen=True)
+class DepthSchedule:
+    """When the next depth image is due and which frame took the newest one."""
+
+    period_s: float
+    next_depth_s: float = 0.0
+    depth_frame_seq: int = -1  # frame_seq of the newest depth image (-1: none yet)
+    depth_images: int = 0  # taken so far
+
+    @classmethod
+    def of(cls, camera: CameraConfig) -> DepthSchedule:
+        return cls(period_s=1.0 / camera.depth_rate_hz)
+
+    def due(self, t_s: float) -> bool:
+        """Does the frame taken at sim time ``t_s`` carry a depth image?"""
+        return t_s + TIME_EPSILON_S >= self.next_depth_s
+
+    def taken(self, t_s: float, frame_seq: int) -> DepthSchedule:
+        """The schedule after frame ``frame_seq`` (sim time ``t_s``) took a depth image."""
+        next_depth_s = self.next_depth_s
+        while next_depth_s <= t_s + TIME_EPSILON_S:  # keep the grid, do not drift
+            next_depth_s += self.period_s
+        return replace(
+            self,
+            next_depth_s=next_depth_s,
+            depth_frame_seq=frame_seq,
+            depth_images=self.depth_images + 1,
+        )

@@ -1,0 +1,165 @@
+"""One in-process pipeline: the services' pure steps and their composition, in this process
+(tests/integration/test_pipeline_vs_distributed.py compares it with the distributed run)."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from common import kinematics as kin
+from common.config import ActuationConfig, load_scenario
+from common.messages import EndEffectorTwist, Header
+from common.runtime import parse_overrides
+from deploy.launch.run_end import EndLimits, HoldState, judge_twist, timeout_detail
+from deploy.launch.run_inprocess import run_scenario_inprocess
+from services.actuation.limiter import LimiterState, actuation_step
+from services.pipeline import STAGES, Pipeline
+from services.sim.motors import motor_velocities
+from services.sim.schedule import DepthSchedule, substeps_per_frame
+
+
+# --- the sim's schedule and motors --------------------------------------------------------
+def depth_frames(rgb_hz: float, depth_hz: float, frames: int) -> list[int]:
+    camera = load_scenario().camera.model_copy(update={"rgb_hz": rgb_hz, "depth_hz": depth_hz})
+    schedule = DepthSchedule.of(camera)
+    taken = []
+    t = 0.0
+    for seq in range(frames):
+        if schedule.due(t):
+            schedule = schedule.taken(t, seq)
+            taken.append(seq)
+            assert schedule.depth_frame_seq == seq
+        t += 1.0 / rgb_hz  # accumulated, as the world's clock is
+    assert schedule.depth_images == len(taken)
+    return taken
+
+
+def test_depth_comes_with_every_frame_at_equal_rates_and_every_third_at_a_third() -> None:
+    assert depth_frames(30.0, 30.0, 12) == list(range(12))
+    assert depth_frames(30.0, 10.0, 30) == list(range(0, 30, 3))
+    assert depth_frames(15.0, 1.0, 46) == [0, 15, 30, 45]
+
+
+def test_a_late_frame_does_not_shift_the_depth_grid() -> None:
+    schedule = DepthSchedule(period_s=0.1).taken(0.0, 0)
+    assert not schedule.due(0.05)
+    late = schedule.taken(0.25, 7)  # the frame came 0.15 s after the tick at 0.1
+    assert late.next_depth_s == pytest.approx(0.3)  # the grid's next tick, not 0.35
+    assert late.depth_frame_seq == 7 and late.depth_images == 2
+
+
+def test_substeps_cover_one_camera_period() -> None:
+    assert substeps_per_frame(30.0, 1.0 / 240.0) == 8
+    assert substeps_per_frame(15.0, 1.0 / 240.0) == 16
+    assert substeps_per_frame(1000.0, 1.0 / 240.0) == 1
+
+
+def test_the_motors_clip_to_their_own_limit_and_say_so() -> None:
+    limit = np.asarray(kin.JOINT_VELOCITY_LIMIT_RAD_S) * np.ones(kin.N_JOINTS)
+    within = limit * np.array([0.5, -0.5, 0.0, 0.1, -0.1, 1.0])
+    follows, clamped = motor_velocities(within.tolist())
+    assert not clamped and np.array_equal(follows, within)
+    follows, clamped = motor_velocities((limit * np.array([2.0, -3.0, 0, 0, 0, 0])).tolist())
+    assert clamped and follows[0] == limit[0] and follows[1] == -limit[1]
+    assert np.array_equal(follows[2:], np.zeros(4))
+
+
+# --- actuation's limiter --------------------------------------------------------------------
+Q = np.array([-1.559, 0.952, -1.832, 1.487, 0.600, -0.070])  # the default start
+TWIST = np.array([0.05, -0.02, 0.03, 0.0, 0.1, 0.0])
+
+
+def test_the_first_command_from_rest_has_no_time_base_and_stays_at_rest() -> None:
+    cfg = ActuationConfig(max_joint_acceleration_rad_s2=2.0)
+    step = actuation_step(cfg, LimiterState(), TWIST, True, Q, 0.5)
+    assert step.reason == "track" and step.joint is not None and step.joint.clamps.acceleration
+    assert np.array_equal(step.velocity_rad_s, np.zeros(kin.N_JOINTS))
+    assert step.state.previous_sim_s == 0.5
+
+
+def test_the_change_between_commands_is_bounded_by_the_acceleration_over_sim_time() -> None:
+    cfg = ActuationConfig(max_joint_acceleration_rad_s2=2.0)
+    state = LimiterState().commanded(np.zeros(kin.N_JOINTS), 1.0)
+    step = actuation_step(cfg, state, TWIST, True, Q, 1.0 + 1.0 / 30.0)
+    change = np.max(np.abs(step.velocity_rad_s))
+    assert change == pytest.approx(2.0 / 30.0)  # the largest joint change: a · dt
+    unlimited = actuation_step(ActuationConfig(max_joint_acceleration_rad_s2=1000.0), state, TWIST,
+                               True, Q, 1.0 + 1.0 / 30.0)  # fmt: skip
+    assert np.max(np.abs(unlimited.velocity_rad_s)) > change
+    # The same direction in joint space, scaled down.
+    ratio = step.velocity_rad_s / unlimited.velocity_rad_s
+    assert np.allclose(ratio, ratio[0])
+
+
+def test_a_hold_stops_at_once_and_the_next_motion_ramps_from_rest() -> None:
+    cfg = ActuationConfig(max_joint_acceleration_rad_s2=2.0)
+    moving = LimiterState().commanded(np.full(kin.N_JOINTS, 0.3), 2.0)
+    hold = actuation_step(cfg, moving, TWIST, False, Q, 2.1)
+    assert hold.reason == "hold" and hold.joint is None
+    assert np.array_equal(hold.velocity_rad_s, np.zeros(kin.N_JOINTS))
+    assert hold.state.previous_sim_s == 2.1 and not np.any(hold.state.previous_rad_s)
+    again = actuation_step(cfg, hold.state, TWIST, True, Q, 2.2)
+    assert np.max(np.abs(again.velocity_rad_s)) == pytest.approx(2.0 * 0.1)
+    assert LimiterState.at_rest().previous_sim_s is None
+
+
+# --- the end of a run -------------------------------------------------------------------------
+def twist(seq: int, t_s: float, valid: bool = True, converged: bool = False) -> EndEffectorTwist:
+    return EndEffectorTwist(
+        header=Header(seq=seq, sim_time_s=t_s, send_time_s=0.0, frame_seq=seq),
+        linear_m_s=[0.0, 0.0, 0.0],
+        angular_rad_s=[0.0, 0.0, 0.0],
+        valid=valid,
+        hold_reason="" if valid else "hand lost",
+        mode="dynamic",
+        error_px_rms=2.5 if valid else 0.0,
+        converged=converged,
+    )
+
+
+def test_convergence_counts_only_after_the_events_and_the_timeout_names_the_last_twist() -> None:
+    limits = EndLimits(timeout_s=3.0, not_before_s=2.0, stuck_after_s=10.0)
+    hold, end = judge_twist(limits, HoldState(), twist(10, 1.0, converged=True))
+    assert end is None
+    hold, end = judge_twist(limits, hold, twist(70, 2.0, converged=True))
+    assert end is not None and (end.reason, end.frame, end.detail) == ("converged", 70, "")
+    last = twist(90, 3.0)
+    _, end = judge_twist(limits, hold, last)
+    assert end is not None and end.reason == "timeout" and end.frame == 90
+    assert end.detail == timeout_detail(last, 3.0) and "2.500 px" in end.detail
+
+
+# --- the pipeline ---------------------------------------------------------------------------
+def short(scenario_path: str | None = None, *overrides: str):
+    return load_scenario(scenario_path, parse_overrides(list(overrides)))
+
+
+def test_vision_measured_again_on_the_same_inputs_gives_the_same_features() -> None:
+    """The bench's warm second call: the step is pure, the pipeline's state unchanged by it."""
+    again = []
+    with Pipeline(short(None, "camera.width_px=320", "camera.height_px=240")) as pipeline:
+        for _ in range(3):
+            frame = pipeline.step(after_vision=lambda measure: again.append(measure()))
+            features = again[-1].features(frame.features.header, frame.features.intrinsics)
+            assert features == frame.features
+            assert set(frame.stage_s) == set(STAGES) and min(frame.stage_s.values()) >= 0.0
+            assert frame.truth is not None and frame.truth.header.frame_seq == frame.frame_seq
+        assert pipeline.frame_seq == 3 and frame.depth_frame_seq == 2
+
+
+def open_fds() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
+def test_many_runs_in_one_process_leave_no_descriptors_or_threads_behind() -> None:
+    import threading
+
+    scenario = short(None, "camera.width_px=160", "camera.height_px=120", "run.timeout_s=0.1")
+    counts = []
+    for _ in range(8):
+        result = run_scenario_inprocess(scenario)
+        assert result.reason == "timeout" and result.frames == 4
+        counts.append((open_fds(), threading.active_count()))
+    assert counts[-1] == counts[1], counts  # the first run may open lasting caches
