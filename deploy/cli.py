@@ -33,6 +33,7 @@ HELP_ORDER = (
     "docs",
     "compare",
     "campaign",
+    "domains",
     "router",
     "logs",
     "service",

@@ -17,6 +17,7 @@ from pathlib import Path
 from common.config import ScenarioError
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 from deploy.experiments.compare import ALL_MODES
+from deploy.experiments.domains_cli import add_domains_parser
 from deploy.paths import check_output_file
 
 DEFAULT_SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios" / "suite"
@@ -344,4 +345,5 @@ COMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
     "accuracy": add_accuracy_parser,
     "compare": add_compare_parser,
     "campaign": add_campaign_parser,
+    "domains": add_domains_parser,
 }

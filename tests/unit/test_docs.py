@@ -318,3 +318,21 @@ def test_umay_docs_refuses_malformed_docs(
     (tmp_path / "README.md").write_text("<!-- generated: results-compact -->\n")
     assert main(["docs", "--check", "--root", str(tmp_path)]) == 2
     assert "README.md: line 1: block 'results-compact' has no" in capsys.readouterr().err
+
+
+def test_domain_blocks_say_how_to_run_the_study_until_it_is_run() -> None:
+    from deploy.docs import BLOCKS, DOMAINS_JSON
+    from tests.test_domains import small_study
+
+    for name in ("domains-summary", "domains-bands", "domains-verdict"):
+        assert "umay domains --out docs/domains" in BLOCKS[name].render(Inputs(), "")
+    study = small_study()
+    summary = BLOCKS["domains-summary"].render(Inputs(domains=study), "docs")
+    assert "| mpj | 7 | 71% (5/7) | 15° |" in summary
+    assert f"]({DOMAINS_JSON.removeprefix('docs/')})" in summary
+    verdict = BLOCKS["domains-verdict"].render(Inputs(domains=study), "")
+    assert "- **dynamic**: 86% (6/7) on goal" in verdict and "up to 0°" in verdict
+    assert "Rotations 0–45°: best dynamic (86% on goal)" in verdict
+    assert "(docs/domains/figures/domain_mpj.png)" in verdict
+    bands = BLOCKS["domains-bands"].render(Inputs(domains=study), "docs")
+    assert "| start pose out of reach | 1 |" in bands

@@ -1,0 +1,248 @@
+"""``umay domains`` on the command line: draw the grid's starts, run every strategy on each
+through an executor, write the study (``domains.json``, ``runs.jsonl`` as runs finish,
+``report.md``, a heat map per strategy). Parsing imports nothing heavy."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OK
+
+
+def add_domains_parser(sub: argparse._SubParsersAction) -> None:
+    """The ``domains`` subcommand, for :func:`deploy.cli.build_parser`."""
+    from deploy.experiments.domains import DEFAULT_STUDY
+
+    p = sub.add_parser(
+        "domains",
+        help="convergence domains: every strategy over a grid of large initial displacements",
+    )
+    p.add_argument(
+        "--study",
+        default=str(DEFAULT_STUDY),
+        metavar="FILE.toml",
+        help="the study's grid, draws and seed (default: deploy/domains/study.toml)",
+    )
+    p.add_argument("--seed", type=int, default=None, help="instead of the study file's seed")
+    p.add_argument("--draws", type=int, default=None, help="draws per cell, instead of the file's")
+    p.add_argument(
+        "--cells",
+        default=None,
+        metavar="A:B",
+        help="only cells A to B-1 of the grid (a slice, for a quick look; indices as in the file)",
+    )
+    p.add_argument("--modes", nargs="+", default=None, metavar="MODE", help="strategies")
+    p.add_argument(
+        "--pipeline",
+        default="inprocess",
+        metavar="NAME",
+        help="inprocess (default: the lockstep loop in one process), distributed (the four "
+        "service processes, own key prefix per run), or module:function",
+    )
+    p.add_argument("--jobs", type=int, default=2, help="local worker processes (default 2)")
+    p.add_argument(
+        "--cluster",
+        default=None,
+        metavar="ADDRESS|local:N",
+        help="run on a Dask distributed cluster (scheduler address, or local:N worker "
+        "processes) instead of --jobs; needs the 'cluster' extra",
+    )
+    p.add_argument(
+        "--resume", action="store_true", help="keep the runs already in --out's runs.jsonl"
+    )
+    p.add_argument(
+        "--record-failures",
+        action="store_true",
+        help="afterwards, re-run each strategy's first failure of each cause with the "
+        "distributed pipeline and record it (MCAP, for umay plot / umay view)",
+    )
+    p.add_argument("--out", default="out/domains", metavar="DIR", help="output folder")
+    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.set_defaults(func=cmd_domains)
+
+
+def parse_cells(text: str | None, n: int) -> range:
+    if text is None:
+        return range(n)
+    a, sep, b = text.partition(":")
+    try:
+        lo, hi = int(a or 0), int(b or n) if sep else int(a) + 1
+    except ValueError as exc:
+        raise ValueError(f"--cells: {text!r}: A:B, cell indices") from exc
+    if not 0 <= lo < hi <= n:
+        raise ValueError(f"--cells: {text!r}: within 0:{n}")
+    return range(lo, hi)
+
+
+def cmd_domains(args: argparse.Namespace) -> int:
+    """Exit 0 when the study completed (whatever its runs' outcomes), 2 on bad input, 130
+    when interrupted (the finished runs are written)."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    from deploy.experiments import domains as dom
+    from deploy.experiments.compare import CompareError, parse_modes
+    from deploy.experiments.domains_run import (
+        ExecutorError,
+        draw_one,
+        execute,
+        gather,
+        make_executor,
+        resolve_runner,
+    )
+    from deploy.paths import OutputPathError, check_output_dir
+
+    console = Console(stderr=True)
+    try:
+        modes = parse_modes(args.modes)
+        if args.jobs < 1:
+            raise CompareError(f"--jobs: must be at least 1, not {args.jobs}")
+        study, base_path = dom.load_study(Path(args.study), seed=args.seed, draws=args.draws)
+        chosen = parse_cells(args.cells, study.n_cells)
+        if args.pipeline not in ("inprocess", "distributed"):
+            resolve_runner(args.pipeline)
+        out_dir = check_output_dir("--out", args.out)
+        executor = make_executor(args.jobs, args.cluster)
+    except (CompareError, OutputPathError, ExecutorError, ValueError) as exc:
+        print(f"umay domains: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+    stop = threading.Event()
+    previous = {
+        sig: signal.signal(sig, lambda _s, _f: stop.set())
+        for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    columns = (
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+    )
+    started = time.monotonic()
+    jsonl = out_dir / "runs.jsonl"
+    try:
+        cells = [c for c in dom.cells(study) if c.index in chosen]
+        items = [(study, str(base_path), c, d) for c in cells for d in range(study.draws)]
+        with Progress(*columns, console=console) as bar:
+            task = bar.add_task("drawing starts", total=len(items))
+            drawn = gather(executor, draw_one, items, stop, lambda _i, _v: bar.advance(task))
+        starts = [drawn[i] for i in sorted(drawn)]
+        tasks = dom.plan_tasks(study, base_path, starts, modes, args.set)
+        done: dict[str, dom.DomainRecord] = {}
+        if args.resume and jsonl.is_file():
+            for line in jsonl.read_text().splitlines():
+                rec = dom.DomainRecord.model_validate_json(line)
+                done[rec.key] = rec
+        else:
+            jsonl.write_text("")
+        todo = [t for t in tasks if t.key not in done]
+        refused = sum(bool(s.refused) for s in starts)
+        console.print(
+            f"{len(starts)} starts ({len(cells)} cells × {study.draws} draws, seed {study.seed}), "
+            f"{refused} refused at start; {len(tasks)} runs ({len(done)} kept from runs.jsonl), "
+            f"{args.pipeline} pipeline, {executor.name}"
+        )
+        counts = {"converged": 0, "failed": 0}
+        with Progress(*columns, console=console) as bar, jsonl.open("a") as sink:
+            progress = bar.add_task("runs", total=len(todo))
+
+            def on_done(_i: int, rec: dom.DomainRecord) -> None:
+                done[rec.key] = rec
+                sink.write(rec.model_dump_json() + "\n")
+                sink.flush()  # a crash or Ctrl-C keeps every finished run
+                counts[rec.outcome] += 1
+                bar.update(
+                    progress,
+                    advance=1,
+                    description=f"{counts['converged']} converged, {counts['failed']} failed",
+                )
+
+            if not stop.is_set():
+                gather(executor, execute, [(t, args.pipeline) for t in todo], stop, on_done)
+    finally:
+        executor.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    wall_s = time.monotonic() - started
+    order = {t.key: i for i, t in enumerate(tasks)}
+    runs = sorted((r for r in done.values() if r.key in order), key=lambda r: order[r.key])
+    by_key = {t.key: t for t in tasks}
+    return finish(
+        args, study, modes, starts, by_key, runs, executor.name, wall_s, stop.is_set(), out_dir
+    )
+
+
+def finish(
+    args, study, modes, starts, tasks, runs, executor_name, wall_s, interrupted, out_dir
+) -> int:
+    from deploy.experiments.domains_report import (
+        Study,
+        report_markdown,
+        representative_failures,
+        write_heatmaps,
+    )
+
+    result = Study(
+        study=study,
+        study_file=Path(args.study).name,
+        modes=list(modes),
+        pipeline=args.pipeline,
+        executor=executor_name,
+        wall_time_s=wall_s,
+        complete=not interrupted,
+        starts=list(starts),
+        runs=runs,
+    )
+    (out_dir / "domains.json").write_text(json.dumps(result.model_dump(), indent=1) + "\n")
+    figures = write_heatmaps(result, out_dir) if runs else []
+    recordings: dict[str, str] = {}
+    if args.record_failures and not interrupted:
+        recordings = record_failures(representative_failures(result), tasks, out_dir)
+    relative = [str(p.relative_to(out_dir)) for p in figures]
+    (out_dir / "report.md").write_text(report_markdown(result, relative, recordings))
+    per_run = wall_s / len(runs) if runs else 0.0
+    print(
+        f"{len(runs)} runs in {wall_s / 60:.1f} min ({per_run:.2f} s wall a run, "
+        f"{executor_name}); {out_dir / 'report.md'}",
+        file=sys.stderr,
+    )
+    return EXIT_INTERRUPTED if interrupted else EXIT_OK
+
+
+def record_failures(failures, tasks, out_dir: Path) -> dict[str, str]:
+    """Each failure re-run in the distributed lockstep pipeline and recorded (MCAP): lockstep
+    runs repeat, so the recording shows the failure the study counted; paths relative to
+    ``out_dir``."""
+    import tempfile
+
+    from common.transport import free_tcp_endpoint
+    from deploy.launch.run import run_once
+
+    out: dict[str, str] = {}
+    for rec in failures:
+        task = tasks[rec.key]
+        path = out_dir / "recordings" / f"{rec.key}.mcap"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix="umay-domains-") as logs:
+            run_once(
+                task.scenario_path, task.scenario(), list(task.overrides),
+                prefix=f"umay/domains-record/{rec.key}", log_dir=Path(logs),
+                listen=free_tcp_endpoint(), quiet=True, record=path,
+            )  # fmt: skip
+        out[rec.key] = str(path.relative_to(out_dir))
+    return out

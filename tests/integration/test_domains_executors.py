@@ -1,0 +1,106 @@
+"""Domain-study executors: a tiny study through ``--jobs 2`` and through a Dask LocalCluster of
+two worker processes gives the same records; a worker killed mid-study loses its run, Dask
+runs it again and the study completes; the real lockstep pipeline gives the same records on
+either executor."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from deploy.experiments.domains import DEFAULT_STUDY, DomainRecord, study_differences
+from tests.domains_fakes import KILL_DIR_ENV
+
+REPO = Path(__file__).resolve().parent.parent
+BASE_SCENARIO = (DEFAULT_STUDY.parent / "../scenarios/suite/01_baseline.toml").resolve()
+
+
+def tiny_study(tmp_path: Path, draws: int = 2) -> Path:
+    """The published study's file cut to three rotations × one distance × one depth."""
+    text = DEFAULT_STUDY.read_text()
+    lines = []
+    for line in text.splitlines():
+        if line.startswith("rotations_deg"):
+            line = "rotations_deg = [0, 15, 30]"
+        elif line.startswith("distances_m"):
+            line = "distances_m = [0.05]"
+        elif line.startswith("depths_m"):
+            line = "depths_m = [0.0]"
+        elif line.startswith("draws"):
+            line = f"draws = {draws}"
+        elif line.startswith("base_scenario"):
+            line = f'base_scenario = "{BASE_SCENARIO}"'
+        lines.append(line)
+    path = tmp_path / "tiny.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def domains(out: Path, study: Path, *args: str, env: dict | None = None) -> dict:
+    proc = subprocess.run(
+        [sys.executable, "-m", "deploy", "domains", "--study", str(study), "--out", str(out),
+         *args],
+        cwd=REPO, capture_output=True, text=True, timeout=900, env={**os.environ, **(env or {})},
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    data = json.loads((out / "domains.json").read_text())
+    assert data["complete"]
+    return data
+
+
+def records(data: dict) -> list[DomainRecord]:
+    return [DomainRecord.model_validate(r) for r in data["runs"]]
+
+
+FAKE = "tests.domains_fakes:fake_run"
+
+
+def test_jobs_and_a_two_worker_dask_cluster_give_the_same_study(tmp_path: Path) -> None:
+    study = tiny_study(tmp_path)
+    modes = ["--modes", "dynamic", "mpj", "points3d"]
+    local = domains(tmp_path / "jobs", study, "--pipeline", FAKE, "--jobs", "2", *modes)
+    dask = domains(tmp_path / "dask", study, "--pipeline", FAKE, "--cluster", "local:2", *modes)
+    assert dask["executor"] == "--cluster local:2" and local["executor"] == "--jobs 2"
+    assert local["starts"] == dask["starts"]
+    runnable = [s for s in local["starts"] if not s["refused"]]
+    assert len(runnable) >= 4
+    assert len(local["runs"]) == 3 * len(runnable)
+    assert study_differences(records(local), records(dask)) == []
+    # Every run judged, every failure named.
+    assert {r.cause for r in records(local)} <= {"converged", "timeout"}
+    assert (tmp_path / "dask" / "figures" / "domain_mpj.png").is_file()
+    lines = (tmp_path / "dask" / "runs.jsonl").read_text().splitlines()
+    assert sorted(json.loads(x)["key"] for x in lines) == sorted(r["key"] for r in dask["runs"])
+
+
+def test_a_run_lost_with_its_worker_is_run_again(tmp_path: Path) -> None:
+    study = tiny_study(tmp_path)
+    kills = tmp_path / "kills"
+    kills.mkdir()
+    data = domains(
+        tmp_path / "dask", study, "--pipeline", "tests.domains_fakes:kill_once",
+        "--cluster", "local:2", "--modes", "dynamic", "mpj", env={KILL_DIR_ENV: str(kills)},
+    )  # fmt: skip
+    killed_key, pid = (kills / "killed").read_text().split()
+    assert int(pid) != os.getpid()
+    keys = [r["key"] for r in data["runs"]]
+    assert killed_key in keys and len(keys) == len(set(keys))
+    runnable = [s for s in data["starts"] if not s["refused"]]
+    assert len(keys) == 2 * len(runnable)
+    reference = domains(
+        tmp_path / "ref", study, "--pipeline", FAKE, "--jobs", "1", "--modes", "dynamic", "mpj"
+    )
+    assert study_differences(records(reference), records(data)) == []
+
+
+def test_the_lockstep_pipeline_gives_the_same_records_on_either_executor(tmp_path: Path) -> None:
+    study = tiny_study(tmp_path, draws=1)
+    args = ["--pipeline", "inprocess", "--cells", "1:3", "--modes", "dynamic"]
+    local = domains(tmp_path / "jobs", study, *args, "--jobs", "2")
+    dask = domains(tmp_path / "dask", study, *args, "--cluster", "local:2")
+    assert len(local["runs"]) == 2
+    assert study_differences(records(local), records(dask)) == []
+    assert all(r["cause"] for r in local["runs"])
