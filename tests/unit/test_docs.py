@@ -322,7 +322,7 @@ def test_umay_docs_refuses_malformed_docs(
 
 def test_domain_blocks_say_how_to_run_the_study_until_it_is_run() -> None:
     from deploy.docs import BLOCKS, DOMAINS_JSON
-    from tests.test_domains import small_study
+    from tests.unit.test_domains import small_study
 
     for name in ("domains-summary", "domains-bands", "domains-verdict"):
         assert "umay domains --out docs/domains" in BLOCKS[name].render(Inputs(), "")
