@@ -56,7 +56,7 @@ class ExecutorError(RuntimeError):
 # --- what runs in a worker -----------------------------------------------------------------
 def run_inprocess(task: RunTask) -> RunResult:
     """The lockstep run in this worker's process (:mod:`services.pipeline`), equal to the
-    distributed one frame for frame (tests/test_pipeline.py)."""
+    distributed one frame for frame (tests/integration/test_pipeline_vs_distributed.py)."""
     from deploy.launch.run_inprocess import run_scenario_inprocess
 
     return run_scenario_inprocess(task.scenario())

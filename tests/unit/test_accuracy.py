@@ -1,6 +1,5 @@
 """Vision against the simulator's ground truth under the sensor conditions of the Kinect model
-(deploy/experiments/accuracy.py, ``umay accuracy``): a small sample here; docs/vision.md
-reports a large one."""
+(deploy/experiments/accuracy.py): a small sample here; docs/vision.md reports a large one."""
 
 from __future__ import annotations
 

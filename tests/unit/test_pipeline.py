@@ -1,10 +1,9 @@
-"""One in-process pipeline: the services' pure steps, and their composition against the
-distributed lockstep run."""
+"""One in-process pipeline: the services' pure steps and their composition, in this process
+(tests/integration/test_pipeline_vs_distributed.py compares it with the distributed run)."""
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,10 +18,6 @@ from services.actuation.limiter import LimiterState, actuation_step
 from services.pipeline import STAGES, Pipeline
 from services.sim.motors import motor_velocities
 from services.sim.schedule import DepthSchedule, substeps_per_frame
-
-REPO = Path(__file__).resolve().parents[2]
-MOVING = "deploy/scenarios/suite/12_moving_target.toml"
-WALL_FIELDS = {"wall_time_s"}
 
 
 # --- the sim's schedule and motors --------------------------------------------------------

@@ -1,5 +1,5 @@
-"""The in-process pipeline against the real services: ``run_scenario_inprocess`` and
-``umay run --inprocess`` give the distributed lockstep run's result to the last bit."""
+"""The in-process pipeline against the distributed lockstep run (the services as processes over
+Zenoh): the same result to the last bit; ``umay run --inprocess`` as a command."""
 
 from __future__ import annotations
 
@@ -12,7 +12,11 @@ import pytest
 
 from deploy.experiments.evaluate import RunResult
 from deploy.launch.run_inprocess import run_scenario_inprocess
-from tests.unit.test_pipeline import MOVING, REPO, WALL_FIELDS, short
+from tests.unit.test_pipeline import short
+
+REPO = Path(__file__).resolve().parents[2]
+MOVING = "deploy/scenarios/suite/12_moving_target.toml"
+WALL_FIELDS = {"wall_time_s"}
 
 
 def distributed(tmp_path: Path, name: str, *options: str) -> RunResult:
