@@ -12,6 +12,7 @@ import pytest
 
 from common import kinematics as kin
 from common.config import Scenario, load_scenario
+from deploy.experiments.reachability import solve_goal
 from services.sim.urdf import robot_urdf
 from services.sim.world import World
 from services.vision.cue import cue_mask
@@ -126,3 +127,13 @@ def test_cue_off_builds_the_robot_as_before() -> None:
     assert robot_urdf(0.06, orientation_cue=True).count("<visual>") == (
         robot_urdf(0.06).count("<visual>") + 1
     )
+
+
+def test_with_the_cue_only_the_unturned_goal_counts_before_launch() -> None:
+    """A target turned by 180°: without the cue the hand may end on it turned by a half turn
+    (the square looks the same); with the cue that is another pose, not the goal."""
+    off = solve_goal(scenario(False, yaw_rad=math.pi), seeds=20)
+    on = solve_goal(scenario(True, yaw_rad=math.pi), seeds=20)
+    assert off is not None and off[1] != 0
+    assert on is None or on[1] == 0
+    assert solve_goal(scenario(True), seeds=5) is not None  # the default goal, unturned
