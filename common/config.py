@@ -71,6 +71,13 @@ class TargetConfig(_Strict):
 
 class MarkerConfig(_Strict):
     size_m: float = Field(0.06, gt=0.01, le=0.2, description="side of both square markers (m)")
+    orientation_cue: bool = Field(
+        False,
+        description="each marker carries a small blue square inside it near its corner 0, so "
+        "vision labels the corners physically and a hand turned up to 180° about the optical "
+        "axis is seen as such (a plain square looks the same turned by 90°); the controller "
+        "then pairs hand corner i with target corner i. Off: the thesis's plain squares",
+    )
 
 
 class KinectConfig(_Strict):
@@ -201,6 +208,12 @@ class VisionConfig(_Strict):
     )
     green_hsv: list[HsvRange] = Field(
         default_factory=lambda: [HsvRange(lower=[45, 120, 30], upper=[75, 255, 255])]
+    )
+    # The orientation cue (marker.orientation_cue): a saturated blue, a hue that neither marker,
+    # the table, the arm, the floor nor the blue-grey block (saturation below 100) reaches.
+    # Looked for only inside a marker's square, in both segmentation modes.
+    cue_hsv: list[HsvRange] = Field(
+        default_factory=lambda: [HsvRange(lower=[100, 120, 30], upper=[130, 255, 255])]
     )
     # RGB mode (the thesis's first method): a reference colour per marker and a per-channel
     # tolerance, calibrated on the markers as the default scene renders them (diffuse light).

@@ -251,6 +251,21 @@ def marker_corners(pose: FloatArray, size_m: float) -> FloatArray:
     return (pose @ local.T).T[:, :3]
 
 
+# The orientation cue (config marker.orientation_cue): a small square of a third colour inside
+# the marker, centred at this fraction of the diagonal from corner 0 (the (-,-) corner of
+# marker_corners) towards corner 2, its side this fraction of the marker's. The sim draws it
+# there and vision looks for it there: the marker's outline stays a whole square.
+CUE_CENTRE_DIAGONAL_FRACTION = 0.25
+CUE_SIDE_FRACTION = 0.2
+
+
+def cue_centre_in_marker(size_m: float) -> FloatArray:
+    """Centre (x, y, 0) of the orientation cue in the marker frame (m)."""
+    h = size_m / 2.0
+    corner0 = np.array([-h, -h, 0.0])
+    return corner0 + CUE_CENTRE_DIAGONAL_FRACTION * (np.array([h, h, 0.0]) - corner0)
+
+
 BASE_UP = np.array([0.0, 1.0, 0.0])  # the vertical, in the base frame
 
 

@@ -130,13 +130,15 @@ def solve_goal(scenario: Scenario, seeds: int = GOAL_SEEDS) -> tuple[np.ndarray,
     """Joint angles putting the hand marker on its goal, and which of the goal's four 90°
     turns they reach (see :func:`square_turns`); None when no seed gets there. Seeds: the
     start posture, then joint angles drawn uniformly within the limits (fixed generator, so
-    the verdict is repeatable)."""
+    the verdict is repeatable). With ``marker.orientation_cue`` only the unturned goal (turn
+    0) counts: the cue tells the turns apart."""
     rng = np.random.default_rng(0)
     tool = kin.hand_marker_in_ee()
     q0 = np.array(scenario.robot.q0)
+    turns = square_turns(goal_pose(scenario))[: 1 if scenario.marker.orientation_cue else 4]
     for i in range(seeds):
         seed = q0 if i == 0 else rng.uniform(kin.JOINT_LOWER_RAD, kin.JOINT_UPPER_RAD)
-        for k, goal in enumerate(square_turns(goal_pose(scenario))):
+        for k, goal in enumerate(turns):
             q, pos_err, rot_err = kin.inverse_kinematics(goal, seed, tool, iterations=100)
             if pos_err < 1e-4 and rot_err < 1e-3:
                 return q, k

@@ -323,6 +323,10 @@ class IbvsController:
     config: ControllerConfig
     t_base_cam: FloatArray  # assumed camera pose (calibration), never the simulator's truth
     approach_height_m: float = 0.0
+    # Corners labelled physically by the markers' orientation cue (marker.orientation_cue):
+    # hand corner i goes to target corner i however far the hand is turned, so a start turned
+    # by 180° about the optical axis is servoed as such, not as the least turn.
+    oriented_markers: bool = False
     l_constant: FloatArray | None = None  # 8×6, rows in the target's own corner labelling
     frames_below: int = 0
     last_target: MarkerObservation | None = None
@@ -397,9 +401,12 @@ class IbvsController:
             z0 = float(np.mean(target.depth_m))
             xy = pixel_to_normalized(target.corners_px, k)
             self.l_constant = interaction_matrix(xy, np.full(len(xy), z0))
-        self.pairing = choose_pairing(
-            pairing_costs_px2(hand.corners_px, target.corners_px), self.pairing
-        )
+        if self.oriented_markers:
+            self.pairing = 0
+        else:
+            self.pairing = choose_pairing(
+                pairing_costs_px2(hand.corners_px, target.corners_px), self.pairing
+            )
         target = rolled(target, self.pairing)
         track = self.config.track_target_motion
         velocity = self.motion.velocity_m_s(t_s) if track else np.zeros(3)

@@ -23,6 +23,12 @@ TORSO_SIZE_M = (0.14, 0.48, 0.26)
 TORSO_CENTRE_M = (-0.06, -0.14, -0.13)
 SKIN = "0.92 0.90 0.86 1"
 GREEN = "0.10 0.75 0.15 1"
+# The orientation cue on both markers (config marker.orientation_cue): a saturated blue that
+# neither marker, the skin, the arm, the table nor the floor produce (vision's cue_hsv).
+CUE_RGBA = (0.10, 0.25, 0.90, 1.0)
+# The cue's thickness: it stands on the marker's face, its top this far nearer the camera, so
+# that both renderers draw it over the marker (depth test) rather than fighting with it.
+CUE_HEIGHT_M = 0.0002
 
 
 def _origin(xyz: np.ndarray, rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> str:
@@ -65,9 +71,19 @@ def _inertial(mass: float) -> str:
     )
 
 
-def robot_urdf(marker_size_m: float) -> str:
+def cue_box(marker_pose: np.ndarray, size_m: float) -> tuple[np.ndarray, tuple[float, ...]]:
+    """Centre (in the marker pose's parent frame) and full extents along the marker's x, y, z
+    of the orientation cue: a square of :data:`common.kinematics.CUE_SIDE_FRACTION` of the side
+    at :func:`common.kinematics.cue_centre_in_marker`, standing :data:`CUE_HEIGHT_M` on the
+    marker's face."""
+    local = kin.cue_centre_in_marker(size_m) + np.array([0.0, 0.0, CUE_HEIGHT_M / 2])
+    side = kin.CUE_SIDE_FRACTION * size_m
+    return (marker_pose @ np.append(local, 1.0))[:3], (side, side, CUE_HEIGHT_M)
+
+
+def robot_urdf(marker_size_m: float, orientation_cue: bool = False) -> str:
     """The URDF text. ``base_link`` (the shoulder) is in the base frame (x forward, y up,
-    z right)."""
+    z right). ``orientation_cue``: the hand's marker carries the cue (:func:`cue_box`)."""
     dh = kin.UMAY_DH
     links: list[str] = []
     joints: list[str] = []
@@ -108,6 +124,12 @@ def robot_urdf(marker_size_m: float) -> str:
     )
     # The marker box is axis-aligned in ee_link: thin along x6 (its normal), square in y6-z6.
     shapes["ee_link"] += f"<visual>{_origin(marker_centre)}{geom}{_material(GREEN)}</visual>"
+    if orientation_cue:
+        centre, (side, _, height) = cue_box(marker, marker_size_m)
+        # marker x, y, z are ee_link's y, z, x: the box's extents in ee_link's axes
+        cue = f'<geometry><box size="{height} {side} {side}"/></geometry>'
+        rgba = " ".join(f"{c:g}" for c in CUE_RGBA)
+        shapes["ee_link"] += f"<visual>{_origin(centre)}{cue}{_material(rgba)}</visual>"
     for name in names:
         links.append(f'<link name="{name}">{_inertial(0.3)}{shapes[name]}</link>')
     body = "\n".join(links + joints)

@@ -25,7 +25,14 @@ from services.sim.gl_renderer import GlRenderer, GlUnavailable
 from services.sim.scenery import HalfSpace, view_frustum, visible_box
 from services.sim.sensor_model import exposed_rgb, noisy_depth
 from services.sim.shapes import VisualShape, body_ids, shape_poses, visual_shapes
-from services.sim.urdf import TORSO_CENTRE_M, TORSO_COLOUR, TORSO_SIZE_M, robot_urdf
+from services.sim.urdf import (
+    CUE_RGBA,
+    TORSO_CENTRE_M,
+    TORSO_COLOUR,
+    TORSO_SIZE_M,
+    cue_box,
+    robot_urdf,
+)
 
 FloatArray = np.ndarray
 log = logging.getLogger(__name__)
@@ -220,7 +227,8 @@ class World:
     def _load_robot(self) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "umay.urdf"
-            path.write_text(robot_urdf(self.scenario.marker.size_m))
+            marker = self.scenario.marker
+            path.write_text(robot_urdf(marker.size_m, marker.orientation_cue))
             return self.client.loadURDF(
                 str(path), useFixedBase=True, flags=pybullet.URDF_USE_INERTIA_FROM_FILE
             )
@@ -319,6 +327,13 @@ class World:
             False,
             self._target_quat,
         )
+        # Its orientation cue (marker.orientation_cue), a body of its own moved with it.
+        self.target_cue_body: int | None = None
+        if self.scenario.marker.orientation_cue:
+            centre, (side, _, height) = cue_box(self.target_pose, size)
+            self.target_cue_body = self._box(
+                (side / 2, height / 2, side / 2), centre, CUE_RGBA, False, self._target_quat
+            )
         frustum = (
             view_frustum(self.camera_pose, self.intrinsics, self.scenario.camera.near_m)
             if self.clip_scenery
@@ -360,6 +375,13 @@ class World:
             self.client.resetBasePositionAndOrientation(
                 self.target_body, list(where), self._target_quat
             )
+            if self.target_cue_body is not None:
+                cue = cue_box(self.target_pose, self.scenario.marker.size_m)[0].tolist()
+                self.client.resetBasePositionAndOrientation(
+                    self.target_cue_body,
+                    list(HIDDEN_POSITION_M) if state.target_hidden else cue,
+                    self._target_quat,
+                )
         if state.hand_occluded_since_s != previous.hand_occluded_since_s:
             self._place_occluder(state.hand_occluded_since_s is not None)
         return state
@@ -485,15 +507,17 @@ class World:
         segmentation render. Keys ``hand`` and ``target``; see :class:`MarkerView`."""
         seg = self.segmentation(self.intrinsics)
         truth = self.truth()
-        own = {"hand": self.robot + ((self.ee_link + 1) << 24), "target": self.target_body}
+        own = {"hand": [self.robot + ((self.ee_link + 1) << 24)], "target": [self.target_body]}
+        if self.target_cue_body is not None:  # the hand's cue is drawn by its own link
+            own["target"].append(self.target_cue_body)
         corners = {"hand": truth.hand_corners_px, "target": truth.target_corners_px}
         robot = (seg >= 0) & ((seg & ((1 << 24) - 1)) == self.robot)
         out = {}
         for name, quad in corners.items():
             inside, total = _square_pixels(quad, -1.5, seg.shape)  # its edge pixels aside
-            seen = np.count_nonzero(seg[inside] == own[name])
+            seen = np.count_nonzero(np.isin(seg[inside], own[name]))
             around, around_total = _square_pixels(quad, touch_px, seg.shape)
-            touched = np.count_nonzero(robot[around] & (seg[around] != own[name])) > 0
+            touched = np.count_nonzero(robot[around] & (seg[around] != own[name][0])) > 0
             touched |= np.count_nonzero(around) < around_total  # at the image border
             out[name] = MarkerView(seen / total if total else 0.0, bool(touched))
         return out

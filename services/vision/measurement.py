@@ -6,7 +6,8 @@ Pure functions on numpy arrays (no networking, no global state). Conventions:
   the optical axis in metres, with 0 or non-finite meaning "no measurement".
 - Pixel ``(u, v)``: column, row; pixel centres sit at integer coordinates (OpenCV style, see
   :mod:`common.camera`).
-- Corner order is canonical (:func:`services.vision.quad.order_corners`).
+- Corner order is canonical (:func:`services.vision.quad.order_corners`), or physical with
+  ``marker.orientation_cue`` (:mod:`services.vision.cue`).
 
 One frame walks the modules in one direction: :mod:`~services.vision.segmentation` (colour
 threshold + morphology, full resolution only around each marker) →
@@ -30,6 +31,7 @@ from common.camera import CameraIntrinsics, pixel_to_normalized
 from common.config import VisionConfig
 from common.messages import is_usable
 from common.metrics import percentile
+from services.vision.cue import CUE_HIDDEN, label_corners
 from services.vision.depth import (
     DEPTH_MIN_PIXELS,
     PlaneFit,
@@ -61,6 +63,7 @@ REASON_STATES: dict[str, str] = {
     "no valid depth": "no_depth",
     "no depth image": "no_depth",
     "depth image too old": "no_depth",
+    CUE_HIDDEN: "partial",  # its orientation cue is not seen: corner 0 cannot be told
 }
 
 
@@ -195,20 +198,31 @@ class MarkerQuad:
 
 
 def find_marker_quads(
-    rgb: np.ndarray, cfg: VisionConfig, previous: dict[str, np.ndarray] | None = None
+    rgb: np.ndarray,
+    cfg: VisionConfig,
+    previous: dict[str, np.ndarray] | None = None,
+    orientation_cue: bool = False,
 ) -> dict[str, MarkerQuad]:
     """Both markers in a colour image, keyed ``"hand"`` (green) and ``"target"`` (red);
-    ``previous`` maps the same keys to last frame's corners (to keep their order)."""
+    ``previous`` maps the same keys to last frame's corners (to keep their order).
+
+    ``orientation_cue`` (``marker.orientation_cue``): the corners are labelled by each
+    marker's cue (:mod:`services.vision.cue`, physical order), by continuity with
+    ``previous`` (which must then hold only markers labelled in the last frame) while the cue
+    cannot be told, and the marker is :data:`~services.vision.cue.CUE_HIDDEN` otherwise."""
     check_rgb(rgb)
     previous = previous or {}
     masks = marker_masks(rgb, cfg, previous)
     quads = find_quads(masks, cfg.min_area_px)  # both markers' sides refined in one batch
     out = {}
     for name, quad, (mask, _) in zip(MARKERS, quads, masks, strict=True):
-        corners = None
-        if quad.corners_px is not None:
+        corners, reason = None, quad.reason
+        if quad.corners_px is not None and orientation_cue:
+            corners = label_corners(rgb, quad.corners_px, previous.get(name), cfg)
+            reason = CUE_HIDDEN if corners is None else ""
+        elif quad.corners_px is not None:
             corners = order_corners(quad.corners_px, previous.get(name))
-        out[name] = MarkerQuad(corners, quad.reason, quad.area_px, mask)
+        out[name] = MarkerQuad(corners, reason, quad.area_px, mask)
     return out
 
 
@@ -219,14 +233,15 @@ def measure_markers(
     cfg: VisionConfig,
     previous: dict[str, np.ndarray] | None = None,
     k_depth: CameraIntrinsics | None = None,
+    orientation_cue: bool = False,
 ) -> dict[str, MarkerMeasurement]:
     """Both markers, keyed ``"hand"`` (green) and ``"target"`` (red), from a colour image and
     the depth image taken with it; ``previous`` maps the same keys to last frame's corners
-    (missing keys: no previous)."""
+    (missing keys: no previous); ``orientation_cue``: see :func:`find_marker_quads`."""
     _check_frame(rgb, depth_m, k_depth)
     return {
         name: measure_quad(quad, depth_m, k, cfg, k_depth)
-        for name, quad in find_marker_quads(rgb, cfg, previous).items()
+        for name, quad in find_marker_quads(rgb, cfg, previous, orientation_cue).items()
     }
 
 

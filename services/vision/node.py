@@ -36,6 +36,7 @@ class VisionService:
         self.ctx = ctx
         self.config = ctx.scenario.vision
         self.marker_size_m = ctx.scenario.marker.size_m
+        self.orientation_cue = ctx.scenario.marker.orientation_cue
         self.node = Node("vision", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.features)
         self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=True)
@@ -89,6 +90,7 @@ class VisionService:
             self.marker_size_m,
             self.tracker,
             frame.header.sim_time_s,
+            self.orientation_cue,
         )
         images = [(self.ctx.keys.rgb, frame.rgb)]
         if depth_frame is not None:

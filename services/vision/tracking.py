@@ -85,7 +85,8 @@ class MarkerMemory:
 @dataclass(frozen=True)
 class TrackerState:
     """What one frame leaves for the next: the last visible corners of each marker (to keep
-    their order), its last view with depth, and how it has been moving."""
+    their order; with the orientation cue, only of a marker visible in the frame before),
+    its last view with depth, and how it has been moving."""
 
     previous_corners: dict[str, FloatArray] = field(default_factory=dict)
     memory: dict[str, MarkerMemory] = field(default_factory=dict)
@@ -296,10 +297,13 @@ def observe(
     marker_size_m: float,
     state: TrackerState,
     t_s: float = 0.0,
+    orientation_cue: bool = False,
 ) -> tuple[dict[str, MarkerMeasurement], TrackerState]:
     """Both markers in one colour frame taken at sim time ``t_s``, with the newest depth image
-    (None: none yet), and the state for the next frame."""
-    quads = find_marker_quads(rgb, cfg, state.previous_corners)
+    (None: none yet), and the state for the next frame. ``orientation_cue``
+    (``marker.orientation_cue``): corners labelled by each marker's cue
+    (:mod:`services.vision.cue`), carried on by continuity only from the frame before."""
+    quads = find_marker_quads(rgb, cfg, state.previous_corners, orientation_cue)
     fresh = depth is not None and depth.age_s == 0.0
     usable = depth is not None and depth.age_s <= cfg.max_depth_age_s
     measured: dict[str, MarkerMeasurement] = {}
@@ -324,11 +328,15 @@ def observe(
             and hand_over(quads["hand"].corners_px, last.corners_px)
         ):
             measured["target"] = not_visible(target.reason, target.area_px, occluded=True)
-    return measured, _next_state(state, measured, fresh, t_s)
+    return measured, _next_state(state, measured, fresh, t_s, orientation_cue)
 
 
 def _next_state(
-    state: TrackerState, measured: dict[str, MarkerMeasurement], fresh: bool, t_s: float
+    state: TrackerState,
+    measured: dict[str, MarkerMeasurement],
+    fresh: bool,
+    t_s: float,
+    orientation_cue: bool = False,
 ) -> TrackerState:
     previous = dict(state.previous_corners)
     memory = dict(state.memory)
@@ -336,6 +344,8 @@ def _next_state(
     for name, m in measured.items():
         if m.visible:
             previous[name] = m.corners_px
+        elif orientation_cue:  # a labelling is carried on from the frame before only
+            previous.pop(name, None)
         if m.usable and fresh:  # measured with depth (a fitted view keeps its plane)
             memory[name] = MarkerMemory(m.corners_px, m.depths_m, m.depth_sigmas_m, m.plane)
             motion[name] = motion.get(name, MarkerMotion()).seen(t_s, m.points_m)
