@@ -82,6 +82,7 @@ class Pipeline:
             scenario.controller,
             camera.assumed_pose(),  # the calibration, not the simulator's truth
             scenario.target.approach_height_m,
+            oriented_markers=scenario.marker.orientation_cue,
         )
         self.limiter = LimiterState()
         self.frame_seq = 0
@@ -136,6 +137,7 @@ class Pipeline:
             scenario.marker.size_m,
             self.tracker,
             t,
+            scenario.marker.orientation_cue,
         )
         seen = measure()
         features = seen.features(header, world.intrinsics)

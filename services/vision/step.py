@@ -75,8 +75,12 @@ def vision_step(
     marker_size_m: float,
     tracker: TrackerState,
     t_s: float,
+    orientation_cue: bool = False,
 ) -> VisionStep:
     """Both markers in the colour frame taken at sim time ``t_s`` with the newest depth image
-    (None: none yet), given the tracker state the previous frame left."""
-    measured, next_tracker = observe(rgb, intrinsics, depth, config, marker_size_m, tracker, t_s)
+    (None: none yet), given the tracker state the previous frame left; ``orientation_cue``
+    (``marker.orientation_cue``): corners labelled by each marker's cue."""
+    measured, next_tracker = observe(
+        rgb, intrinsics, depth, config, marker_size_m, tracker, t_s, orientation_cue
+    )
     return VisionStep(measured, next_tracker, None if depth is None else depth.age_s)

@@ -34,12 +34,18 @@ def same_run(a: RunResult, b: RunResult) -> None:
 
 
 @pytest.mark.parametrize(
-    "scenario_path, overrides",
-    [(None, ()), (MOVING, ()), (None, ("run.timeout_s=0.5",))],
-    ids=["default", "moving_target", "timeout"],
+    "scenario_path, overrides, expected",
+    [
+        (None, (), "converged"),
+        (MOVING, (), "converged"),
+        (None, ("run.timeout_s=0.5",), "timeout"),
+        # the cue's flag must reach vision and the controller on both paths
+        (None, ("marker.orientation_cue=true",), "converged"),
+    ],
+    ids=["default", "moving_target", "timeout", "orientation_cue"],
 )
 def test_the_inprocess_run_is_the_distributed_lockstep_run(
-    tmp_path: Path, scenario_path: str | None, overrides: tuple[str, ...]
+    tmp_path: Path, scenario_path: str | None, overrides: tuple[str, ...], expected: str
 ) -> None:
     options = ["--scenario", scenario_path] if scenario_path else []
     for o in overrides:
@@ -47,7 +53,6 @@ def test_the_inprocess_run_is_the_distributed_lockstep_run(
     reference = distributed(tmp_path, "distributed", *options)
     inprocess = run_scenario_inprocess(short(scenario_path, *overrides))
     same_run(inprocess, reference)
-    expected = "timeout" if overrides else "converged"
     assert inprocess.reason == expected and inprocess.frames > 0
 
 
