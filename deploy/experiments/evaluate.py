@@ -47,11 +47,15 @@ def pose(values: list[float]) -> np.ndarray:
     return np.array(values).reshape(4, 4)
 
 
-def square_orientation_error_deg(hand_pose: np.ndarray, target_pose: np.ndarray) -> float:
+def square_orientation_error_deg(
+    hand_pose: np.ndarray, target_pose: np.ndarray, oriented: bool = False
+) -> float:
     """Rotation between the two marker frames, up to the square's 90° symmetry about its normal
-    (the four corners look alike, so these four poses are indistinguishable to the camera)."""
+    (the four corners look alike, so these four poses are indistinguishable to the camera);
+    with ``oriented`` markers (``marker.orientation_cue``: corner 0 is marked) the whole
+    rotation."""
     best = np.pi
-    for k in range(4):
+    for k in range(1 if oriented else 4):
         turned = target_pose[:3, :3] @ kin.rot_z(k * np.pi / 2)
         best = min(best, kin.rotation_error_rad(hand_pose[:3, :3], turned))
     return float(np.degrees(best))
@@ -150,6 +154,7 @@ def summarize(
     period_s: float = 1.0 / 30.0,
     moving: list[tuple[float, float]] | None = None,
     image_size_px: tuple[int, int] | None = None,
+    oriented_markers: bool = False,
 ) -> RunResult:
     """Result at ``last_frame`` (the frame whose twist decided the outcome). Errors compare the
     green marker with its goal: the red marker raised by ``approach_height_m``. ``period_s``:
@@ -186,7 +191,9 @@ def summarize(
         final_position_error_m=(
             float(np.linalg.norm(hand[:3, 3] - target[:3, 3])) if truth else None
         ),
-        final_orientation_error_deg=square_orientation_error_deg(hand, target) if truth else None,
+        final_orientation_error_deg=(
+            square_orientation_error_deg(hand, target, oriented_markers) if truth else None
+        ),
         path_length_m=path_length_m(truths, last_frame) if truth else None,
         detail=detail,
         **extra,

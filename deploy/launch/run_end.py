@@ -123,4 +123,5 @@ def run_result(
         period_s=1.0 / scenario.camera.rgb_hz,
         moving=[(e.at_s, e.end_s) for e in scenario.events if e.action is EventAction.MOVE_TARGET],
         image_size_px=(scenario.camera.width_px, scenario.camera.height_px),
+        oriented_markers=scenario.marker.orientation_cue,
     )

@@ -1,0 +1,18 @@
+"""deploy.experiments.evaluate: how a run's end is judged against the ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from common import kinematics as kin
+from deploy.experiments.evaluate import square_orientation_error_deg
+
+
+def test_a_half_turned_square_is_on_goal_unless_its_corner_is_marked() -> None:
+    """A plain square turned 180° about its normal looks unturned; with the orientation cue the
+    error is the whole turn."""
+    target = kin.homogeneous(kin.rot_x(0.3), np.array([0.1, 0.2, 0.3]))
+    for turn_deg, plain_deg in ((0.0, 0.0), (30.0, 30.0), (100.0, 10.0), (180.0, 0.0)):
+        hand = target @ kin.homogeneous(kin.rot_z(np.radians(turn_deg)), np.zeros(3))
+        assert abs(square_orientation_error_deg(hand, target) - plain_deg) < 1e-6
+        assert abs(square_orientation_error_deg(hand, target, oriented=True) - turn_deg) < 1e-6
