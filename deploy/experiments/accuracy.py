@@ -260,7 +260,14 @@ def _observe_posture(
         if c.kinect.enabled:
             seen_rgb = exposed_rgb(rgb, c.kinect, rng)
             seen_depth = noisy_depth(perfect_depth, c.kinect, rng)
-        out[c.name] = measure_markers(seen_rgb, seen_depth, k, c.vision, k_depth=k_depth)
+        out[c.name] = measure_markers(
+            seen_rgb,
+            seen_depth,
+            k,
+            c.vision,
+            k_depth=k_depth,
+            orientation_cue=scenario.marker.orientation_cue,
+        )
     return out
 
 
