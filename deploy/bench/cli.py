@@ -1,6 +1,5 @@
-"""``umay bench`` on the command line: its parser and handler, apart from :mod:`deploy.bench`
-so that building the ``umay`` parser imports nothing heavy. It moves beside the bench's modules
-when ``deploy/bench.py`` becomes a folder of its own."""
+"""``umay bench`` on the command line: its parser and handler, apart from the bench's modules
+so that building the ``umay`` parser imports nothing heavy."""
 
 from __future__ import annotations
 

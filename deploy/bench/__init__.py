@@ -826,7 +826,7 @@ def run_bench(
 ) -> dict[str, Any]:
     """Distributed run, in-process baseline, synthetic 30 Hz source, and (``reference_renderer``)
     the render cost and the distributed loop again with TinyRenderer; one JSON-ready dict."""
-    from deploy.render_bench import REFERENCE_RENDERER, run_render_bench
+    from deploy.bench.render import REFERENCE_RENDERER, run_render_bench
 
     cam = scenario.camera
     synthetic_frames = frames if synthetic_frames is None else synthetic_frames
@@ -1093,7 +1093,7 @@ def format_report(r: dict[str, Any]) -> str:
             )
         )
     if r.get("render"):
-        from deploy.render_bench import format_render_report
+        from deploy.bench.render import format_render_report
 
         lines += ["", *format_render_report(r["render"])]
     ref = r.get("reference_renderer")
