@@ -22,7 +22,7 @@ LATENCY_GOAL_MS = 10.0  # issue 7's goal for the p99 at 640×480: frames over it
 
 # One frame's row: its frame_seq, its latency and its stages (ms), for the figure.
 FrameRow = dict[str, int | float]
-# Per joint, the velocities a frame's command asked for (rad/s); None: not heard of.
+# frame_seq → the joint velocities (rad/s) of that frame's command; None: not heard of.
 Velocities = dict[int, list[float] | None]
 
 
