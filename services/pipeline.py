@@ -11,8 +11,8 @@ from step to step through the same wire messages the services exchange (``Featur
 
 The sim's ground truth of each frame is taken for evaluation only (``FrameRecord.truth``);
 nothing of it flows into vision or control. Users: ``umay run --inprocess``
-(deploy/run_inprocess.py) and the in-process baseline of ``umay bench`` (deploy/bench.py),
-which times the stages from ``FrameRecord.stage_s``.
+(deploy/launch/run_inprocess.py) and the in-process baseline of ``umay bench``
+(deploy/bench/inprocess.py), which times the stages from ``FrameRecord.stage_s``.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ from typing import Any
 
 from common.keys import Keys
 from deploy.bench import BenchError
-from deploy.foxglove import convert as c
+from deploy.foxglove import topics
 from deploy.foxglove.client import FoxgloveClient
 from deploy.foxglove.node import ViewStartError, view_process
 from deploy.foxglove.options import DEFAULT_HOST
@@ -44,7 +44,7 @@ def watched_by_a_view(
         client = FoxgloveClient(f"ws://{DEFAULT_HOST}:{port}", keep=False).start()
         try:
             if not client.wait_for(
-                lambda cl: cl.counts.get(c.COLOUR_IMAGE, 0) > 0, startup_timeout_s
+                lambda cl: cl.counts.get(topics.COLOUR_IMAGE, 0) > 0, startup_timeout_s
             ):
                 raise BenchError(f"the view client got no image; see {log_dir}/view.log")
             yield report

@@ -21,21 +21,21 @@ from foxglove.channels import (
     SceneUpdateChannel,
 )
 
-from deploy.foxglove import convert as c
+from deploy.foxglove import convert, topics
 
 WELL_KNOWN: dict[str, Any] = {
-    c.COLOUR_IMAGE: CompressedImageChannel,
-    c.DEPTH_IMAGE: RawImageChannel,
-    c.CALIBRATION: CameraCalibrationChannel,
-    c.ANNOTATIONS: ImageAnnotationsChannel,
-    c.TRANSFORMS: FrameTransformsChannel,
-    c.SCENE: SceneUpdateChannel,
-    c.TRUTH_SCENE: SceneUpdateChannel,
-    c.JOINT_STATES: JointStatesChannel,
-    c.JOINT_COMMAND: JointStatesChannel,
-    c.LOG: LogChannel,
+    topics.COLOUR_IMAGE: CompressedImageChannel,
+    topics.DEPTH_IMAGE: RawImageChannel,
+    topics.CALIBRATION: CameraCalibrationChannel,
+    topics.ANNOTATIONS: ImageAnnotationsChannel,
+    topics.TRANSFORMS: FrameTransformsChannel,
+    topics.SCENE: SceneUpdateChannel,
+    topics.TRUTH_SCENE: SceneUpdateChannel,
+    topics.JOINT_STATES: JointStatesChannel,
+    topics.JOINT_COMMAND: JointStatesChannel,
+    topics.LOG: LogChannel,
 }
-TOPICS: tuple[str, ...] = (*WELL_KNOWN, *c.JSON_SCHEMAS)
+TOPICS: tuple[str, ...] = (*WELL_KNOWN, *topics.JSON_SCHEMAS)
 
 
 class FoxgloveChannels:
@@ -45,7 +45,7 @@ class FoxgloveChannels:
         self.channels: dict[str, Any] = {
             topic: kind(topic, context=context) for topic, kind in WELL_KNOWN.items()
         }
-        for topic, schema in c.JSON_SCHEMAS.items():
+        for topic, schema in topics.JSON_SCHEMAS.items():
             self.channels[topic] = foxglove.Channel(topic, schema=schema, context=context)
 
     def wanted(self, topic: str) -> bool:
@@ -55,10 +55,10 @@ class FoxgloveChannels:
     def any_wanted(self) -> bool:
         return any(ch.has_sinks() for ch in self.channels.values())
 
-    def log(self, out: c.Out) -> None:
+    def log(self, out: convert.Out) -> None:
         self.channels[out.topic].log(out.message, log_time=out.log_time_ns)
 
-    def log_all(self, outs: list[c.Out]) -> None:
+    def log_all(self, outs: list[convert.Out]) -> None:
         for out in outs:
             self.log(out)
 

@@ -5,7 +5,11 @@ Nothing here opens a socket, a Zenoh session or a file: :class:`ViewState` takes
 messages of one run (:mod:`common.messages`), in the order they come, and returns what to show
 as :class:`Out` records (topic, Foxglove message, log time). The live server
 (:mod:`deploy.foxglove.node`) and the exporter (:mod:`deploy.foxglove.export`) feed it the same
-way, so a recording opened in Foxglove shows what the live view showed.
+way, so a recording opened in Foxglove shows what the live view showed. The messages are built
+by concern: :mod:`~deploy.foxglove.topics` (the channels, frame names and JSON schemas),
+:mod:`~deploy.foxglove.transforms` (time stamps and the transform tree),
+:mod:`~deploy.foxglove.image` (images, calibration, overlay), :mod:`~deploy.foxglove.scene`
+(the 3-D scene) and :mod:`~deploy.foxglove.style` (colours).
 
 Time: every message is stamped with the **simulation** time of the data it shows
 (``header.sim_time_s``), and that is also its log time, so plots and the timeline are in
@@ -20,8 +24,8 @@ calibration) and ``camera_true`` (the true mount the simulator renders from; sep
 labelled). The images and vision's 3-D corners are in ``camera``.
 
 Ground truth: the simulator's truth topic (:class:`common.messages.SimTruth`) is shown only
-on its own topic (:data:`TRUTH_SCENE`), labelled as ground truth. The view is an observer: it
-never publishes anything back to the system.
+on its own topic (:data:`~deploy.foxglove.topics.TRUTH_SCENE`), labelled as ground truth. The
+view is an observer: it never publishes anything back to the system.
 """
 
 from __future__ import annotations
@@ -30,43 +34,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-import cv2
 import numpy as np
-from foxglove.messages import (
-    CameraCalibration,
-    CircleAnnotation,
-    Color,
-    CompressedImage,
-    CubePrimitive,
-    CylinderPrimitive,
-    FrameTransform,
-    FrameTransforms,
-    ImageAnnotations,
-    JointState,
-    JointStates,
-    KeyValuePair,
-    LinePrimitive,
-    LinePrimitiveLineType,
-    Log,
-    LogLevel,
-    Point2,
-    Point3,
-    PointsAnnotation,
-    PointsAnnotationType,
-    Pose,
-    Quaternion,
-    RawImage,
-    SceneEntity,
-    SceneUpdate,
-    TextAnnotation,
-    TextPrimitive,
-    Timestamp,
-    Vector3,
-)
+from foxglove.messages import FrameTransforms, JointState, JointStates, Log, LogLevel
 
 from common import keys
-from common import kinematics as kin
-from common.camera import CameraIntrinsics
 from common.config import Scenario
 from common.keys import SERVICES
 from common.messages import (
@@ -74,100 +45,39 @@ from common.messages import (
     EndEffectorTwist,
     Features,
     JointVelocityCommand,
-    MarkerFeatures,
     RgbFrame,
     ServiceStatus,
     SimTruth,
 )
 from common.messages import JointState as UmayJointState
-from services.controller.ibvs import choose_pairing, desired_observation, pairing_costs_px2
-from services.controller.step import observation
-from services.sim.urdf import TORSO_CENTRE_M, TORSO_SIZE_M
+from deploy.foxglove.image import (
+    calibration,
+    compressed_image,
+    depth_image,
+    desired_corners_px,
+    image_annotations,
+    paired_error_px,
+)
+from deploy.foxglove.scene import measured_markers, static_scene, truth_scene
+from deploy.foxglove.topics import (
+    ANNOTATIONS,
+    CALIBRATION,
+    COLOUR_IMAGE,
+    DEPTH_IMAGE,
+    FEATURE_ERROR,
+    JOINT_COMMAND,
+    JOINT_NAMES,
+    JOINT_STATES,
+    LOG,
+    PHASE,
+    PHASES,
+    SCENE,
+    TRANSFORMS,
+    TRUTH_SCENE,
+    TWIST,
+)
+from deploy.foxglove.transforms import arm_transforms, camera_transforms, stamp, time_ns
 
-FloatArray = np.ndarray
-
-# --- topics -----------------------------------------------------------------------------------
-COLOUR_IMAGE = "/camera/colour/compressed"  # CompressedImage, JPEG
-DEPTH_IMAGE = "/camera/depth"  # RawImage, 32FC1, metres along the optical axis (0: none)
-CALIBRATION = "/camera/calibration"  # CameraCalibration of the colour image
-ANNOTATIONS = "/camera/annotations"  # ImageAnnotations on the colour image
-TRANSFORMS = "/tf"  # FrameTransforms
-SCENE = "/scene"  # SceneUpdate: arm, torso, table, markers, frustum, vision's 3-D corners
-TRUTH_SCENE = "/truth/scene"  # SceneUpdate: the simulator's ground truth, labelled as such
-JOINT_STATES = "/joint_states"  # JointStates: encoder positions and velocities
-JOINT_COMMAND = "/actuation/joint_command"  # JointStates: commanded velocities
-FEATURE_ERROR = "/plot/feature_error"  # JSON: e = s - s* per coordinate, its RMS
-TWIST = "/plot/twist"  # JSON: commanded end-effector twist (base frame)
-PHASE = "/plot/controller_phase"  # JSON: servoing / holding / converged, hold reason
-LOG = "/log"  # Log: each service's status once a second; controller phase changes
-
-JOINT_NAMES = tuple(f"joint_{i + 1}" for i in range(kin.N_JOINTS))
-DH_FRAMES = tuple(f"dh_{i + 1}" for i in range(kin.N_JOINTS))
-WORLD, BASE, EE, HAND_MARKER = "world", "base", "end_effector", "hand_marker"
-CAMERA, CAMERA_TRUE = "camera", "camera_true"
-
-PHASES = ("servoing", "holding", "converged")  # phase_code is the index
-
-# JSON schemas of the plot channels (Foxglove plots any numeric message path of them).
-_NUMBERS = {"type": "array", "items": {"type": "number"}}
-JSON_SCHEMAS: dict[str, dict[str, Any]] = {
-    FEATURE_ERROR: {
-        "type": "object",
-        "title": "umay.FeatureError",
-        "properties": {
-            "sim_time_s": {"type": "number"},
-            "frame_seq": {"type": "integer"},
-            "error_px": _NUMBERS,
-            "error_px_rms": {"type": "number"},
-            "hand_state": {"type": "string"},
-            "target_state": {"type": "string"},
-        },
-    },
-    TWIST: {
-        "type": "object",
-        "title": "umay.Twist",
-        "properties": {
-            "sim_time_s": {"type": "number"},
-            "frame_seq": {"type": "integer"},
-            "linear_m_s": _NUMBERS,
-            "angular_rad_s": _NUMBERS,
-            "speed_m_s": {"type": "number"},
-            "error_px_rms": {"type": "number"},
-        },
-    },
-    PHASE: {
-        "type": "object",
-        "title": "umay.ControllerPhase",
-        "properties": {
-            "sim_time_s": {"type": "number"},
-            "phase": {"type": "string", "enum": list(PHASES)},
-            "phase_code": {"type": "integer"},
-            "hold_reason": {"type": "string"},
-            "mode": {"type": "string"},
-            "converged": {"type": "boolean"},
-        },
-    },
-}
-
-# Colours (r, g, b, a in 0..1).
-WHITE = (1.0, 1.0, 1.0, 1.0)
-GREEN = (0.1, 0.9, 0.2, 1.0)
-RED = (1.0, 0.15, 0.15, 1.0)
-ORANGE = (1.0, 0.6, 0.0, 1.0)
-YELLOW = (1.0, 0.9, 0.1, 1.0)
-CYAN = (0.1, 0.9, 1.0, 1.0)
-MAGENTA = (1.0, 0.2, 1.0, 1.0)
-GREY = (0.75, 0.75, 0.78, 1.0)
-SKIN = (0.92, 0.90, 0.86, 1.0)
-TORSO = (0.35, 0.37, 0.42, 1.0)
-TABLE = (0.86, 0.84, 0.80, 1.0)
-BLOCK = (0.45, 0.55, 0.70, 1.0)
-
-TABLE_TOP_Y_M = -0.40  # as the sim's world draws it (services/sim/world.py)
-TABLE_CENTRE_M = (0.42, TABLE_TOP_Y_M - 0.02, 0.0)
-TABLE_SIZE_M = (0.56, 0.04, 0.90)
-LIMB_RADIUS_M = 0.022
-FRUSTUM_DEPTH_M = 0.6  # how far the drawn camera frustum reaches
 TRAIL_MAX_POINTS = 3000  # the hand-marker centre's trail (the thesis's white dots)
 TRAIL_MIN_STEP_PX = 1.0  # a dot is added once the centre has moved this far from the last
 STATIC_PERIOD_S = 1.0  # the fixed scene is sent again this often (sim s), for late clients
@@ -180,416 +90,6 @@ class Out:
     topic: str
     message: Any
     log_time_ns: int
-
-
-def time_ns(sim_time_s: float) -> int:
-    return round(sim_time_s * 1e9)
-
-
-def stamp(sim_time_s: float) -> Timestamp:
-    ns = time_ns(sim_time_s)
-    return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
-
-
-def color(rgba: tuple[float, float, float, float]) -> Color:
-    return Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
-
-
-def quaternion_xyzw(rotation: FloatArray) -> tuple[float, float, float, float]:
-    """Unit quaternion (x, y, z, w) of a 3×3 rotation matrix (Shepperd's method, w ≥ 0)."""
-    r = np.asarray(rotation, dtype=float)
-    trace = r[0, 0] + r[1, 1] + r[2, 2]
-    if trace > 0.0:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        q = ((r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, s / 4)
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = (s / 4, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s)
-    elif r[1, 1] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = ((r[0, 1] + r[1, 0]) / s, s / 4, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s)
-    else:
-        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = ((r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, s / 4, (r[1, 0] - r[0, 1]) / s)
-    n = math.sqrt(sum(c * c for c in q))
-    x, y, z, w = (c / n for c in q)
-    return (-x, -y, -z, -w) if w < 0 else (x, y, z, w)
-
-
-def rotation_from_quaternion(x: float, y: float, z: float, w: float) -> FloatArray:
-    """3×3 rotation of a unit quaternion (the inverse of :func:`quaternion_xyzw`)."""
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def pose(transform: FloatArray) -> Pose:
-    x, y, z, w = quaternion_xyzw(transform[:3, :3])
-    p = transform[:3, 3]
-    return Pose(
-        position=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-        orientation=Quaternion(x=x, y=y, z=z, w=w),
-    )
-
-
-def frame_transform(parent: str, child: str, transform: FloatArray, t_s: float) -> FrameTransform:
-    x, y, z, w = quaternion_xyzw(transform[:3, :3])
-    p = transform[:3, 3]
-    return FrameTransform(
-        timestamp=stamp(t_s),
-        parent_frame_id=parent,
-        child_frame_id=child,
-        translation=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-        rotation=Quaternion(x=x, y=y, z=z, w=w),
-    )
-
-
-def arm_transforms(q_rad: FloatArray, t_s: float) -> list[FrameTransform]:
-    """``base`` → ``dh_1`` → … → ``dh_6`` (one DH link transform each), ``dh_6`` →
-    ``end_effector`` (identity) → ``hand_marker``: composed, they give forward kinematics."""
-    out = []
-    parent = BASE
-    for i, (row, qi) in enumerate(zip(kin.UMAY_DH, q_rad, strict=True)):
-        out.append(
-            frame_transform(parent, DH_FRAMES[i], kin.dh_link_transform(row, float(qi)), t_s)
-        )
-        parent = DH_FRAMES[i]
-    out.append(frame_transform(parent, EE, np.eye(4), t_s))
-    out.append(frame_transform(EE, HAND_MARKER, kin.hand_marker_in_ee(), t_s))
-    return out
-
-
-# base → world: the base's y (up) becomes the world's z.
-WORLD_FROM_BASE = kin.homogeneous(kin.rot_x(math.pi / 2), np.zeros(3))
-
-
-def camera_transforms(scenario: Scenario, t_s: float) -> list[FrameTransform]:
-    """``world`` → ``base``, the assumed camera pose (calibration: ``camera``) and the true
-    mount (``camera_true``)."""
-    cam = scenario.camera
-    return [
-        frame_transform(WORLD, BASE, WORLD_FROM_BASE, t_s),
-        frame_transform(BASE, CAMERA, cam.assumed_pose(), t_s),
-        frame_transform(BASE, CAMERA_TRUE, cam.pose(), t_s),
-    ]
-
-
-def compressed_image(frame: RgbFrame, jpeg_quality: int = 85) -> CompressedImage:
-    """The colour frame as JPEG (OpenCV), in the ``camera`` frame."""
-    bgr = cv2.cvtColor(frame.rgb.to_array(), cv2.COLOR_RGB2BGR)
-    ok, jpeg = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
-    if not ok:
-        raise ValueError("OpenCV could not encode the frame as JPEG")
-    return CompressedImage(
-        timestamp=stamp(frame.header.sim_time_s),
-        frame_id=CAMERA,
-        data=jpeg.tobytes(),
-        format="jpeg",
-    )
-
-
-def depth_image(frame: DepthFrame) -> RawImage:
-    """The depth image as it is (float32 metres, 0 = no measurement): encoding ``32FC1``."""
-    h, w = frame.depth_m.shape
-    return RawImage(
-        timestamp=stamp(frame.header.sim_time_s),
-        frame_id=CAMERA,
-        width=w,
-        height=h,
-        encoding="32FC1",
-        step=4 * w,
-        data=bytes(frame.depth_m.data),
-    )
-
-
-def calibration(k: CameraIntrinsics, t_s: float) -> CameraCalibration:
-    """Pinhole intrinsics of the colour image, no distortion (the simulated Kinect has none)."""
-    return CameraCalibration(
-        timestamp=stamp(t_s),
-        frame_id=CAMERA,
-        width=k.width_px,
-        height=k.height_px,
-        distortion_model="plumb_bob",
-        D=[0.0] * 5,
-        K=[k.fx_px, 0.0, k.cx_px, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 1.0],
-        R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-        P=[k.fx_px, 0.0, k.cx_px, 0.0, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0],
-    )
-
-
-def desired_corners_px(features: Features, approach_height_m: float) -> FloatArray | None:
-    """s*: the controller's desired corners for this frame (the target's measured corners
-    raised by the approach height, :func:`services.controller.ibvs.desired_observation`), or
-    None while the target is not usable."""
-    if not features.target.usable:
-        return None
-    target = desired_observation(
-        observation(features.target), approach_height_m, features.intrinsics
-    )
-    return np.asarray(target.corners_px, dtype=float)
-
-
-def paired_error_px(hand_px: FloatArray, desired_px: FloatArray) -> FloatArray:
-    """e = s - s* (4×2) with the hand's corners paired to the desired ones as the controller
-    pairs them (the cyclic pairing of least cost)."""
-    k = choose_pairing(pairing_costs_px2(hand_px, desired_px), None)
-    return hand_px - np.roll(desired_px, -k, axis=0)
-
-
-def _points(
-    kind: PointsAnnotationType,
-    pts: FloatArray,
-    rgba: tuple[float, float, float, float],
-    t_s: float,
-    name: str,
-    thickness: float = 2.0,
-) -> PointsAnnotation:
-    return PointsAnnotation(
-        timestamp=stamp(t_s),
-        type=kind,
-        points=[Point2(x=float(u), y=float(v)) for u, v in pts],
-        outline_color=color(rgba),
-        thickness=thickness,
-        metadata=[KeyValuePair(key="name", value=name)],
-    )
-
-
-def _marker_colour(m: MarkerFeatures, seen: tuple[float, float, float, float]):
-    return seen if m.state == "visible" else ORANGE
-
-
-def _state_text(name: str, m: MarkerFeatures) -> str:
-    extra = " (fitted)" if m.fitted else ""
-    extra += " (occluded)" if m.occluded else ""
-    return f"{name}: {m.state}{extra}"
-
-
-def image_annotations(
-    features: Features,
-    desired_px: FloatArray | None,
-    trail_px: list[tuple[float, float]],
-    error_px_rms: float | None,
-) -> ImageAnnotations:
-    """Fig. 5.10-5.16's overlay: the hand's square (green), the target's (red), both orange
-    when only partly seen, the desired corners s* (yellow), the error vectors s → s* (cyan),
-    the hand-marker centre's trail (white dots) and the states and pixel error as text.
-    Each points annotation names itself in its metadata (``name``: hand, target, desired,
-    error, trail)."""
-    t = features.header.sim_time_s
-    points: list[PointsAnnotation] = []
-    circles: list[CircleAnnotation] = []
-    loop = PointsAnnotationType.LineLoop
-    for name, m, rgba in (("hand", features.hand, GREEN), ("target", features.target, RED)):
-        if not m.usable:
-            continue
-        corners = np.asarray(m.corners_px, dtype=float)
-        points.append(_points(loop, corners, _marker_colour(m, rgba), t, name))
-        circles.extend(
-            CircleAnnotation(
-                timestamp=stamp(t),
-                position=Point2(x=float(u), y=float(v)),
-                diameter=6.0,
-                thickness=1.5,
-                outline_color=color(_marker_colour(m, rgba)),
-            )
-            for u, v in corners
-        )
-    if desired_px is not None:
-        points.append(_points(loop, desired_px, YELLOW, t, "desired", 1.5))
-        if features.hand.usable:
-            hand = np.asarray(features.hand.corners_px, dtype=float)
-            err = paired_error_px(hand, desired_px)
-            segments = np.stack([hand, hand - err], axis=1).reshape(-1, 2)
-            points.append(_points(PointsAnnotationType.LineList, segments, CYAN, t, "error", 1.5))
-    if trail_px:
-        points.append(
-            _points(PointsAnnotationType.Points, np.array(trail_px), WHITE, t, "trail", 3.0)
-        )
-    lines = [
-        _state_text("hand", features.hand),
-        _state_text("target", features.target),
-        "e: -" if error_px_rms is None else f"e: {error_px_rms:.2f} px rms",
-    ]
-    texts = [
-        TextAnnotation(
-            timestamp=stamp(t),
-            position=Point2(x=8.0, y=20.0 + 18.0 * i),
-            text=line,
-            font_size=14.0,
-            text_color=color(WHITE),
-            background_color=Color(r=0.0, g=0.0, b=0.0, a=0.5),
-        )
-        for i, line in enumerate(lines)
-    ]
-    return ImageAnnotations(circles=circles, points=points, texts=texts)
-
-
-# --- the 3-D scene ----------------------------------------------------------------------------
-def _cube(transform: FloatArray, size_m: tuple[float, float, float], rgba) -> CubePrimitive:
-    return CubePrimitive(
-        pose=pose(transform),
-        size=Vector3(x=size_m[0], y=size_m[1], z=size_m[2]),
-        color=color(rgba),
-    )
-
-
-def _cylinder_between(p0: FloatArray, p1: FloatArray, radius_m: float, rgba) -> CylinderPrimitive:
-    """A cylinder from ``p0`` to ``p1`` (its axis is its pose's z)."""
-    d = p1 - p0
-    length = float(np.linalg.norm(d))
-    z = d / length
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    frame = kin.homogeneous(np.column_stack([x, np.cross(z, x), z]), (p0 + p1) / 2)
-    return CylinderPrimitive(
-        pose=pose(frame),
-        size=Vector3(x=2 * radius_m, y=2 * radius_m, z=length),
-        bottom_scale=1.0,
-        top_scale=1.0,
-        color=color(rgba),
-    )
-
-
-def _line(kind: LinePrimitiveLineType, pts, rgba, thickness: float = 2.0) -> LinePrimitive:
-    return LinePrimitive(
-        type=kind,
-        thickness=thickness,
-        scale_invariant=True,
-        points=[Point3(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in pts],
-        color=color(rgba),
-    )
-
-
-def _text(position, text: str, rgba=WHITE) -> TextPrimitive:
-    return TextPrimitive(
-        pose=pose(kin.homogeneous(np.eye(3), np.asarray(position, dtype=float))),
-        billboard=True,
-        font_size=14.0,
-        scale_invariant=True,
-        color=color(rgba),
-        text=text,
-    )
-
-
-def _entity(entity_id: str, frame_id: str, t_s: float, **primitives: Any) -> SceneEntity:
-    return SceneEntity(
-        timestamp=stamp(t_s), frame_id=frame_id, id=entity_id, frame_locked=True, **primitives
-    )
-
-
-def frustum_lines(k: CameraIntrinsics, depth_m: float) -> list[FloatArray]:
-    """The camera's field of view as a line list in its optical frame: four rays from the
-    centre to the image corners at ``depth_m``, and the rectangle joining them."""
-    corners = []
-    for u, v in ((-0.5, -0.5), (k.width_px - 0.5, -0.5), (k.width_px - 0.5, k.height_px - 0.5),
-                 (-0.5, k.height_px - 0.5)):  # fmt: skip
-        corners.append(
-            np.array(
-                [(u - k.cx_px) / k.fx_px * depth_m, (v - k.cy_px) / k.fy_px * depth_m, depth_m]
-            )
-        )
-    origin = np.zeros(3)
-    pts: list[FloatArray] = []
-    for i, c in enumerate(corners):
-        pts += [origin, c, c, corners[(i + 1) % 4]]
-    return pts
-
-
-def static_scene(scenario: Scenario, t_s: float) -> SceneUpdate:
-    """What does not move, or moves only with a frame of the transform tree: the arm's links
-    (frame-locked to their DH frames), the hand and its green marker, the torso, the table, the
-    block with the red marker as the scenario places it, and both camera frustums."""
-    entities = []
-    dh = kin.UMAY_DH
-    for i in range(len(dh) - 1):
-        nxt = dh[i + 1]
-        p_next = kin.rot_x(nxt.alpha_prev_rad) @ np.array([nxt.a_prev_m, 0.0, nxt.d_m])
-        if np.linalg.norm(p_next) > 0.03:
-            cyl = _cylinder_between(np.zeros(3), p_next, LIMB_RADIUS_M, GREY)
-            entities.append(_entity(f"link_{i + 1}", DH_FRAMES[i], t_s, cylinders=[cyl]))
-    hand_centre = np.array([0.0, kin.HAND_OFFSET_M + kin.HAND_LENGTH_M / 2, 0.0])
-    hand = _cube(
-        kin.homogeneous(np.eye(3), hand_centre),
-        (kin.HAND_THICKNESS_M, kin.HAND_LENGTH_M, kin.HAND_WIDTH_M),
-        SKIN,
-    )
-    size = scenario.marker.size_m
-    marker = _cube(np.eye(4), (size, size, 0.002), GREEN)
-    entities.append(_entity("hand", EE, t_s, cubes=[hand]))
-    entities.append(_entity("hand_marker", HAND_MARKER, t_s, cubes=[marker]))
-    entities.append(
-        _entity(
-            "torso", BASE, t_s,
-            cubes=[_cube(kin.homogeneous(np.eye(3), np.array(TORSO_CENTRE_M)), TORSO_SIZE_M,
-                         TORSO)],
-        )
-    )  # fmt: skip
-    table = _cube(kin.homogeneous(np.eye(3), np.array(TABLE_CENTRE_M)), TABLE_SIZE_M, TABLE)
-    entities.append(_entity("table", BASE, t_s, cubes=[table]))
-    target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
-    top_y = float(target[1, 3])
-    if top_y - TABLE_TOP_Y_M > 0.005:
-        centre = np.array([target[0, 3], (top_y + TABLE_TOP_Y_M) / 2, target[2, 3]])
-        block_pose = kin.homogeneous(target[:3, :3], centre)
-        side = size * 1.25
-        block = _cube(block_pose, (side, side, top_y - TABLE_TOP_Y_M), BLOCK)
-        # The block's height is along the marker's normal (z of the target frame).
-        entities.append(_entity("block", BASE, t_s, cubes=[block]))
-    red = _cube(target, (size, size, 0.002), RED)
-    entities.append(_entity("target_marker", BASE, t_s, cubes=[red]))
-    k = scenario.camera.intrinsics()
-    lines = LinePrimitiveLineType.LineList
-    entities.append(
-        _entity(
-            "camera_frustum", CAMERA, t_s,
-            lines=[_line(lines, frustum_lines(k, FRUSTUM_DEPTH_M), CYAN, 1.5)],
-            texts=[_text([0.0, -0.03, 0.0], "camera (assumed: calibration)", CYAN)],
-        )
-    )  # fmt: skip
-    entities.append(
-        _entity(
-            "camera_true_frustum", CAMERA_TRUE, t_s,
-            lines=[_line(lines, frustum_lines(k, FRUSTUM_DEPTH_M * 0.5), MAGENTA, 1.0)],
-            texts=[_text([0.0, 0.03, 0.0], "camera true mount (ground truth)", MAGENTA)],
-        )
-    )  # fmt: skip
-    return SceneUpdate(entities=entities)
-
-
-def measured_markers(features: Features) -> SceneUpdate:
-    """Vision's 3-D corners (depth camera) as squares in the ``camera`` frame: where the
-    system believes the markers are (an empty entity when a marker is not usable)."""
-    t = features.header.sim_time_s
-    entities = []
-    for name, m, rgba in (("hand", features.hand, GREEN), ("target", features.target, RED)):
-        lines = []
-        if m.usable:
-            lines = [_line(LinePrimitiveLineType.LineLoop, m.points_m, rgba, 3.0)]
-        entities.append(_entity(f"measured_{name}", CAMERA, t, lines=lines))
-    return SceneUpdate(entities=entities)
-
-
-def truth_scene(truth: SimTruth, marker_size_m: float) -> SceneUpdate:
-    """The simulator's ground truth of both markers as outlined squares, labelled."""
-    t = truth.header.sim_time_s
-    entities = []
-    for name, flat in (("hand", truth.hand_marker_pose), ("target", truth.target_marker_pose)):
-        p = np.array(flat).reshape(4, 4)
-        corners = kin.marker_corners(p, marker_size_m)
-        entities.append(
-            _entity(
-                f"truth_{name}_marker", BASE, t,
-                lines=[_line(LinePrimitiveLineType.LineLoop, corners, YELLOW, 1.0)],
-                texts=[_text(p[:3, 3] + np.array([0.0, 0.04, 0.0]), f"{name} (ground truth)",
-                             YELLOW)],
-            )
-        )  # fmt: skip
-    return SceneUpdate(entities=entities)
 
 
 def joint_states(names: tuple[str, ...], position, velocity, t_s: float) -> JointStates:

@@ -19,7 +19,7 @@ import foxglove
 from common.codec import FRAME_MAX_BYTES, MessageError, decode
 from common.config import DEFAULT_SCENARIO, Scenario, load_scenario
 from common.runtime import parse_overrides
-from deploy.foxglove import convert as c
+from deploy.foxglove import convert
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.recording.channels import METADATA_NAME, split_data_key
 from deploy.recording.read import RecordingReader
@@ -57,7 +57,7 @@ def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 
     reader = RecordingReader(recording)
     scenario, notes = recorded_scenario(reader)
     report = ExportReport(notes=notes)
-    state = c.ViewState(scenario)
+    state = convert.ViewState(scenario)
     context = foxglove.Context()
     channels = FoxgloveChannels(context)
     with foxglove.open_mcap(str(out), allow_overwrite=True, context=context) as writer:
@@ -68,7 +68,7 @@ def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 
         )
         for _schema, channel, message in reader.messages():
             split = split_data_key(channel.topic)
-            if split is None or split[1] not in c.VIEWED_KEYS:
+            if split is None or split[1] not in convert.VIEWED_KEYS:
                 report.skipped += 1
                 continue
             _prefix, suffix, model = split

@@ -18,7 +18,7 @@ import numpy as np
 from mcap.reader import make_reader
 
 from common import kinematics as kin
-from deploy.foxglove import convert as c
+from deploy.foxglove import topics, transforms
 from deploy.foxglove.client import protobuf_class
 
 
@@ -83,12 +83,14 @@ def _frames(tf: Any) -> dict[str, np.ndarray]:
     """Every frame's pose in ``world`` from one FrameTransforms message."""
     rel = {}
     for t in tf.transforms:
-        r = c.rotation_from_quaternion(t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w)
+        r = transforms.rotation_from_quaternion(
+            t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w
+        )
         rel[t.child_frame_id] = (
             t.parent_frame_id,
             kin.homogeneous(r, np.array([t.translation.x, t.translation.y, t.translation.z])),
         )
-    poses: dict[str, np.ndarray] = {c.WORLD: np.eye(4)}
+    poses: dict[str, np.ndarray] = {topics.WORLD: np.eye(4)}
 
     def pose(frame: str) -> np.ndarray:
         if frame not in poses:
@@ -102,15 +104,15 @@ def _frames(tf: Any) -> dict[str, np.ndarray]:
 
 
 def draw_scene(ax: Any, view: dict[str, list[tuple[int, Any]]], t_ns: int) -> None:
-    poses = _frames(_at(view[c.TRANSFORMS], t_ns))
-    chain = [c.BASE, *c.DH_FRAMES]
+    poses = _frames(_at(view[topics.TRANSFORMS], t_ns))
+    chain = [topics.BASE, *topics.DH_FRAMES]
     arm = np.array([poses[f][:3, 3] for f in chain])
     ax.plot(arm[:, 0], arm[:, 1], arm[:, 2], "-o", color="0.45", lw=4, ms=3, label="arm (DH)")
-    hand = poses[c.HAND_MARKER]
-    trail = np.array([_frames(tf)[c.HAND_MARKER][:3, 3] for t, tf in view[c.TRANSFORMS]
+    hand = poses[topics.HAND_MARKER]
+    trail = np.array([_frames(tf)[topics.HAND_MARKER][:3, 3] for t, tf in view[topics.TRANSFORMS]
                       if t <= t_ns])  # fmt: skip
     ax.scatter(trail[:, 0], trail[:, 1], trail[:, 2], s=2, color="k", label="hand marker path")
-    scene = [s for _t, upd in view[c.SCENE] for s in upd.entities]
+    scene = [s for _t, upd in view[topics.SCENE] for s in upd.entities]
     by_id = {e.id: e for e in scene}  # the newest of each entity
     for entity_id, colour in (("target_marker", "red"), ("table", "tan"), ("torso", "slategrey")):
         e = by_id.get(entity_id)
@@ -119,7 +121,7 @@ def draw_scene(ax: Any, view: dict[str, list[tuple[int, Any]]], t_ns: int) -> No
         cube = e.cubes[0]
         p, o, s = cube.pose.position, cube.pose.orientation, cube.size
         frame = poses[e.frame_id] @ kin.homogeneous(
-            c.rotation_from_quaternion(o.x, o.y, o.z, o.w), np.array([p.x, p.y, p.z])
+            transforms.rotation_from_quaternion(o.x, o.y, o.z, o.w), np.array([p.x, p.y, p.z])
         )
         h = np.array([s.x, s.y, s.z]) / 2
         top = np.array([[-h[0], -h[1], h[2]], [h[0], -h[1], h[2]], [h[0], h[1], h[2]],
@@ -131,7 +133,7 @@ def draw_scene(ax: Any, view: dict[str, list[tuple[int, Any]]], t_ns: int) -> No
     marker = kin.marker_corners(hand, size_m)
     loop = np.vstack([marker, marker[:1]])
     ax.plot(loop[:, 0], loop[:, 1], loop[:, 2], color="green", lw=2, label="hand marker")
-    for cam, colour in ((c.CAMERA, "c"), (c.CAMERA_TRUE, "m")):
+    for cam, colour in ((topics.CAMERA, "c"), (topics.CAMERA_TRUE, "m")):
         e = by_id.get(f"{cam}_frustum")
         if e is None:
             continue
@@ -157,17 +159,17 @@ def write_figure(view_path: str | Path, out: str | Path, time_s: float | None = 
     import matplotlib.pyplot as plt
 
     view = read_view(view_path)
-    last = view[c.ANNOTATIONS][-1][0]
-    t_ns = last if time_s is None else c.time_ns(time_s)
-    jpeg = _at(view[c.COLOUR_IMAGE], t_ns)
+    last = view[topics.ANNOTATIONS][-1][0]
+    t_ns = last if time_s is None else transforms.time_ns(time_s)
+    jpeg = _at(view[topics.COLOUR_IMAGE], t_ns)
     image = cv2.cvtColor(cv2.imdecode(np.frombuffer(jpeg.data, np.uint8), 1), cv2.COLOR_BGR2RGB)
     fig = plt.figure(figsize=(13, 5.2))
     ax_img = fig.add_subplot(1, 2, 1)
-    draw_annotations(ax_img, image, _at(view[c.ANNOTATIONS], t_ns))
-    ax_img.set_title(f"{c.COLOUR_IMAGE} + {c.ANNOTATIONS}", fontsize=9)
+    draw_annotations(ax_img, image, _at(view[topics.ANNOTATIONS], t_ns))
+    ax_img.set_title(f"{topics.COLOUR_IMAGE} + {topics.ANNOTATIONS}", fontsize=9)
     ax3d = fig.add_subplot(1, 2, 2, projection="3d")
     draw_scene(ax3d, view, t_ns)
-    ax3d.set_title(f"{c.TRANSFORMS} + {c.SCENE}", fontsize=9)
+    ax3d.set_title(f"{topics.TRANSFORMS} + {topics.SCENE}", fontsize=9)
     fig.suptitle(f"umay view at t = {t_ns / 1e9:.2f} s (simulated)")
     fig.tight_layout()
     out = Path(out)

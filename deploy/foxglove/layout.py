@@ -1,5 +1,5 @@
 """The Foxglove layout of the view (``deploy/foxglove/layout.json``), built with the SDK's
-layout types so that it names the view's topics from :mod:`deploy.foxglove.convert`.
+layout types so that it names the view's topics from :mod:`deploy.foxglove.topics`.
 
 The thesis's two views side by side (Fig. 5.18/5.19): what the Kinect sees with the markers,
 the desired corners and the hand's trail (left), and the robot moving toward the object
@@ -15,7 +15,7 @@ import json
 
 import foxglove.layouts as fl
 
-from deploy.foxglove import convert as c
+from deploy.foxglove import topics
 
 
 def _plot(title: str, series: list[tuple[str, str]]) -> fl.PlotPanel:
@@ -34,7 +34,9 @@ def _plot(title: str, series: list[tuple[str, str]]) -> fl.PlotPanel:
 
 
 def _joints(topic: str, field: str) -> list[tuple[str, str]]:
-    return [(f'{topic}.joints[:]{{name=="{n}"}}.{field}', f"{n} {field}") for n in c.JOINT_NAMES]
+    return [
+        (f'{topic}.joints[:]{{name=="{n}"}}.{field}', f"{n} {field}") for n in topics.JOINT_NAMES
+    ]
 
 
 def build_layout() -> fl.Layout:
@@ -42,16 +44,16 @@ def build_layout() -> fl.Layout:
         title="Kinect colour: markers, s*, trail (Fig. 5.10-5.16)",
         config=fl.ImageConfig(
             image_mode=fl.ImageModeConfig(
-                image_topic=c.COLOUR_IMAGE,
-                calibration_topic=c.CALIBRATION,
-                annotations={c.ANNOTATIONS: fl.ImageAnnotationSettings(visible=True)},
+                image_topic=topics.COLOUR_IMAGE,
+                calibration_topic=topics.CALIBRATION,
+                annotations={topics.ANNOTATIONS: fl.ImageAnnotationSettings(visible=True)},
             ),
         ),
     )
     robot_view = fl.ThreeDeePanel(
         title="UMay arm, table, markers, camera (Fig. 5.18/5.19)",
         config=fl.ThreeDeeConfig(
-            follow_tf=c.WORLD,
+            follow_tf=topics.WORLD,
             follow_mode="follow-pose",
             camera_state=fl.ThreeDeeCameraState(
                 distance=1.6,
@@ -61,8 +63,8 @@ def build_layout() -> fl.Layout:
                 target=(0.2, -0.2, 0.0),
             ),
             topics={
-                c.SCENE: fl.BaseRendererSceneUpdateTopicSettings(visible=True),
-                c.TRUTH_SCENE: fl.BaseRendererSceneUpdateTopicSettings(visible=True),
+                topics.SCENE: fl.BaseRendererSceneUpdateTopicSettings(visible=True),
+                topics.TRUTH_SCENE: fl.BaseRendererSceneUpdateTopicSettings(visible=True),
             },
         ),
     )
@@ -70,7 +72,7 @@ def build_layout() -> fl.Layout:
         title="Kinect depth (m)",
         config=fl.ImageConfig(
             image_mode=fl.ImageModeConfig(
-                image_topic=c.DEPTH_IMAGE,
+                image_topic=topics.DEPTH_IMAGE,
                 color_mode="colormap",
                 color_map="turbo",
                 min_value=0.3,
@@ -80,22 +82,24 @@ def build_layout() -> fl.Layout:
     )
     error = _plot(
         "feature error (px)",
-        [(f"{c.FEATURE_ERROR}.error_px_rms", "e rms (px)")]
-        + [(f"{c.FEATURE_ERROR}.error_px[{i}]", f"e[{i}]") for i in range(8)],
+        [(f"{topics.FEATURE_ERROR}.error_px_rms", "e rms (px)")]
+        + [(f"{topics.FEATURE_ERROR}.error_px[{i}]", f"e[{i}]") for i in range(8)],
     )
     twist = _plot(
         "commanded twist (base frame)",
-        [(f"{c.TWIST}.linear_m_s[{i}]", f"v{a} (m/s)") for i, a in enumerate("xyz")]
-        + [(f"{c.TWIST}.angular_rad_s[{i}]", f"w{a} (rad/s)") for i, a in enumerate("xyz")]
-        + [(f"{c.TWIST}.speed_m_s", "|v| (m/s)")],
+        [(f"{topics.TWIST}.linear_m_s[{i}]", f"v{a} (m/s)") for i, a in enumerate("xyz")]
+        + [(f"{topics.TWIST}.angular_rad_s[{i}]", f"w{a} (rad/s)") for i, a in enumerate("xyz")]
+        + [(f"{topics.TWIST}.speed_m_s", "|v| (m/s)")],
     )
-    positions = _plot("joint positions (rad)", _joints(c.JOINT_STATES, "position"))
-    velocities = _plot("joint velocities (rad/s)", _joints(c.JOINT_STATES, "velocity"))
+    positions = _plot("joint positions (rad)", _joints(topics.JOINT_STATES, "position"))
+    velocities = _plot("joint velocities (rad/s)", _joints(topics.JOINT_STATES, "velocity"))
     phase = _plot(
         "controller phase (0 servoing, 1 holding, 2 converged)",
-        [(f"{c.PHASE}.phase_code", "phase")],
+        [(f"{topics.PHASE}.phase_code", "phase")],
     )
-    logs = fl.LogPanel(title="services and controller", config=fl.LogConfig(topic_to_render=c.LOG))
+    logs = fl.LogPanel(
+        title="services and controller", config=fl.LogConfig(topic_to_render=topics.LOG)
+    )
 
     def split(direction: str, *items: tuple[float, object]) -> fl.SplitContainer:
         return fl.SplitContainer(

@@ -38,10 +38,10 @@ from foxglove.websocket import Capability
 
 from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decode
 from common.config import Scenario
-from common.keys import DEPTH, RGB, Keys
+from common.keys import DEPTH, JOINT_STATE, RGB, Keys
 from common.transport import Node, query_status
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
-from deploy.foxglove import convert as c
+from deploy.foxglove import convert, topics, transforms
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_arguments
 
@@ -93,7 +93,7 @@ class ViewNode:
         depth_hz: float,
         jpeg_quality: int,
     ) -> None:
-        self.state = c.ViewState(scenario)
+        self.state = convert.ViewState(scenario)
         self.keys = keys
         self.session = session
         self.server = server
@@ -101,8 +101,8 @@ class ViewNode:
         self.jpeg_quality = jpeg_quality
         self.shown = 0
         self.rejected = 0
-        self.dropped: dict[str, int] = dict.fromkeys(c.VIEWED_KEYS, 0)
-        self._accepted_s: dict[str, float] = dict.fromkeys(c.VIEWED_KEYS, -1e9)
+        self.dropped: dict[str, int] = dict.fromkeys(convert.VIEWED_KEYS, 0)
+        self._accepted_s: dict[str, float] = dict.fromkeys(convert.VIEWED_KEYS, -1e9)
         self._latest: dict[str, Any] = {}
         self._cond = threading.Condition()
         self.node = Node("view", keys, session, self.status_fields)  # status and liveliness
@@ -112,7 +112,7 @@ class ViewNode:
                 f"{keys.prefix}/{suffix}",
                 self._on_sample(suffix, model, periods.get(suffix, 1.0 / rate_hz)),
             )
-            for suffix, model in c.VIEWED_KEYS.items()
+            for suffix, model in convert.VIEWED_KEYS.items()
         ]
 
     def status_fields(self) -> dict[str, Any]:
@@ -125,9 +125,9 @@ class ViewNode:
 
     def _wanted(self, suffix: str) -> bool:
         if suffix == RGB:
-            return self.channels.wanted(c.COLOUR_IMAGE)
+            return self.channels.wanted(topics.COLOUR_IMAGE)
         if suffix == DEPTH:
-            return self.channels.wanted(c.DEPTH_IMAGE)
+            return self.channels.wanted(topics.DEPTH_IMAGE)
         return self.channels.any_wanted()
 
     def _on_sample(self, suffix: str, model: type, period_s: float) -> Any:
@@ -160,21 +160,21 @@ class ViewNode:
             return
         self.channels.log_all(outs)
         self.shown += len(outs)
-        if suffix == c.keys.JOINT_STATE:
-            self.server.broadcast_time(c.time_ns(self.state.sim_time_s))
+        if suffix == JOINT_STATE:
+            self.server.broadcast_time(transforms.time_ns(self.state.sim_time_s))
 
     def poll_status(self, stop: threading.Event) -> None:
         """Every second: the services' status as log lines (a thread of its own: a query
         waits for answers)."""
         while not stop.wait(STATUS_PERIOD_S):
-            if not self.channels.wanted(c.LOG):
+            if not self.channels.wanted(topics.LOG):
                 continue
             try:
                 statuses = query_status(self.session, self.keys, 0.5)
             except Exception:  # the session closing under us at the end
                 log.debug("status query failed", exc_info=True)
                 continue
-            self.channels.log_all(c.status_logs(statuses, self.state.sim_time_s))
+            self.channels.log_all(convert.status_logs(statuses, self.state.sim_time_s))
 
     def run(self, stop: threading.Event) -> None:
         threading.Thread(target=self.poll_status, args=(stop,), daemon=True).start()

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.bench import (
+from deploy.bench.stages import (
     INPROCESS_STAGES,
     LATENCY_STAGES,
     PIPELINE,

@@ -20,8 +20,9 @@ from common import kinematics as kin
 from common.codec import DEFAULT_MAX_BYTES, decode
 from common.messages import EndEffectorTwist, Features, JointState
 from common.transport import open_session
-from deploy.foxglove import convert as c
+from deploy.foxglove import topics
 from deploy.foxglove.client import FoxgloveClient, decoder, protobuf_class
+from deploy.foxglove.transforms import rotation_from_quaternion, time_ns
 from deploy.recording.channels import split_data_key
 from deploy.recording.read import iter_messages
 from tests.conftest import launch_umay_up
@@ -50,7 +51,7 @@ class Sent:
             table = {Features: self.features, JointState: self.joints}.get(
                 type(message), self.twists
             )
-            table[c.time_ns(message.header.sim_time_s)] = message
+            table[time_ns(message.header.sim_time_s)] = message
 
     def subscriber(self, model):
         def on_sample(sample) -> None:
@@ -66,9 +67,9 @@ class Sent:
 def pose_of(transforms, child: str) -> np.ndarray:
     by_child = {t.child_frame_id: t for t in transforms}
     pose = np.eye(4)
-    while child != c.BASE:
+    while child != topics.BASE:
         t = by_child[child]
-        r = c.rotation_from_quaternion(t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w)
+        r = rotation_from_quaternion(t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w)
         pose = (
             kin.homogeneous(r, np.array([t.translation.x, t.translation.y, t.translation.z])) @ pose
         )
@@ -92,7 +93,7 @@ def check_content(decoded: dict[str, list[tuple[int, object]]], sent: Sent) -> d
     corners within CORNER_TOL_PX, the end effector within EE_TOL_M of forward kinematics, the
     image 640×480, the plots' values; how many of each were compared."""
     checked = {"annotations": 0, "tf": 0, "image": 0, "twist": 0, "depth": 0}
-    for log_ns, ann in decoded[c.ANNOTATIONS]:
+    for log_ns, ann in decoded[topics.ANNOTATIONS]:
         f = sent.features.get(log_ns)
         if f is None:
             continue
@@ -104,25 +105,25 @@ def check_content(decoded: dict[str, list[tuple[int, object]]], sent: Sent) -> d
             target = annotated(ann, "target")
             assert np.abs(target - np.array(f.target.corners_px)).max() < CORNER_TOL_PX
         checked["annotations"] += 1
-    for log_ns, tf in decoded[c.TRANSFORMS]:
+    for log_ns, tf in decoded[topics.TRANSFORMS]:
         js = sent.joints.get(log_ns)
         if js is None:
             continue
         fk = kin.forward_kinematics(np.array(js.position_rad))
-        ee = pose_of(tf.transforms, c.EE)
+        ee = pose_of(tf.transforms, topics.EE)
         assert np.abs(ee[:3, 3] - fk[:3, 3]).max() < EE_TOL_M
         assert np.abs(ee[:3, :3] - fk[:3, :3]).max() < 1e-9
         checked["tf"] += 1
-    for _log_ns, img in decoded[c.COLOUR_IMAGE]:
+    for _log_ns, img in decoded[topics.COLOUR_IMAGE]:
         rgb = cv2.imdecode(np.frombuffer(img.data, np.uint8), cv2.IMREAD_COLOR)
         assert rgb.shape == (480, 640, 3) and img.format == "jpeg"
         checked["image"] += 1
-    for _log_ns, depth in decoded[c.DEPTH_IMAGE]:
+    for _log_ns, depth in decoded[topics.DEPTH_IMAGE]:
         assert (depth.width, depth.height, depth.encoding) == (640, 480, "32FC1")
         d = np.frombuffer(depth.data, np.float32)
         assert d.size == 640 * 480 and 0.3 < np.median(d[d > 0]) < 3.0
         checked["depth"] += 1
-    for log_ns, tw in decoded[c.TWIST]:
+    for log_ns, tw in decoded[topics.TWIST]:
         sent_tw = sent.twists.get(log_ns)
         if sent_tw is None:
             continue
@@ -176,8 +177,8 @@ def test_live_view_shows_the_run(live) -> None:
     try:
         enough = client.wait_for(
             lambda cl: all(cl.counts.get(t, 0) >= n for t, n in (
-                (c.ANNOTATIONS, 15), (c.TRANSFORMS, 15), (c.COLOUR_IMAGE, 3),
-                (c.DEPTH_IMAGE, 1), (c.TWIST, 15), (c.LOG, 4), (c.SCENE, 5),
+                (topics.ANNOTATIONS, 15), (topics.TRANSFORMS, 15), (topics.COLOUR_IMAGE, 3),
+                (topics.DEPTH_IMAGE, 1), (topics.TWIST, 15), (topics.LOG, 4), (topics.SCENE, 5),
             )),
             90,
         )  # fmt: skip
@@ -186,14 +187,14 @@ def test_live_view_shows_the_run(live) -> None:
         client.stop()
     assert client.subprotocol in ("foxglove.sdk.v1", "foxglove.websocket.v1")
     advertised = {ch["topic"]: ch for ch in client.channels.values()}
-    assert advertised[c.COLOUR_IMAGE]["schemaName"] == "foxglove.CompressedImage"
-    assert advertised[c.COLOUR_IMAGE]["encoding"] == "protobuf"
-    assert advertised[c.TWIST]["encoding"] == "json"
+    assert advertised[topics.COLOUR_IMAGE]["schemaName"] == "foxglove.CompressedImage"
+    assert advertised[topics.COLOUR_IMAGE]["encoding"] == "protobuf"
+    assert advertised[topics.TWIST]["encoding"] == "json"
     time.sleep(0.5)  # the Zenoh listener may be a message behind the view
     checked = check_content(collect(client), sent)
     assert checked["annotations"] >= 10 and checked["tf"] >= 10 and checked["twist"] >= 10
     assert checked["image"] >= 3 and checked["depth"] >= 1
-    logs = [decoder(advertised[c.LOG])(r.payload) for r in client.messages(c.LOG)]
+    logs = [decoder(advertised[topics.LOG])(r.payload) for r in client.messages(topics.LOG)]
     assert {lg.name for lg in logs} >= {"sim", "vision", "controller", "actuation"}
 
 
@@ -201,11 +202,11 @@ def test_clients_that_vanish_or_stall_do_not_slow_the_loop(live) -> None:
     url, sent, _keys, _tmp = live
     # A client that disconnects mid-stream, without a close handshake.
     rude = FoxgloveClient(url).start()
-    assert rude.wait_for(lambda cl: cl.counts.get(c.COLOUR_IMAGE, 0) >= 2, 60)
+    assert rude.wait_for(lambda cl: cl.counts.get(topics.COLOUR_IMAGE, 0) >= 2, 60)
     rude.stop(0.0)
     # A client that stops reading: the server's queue for it fills, the socket backs up.
     slow = FoxgloveClient(url, keep=False).start()
-    assert slow.wait_for(lambda cl: cl.counts.get(c.COLOUR_IMAGE, 0) >= 1, 60)
+    assert slow.wait_for(lambda cl: cl.counts.get(topics.COLOUR_IMAGE, 0) >= 1, 60)
     slow.paused.set()
     # The loop goes on at the rate it had.
     seq0, t0 = sent.newest_twist_seq(), time.monotonic()
@@ -220,7 +221,7 @@ def test_clients_that_vanish_or_stall_do_not_slow_the_loop(live) -> None:
     # And the view still serves a well-behaved client.
     good = FoxgloveClient(url, keep=False).start()
     try:
-        assert good.wait_for(lambda cl: cl.counts.get(c.ANNOTATIONS, 0) >= 5, 60), good.counts
+        assert good.wait_for(lambda cl: cl.counts.get(topics.ANNOTATIONS, 0) >= 5, 60), good.counts
     finally:
         good.stop()
 
@@ -275,18 +276,29 @@ def test_export_writes_the_view_channels_from_a_recording(tmp_path: Path) -> Non
                     classes[schema.id] = protobuf_class(schema.name, schema.data)
                 value = classes[schema.id].FromString(message.data)
             decoded.setdefault(channel.topic, []).append((message.log_time, value))
-    assert encodings[c.COLOUR_IMAGE] == "protobuf" and encodings[c.FEATURE_ERROR] == "json"
-    assert set(decoded) >= {c.COLOUR_IMAGE, c.DEPTH_IMAGE, c.ANNOTATIONS, c.TRANSFORMS,
-                            c.SCENE, c.TWIST, c.PHASE, c.JOINT_STATES, c.LOG}  # fmt: skip
+    assert (
+        encodings[topics.COLOUR_IMAGE] == "protobuf" and encodings[topics.FEATURE_ERROR] == "json"
+    )
+    assert set(decoded) >= {
+        topics.COLOUR_IMAGE,
+        topics.DEPTH_IMAGE,
+        topics.ANNOTATIONS,
+        topics.TRANSFORMS,
+        topics.SCENE,
+        topics.TWIST,
+        topics.PHASE,
+        topics.JOINT_STATES,
+        topics.LOG,
+    }
     checked = check_content(decoded, sent)
     assert checked["annotations"] >= 20 and checked["tf"] >= 20 and checked["twist"] >= 20
     # Every frame exported (no rate limit), log times = simulation time.
     times = {topic: {t for t, _ in decoded[topic]} for topic in decoded}
-    assert times[c.ANNOTATIONS] == set(sent.features)
-    assert times[c.TRANSFORMS] == set(sent.joints)
-    assert times[c.TWIST] == set(sent.twists)
-    assert times[c.COLOUR_IMAGE] >= set(sent.features)
-    assert max(t for t, _ in decoded[c.TRANSFORMS]) <= 2_000_000_000
+    assert times[topics.ANNOTATIONS] == set(sent.features)
+    assert times[topics.TRANSFORMS] == set(sent.joints)
+    assert times[topics.TWIST] == set(sent.twists)
+    assert times[topics.COLOUR_IMAGE] >= set(sent.features)
+    assert max(t for t, _ in decoded[topics.TRANSFORMS]) <= 2_000_000_000
 
 
 def test_export_refuses_bad_input(tmp_path: Path) -> None:

@@ -1,22 +1,24 @@
-"""``umay bench``'s analysis on synthetic traces: stages, hops, drops, the figure and the
-medians of runs."""
+"""``umay bench``'s analysis on synthetic traces: stages, hops, drops, the figure, the
+medians of runs and the typed report (the JSON in docs/bench/ loads and is written back as is)."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
 from common.codec import encode
 from common.messages import AppliedCommand, Header, PublishedStamps, SimTiming
-from deploy.bench import (
-    LATENCY_STAGES,
-    HopStamp,
-    Trace,
-    analyse_trace,
-    median_of_runs,
-)
+from deploy.bench.report import BenchReport, load_json, median_of_runs, summary_ms
+from deploy.bench.run import same_commands_max_abs_diff
+from deploy.bench.stages import LATENCY_STAGES
+from deploy.bench.text import format_report
+from deploy.bench.trace import HopStamp, Trace, analyse_trace
 from deploy.recording.plots import bench_figure
+
+BENCH_JSON = sorted((Path(__file__).parents[2] / "docs" / "bench").glob("*.json"))
 
 
 def header(seq: int, send: float, recv: float = 0.0) -> Header:
@@ -53,20 +55,20 @@ def test_stages_add_up_to_the_latency_and_missing_answers_count_as_drops() -> No
         trace.twists[k] = HopStamp(recv_time_s=t0 + 0.111, send_time_s=t0 + 0.115)
         trace.commands[k] = HopStamp(recv_time_s=t0 + 0.116, send_time_s=t0 + 0.120)
     r = analyse_trace(trace, [0, 1, 2])
-    assert r["frames"] == 3 and r["frames_complete"] == 2
-    assert r["dropped"]["vision"] == 1
-    assert r["dropped"]["controller"] == r["dropped"]["actuation"] == r["dropped"]["apply"] == 0
-    assert r["stages_ms"]["render"]["p50"] == pytest.approx(100.0)
-    assert r["stages_ms"]["vision"]["p50"] == pytest.approx(8.0)
-    assert r["latency_ms"]["p50"] == pytest.approx(22.0)
-    assert [row["frame_seq"] for row in r["frames_ms"]] == [0, 1]  # the complete ones
-    assert all(row["latency_ms"] == pytest.approx(22.0) for row in r["frames_ms"])
-    assert r["frames_over_goal"] == 2  # both complete frames took 22 ms, over 10
-    assert all(row["vision"] == pytest.approx(8.0) for row in r["frames_ms"])
+    assert r.frames == 3 and r.frames_complete == 2
+    assert r.dropped["vision"] == 1
+    assert r.dropped["controller"] == r.dropped["actuation"] == r.dropped["apply"] == 0
+    assert r.stages_ms["render"].p50 == pytest.approx(100.0)
+    assert r.stages_ms["vision"].p50 == pytest.approx(8.0)
+    assert r.latency_ms.p50 == pytest.approx(22.0)
+    assert [row["frame_seq"] for row in r.frames_ms] == [0, 1]  # the complete ones
+    assert all(row["latency_ms"] == pytest.approx(22.0) for row in r.frames_ms)
+    assert r.frames_over_goal == 2  # both complete frames took 22 ms, over 10
+    assert all(row["vision"] == pytest.approx(8.0) for row in r.frames_ms)
     # capture → colour frame sent (1 ms) → vision has it (1 ms): the frame's hand-off
-    assert r["frame_handoff_ms"]["p50"] == pytest.approx(2.0) and r["frame_handoff_ms"]["n"] == 2
-    total = sum(r["stages_ms"][s]["mean"] for s in LATENCY_STAGES)
-    assert total == pytest.approx(r["latency_ms"]["mean"], abs=1e-3)
+    assert r.frame_handoff_ms.p50 == pytest.approx(2.0) and r.frame_handoff_ms.n == 2
+    total = sum(r.stages_ms[s].mean for s in LATENCY_STAGES)
+    assert total == pytest.approx(r.latency_ms.mean, abs=1e-3)
 
 
 def test_the_services_stamps_fill_the_hops_first_message_per_frame() -> None:
@@ -145,39 +147,84 @@ def test_the_figure_stacks_the_stages_and_shows_the_baseline_only_in_lockstep(cl
     assert bench_figure({"distributed": {"frames_ms": []}, "inprocess": {}}) is None
 
 
+def one_run(latency_p50_ms: float, inprocess_p50_ms: float, vision_drops: int, rows) -> BenchReport:
+    """A whole run (a stored one as the template) with the figures the medians are tested on."""
+    run = load_json(BENCH_JSON[0])
+    run = (run.each_run or [run])[0].model_copy(deep=True)
+    run.distributed.latency_ms.p50 = latency_p50_ms
+    run.distributed.dropped["vision"] = vision_drops
+    run.distributed.frames_ms = rows
+    run.inprocess.per_frame_ms.p50 = inprocess_p50_ms
+    return run
+
+
 def test_medians_of_runs_leave_the_frame_rows_to_each_run() -> None:
     def row(latency_ms: float, handoff_ms: float) -> dict[str, float]:
         return {"latency_ms": latency_ms, "publish": 0.1, "frame_transport": handoff_ms - 0.1}
 
-    run = {
-        "distributed": {
-            "latency_ms": {"p50": 10.0},
-            "dropped": {"vision": 0},
-            "frames_ms": [row(9.0, 0.5), row(11.0, 0.7)],
-        },
-        "inprocess": {"per_frame_ms": {"p50": 8.0}, "frames_ms": [{}]},
-    }
-    other = {
-        "distributed": {
-            **run["distributed"],
-            "latency_ms": {"p50": 14.0},
-            "dropped": {"vision": 2},
-            "frames_ms": [row(12.0, 0.4), row(14.0, 2.0), row(7.0, 0.6)],
-        },
-        "inprocess": {**run["inprocess"], "per_frame_ms": {"p50": 6.0}},
-    }
-    m = median_of_runs([run, other])
-    assert (
-        m["distributed"]["latency_ms"]["p50"] == 12.0
-        and m["inprocess"]["per_frame_ms"]["p50"] == 7.0
-    )
-    assert "frames_ms" not in m["distributed"] and "frames_ms" not in m["inprocess"]
-    assert m["dropped_max"]["distributed"]["vision"] == 2 and m["runs"] == 2
+    runs = [
+        one_run(10.0, 8.0, 0, [row(9.0, 0.5), row(11.0, 0.7)]),
+        one_run(14.0, 6.0, 2, [row(12.0, 0.4), row(14.0, 2.0), row(7.0, 0.6)]),
+    ]
+    m = median_of_runs(runs)
+    assert m.distributed.latency_ms.p50 == 12.0 and m.inprocess.per_frame_ms.p50 == 7.0
+    written = m.to_json()
+    assert "frames_ms" not in written["distributed"] and "frames_ms" not in written["inprocess"]
+    assert m.dropped_max["distributed"]["vision"] == 2 and m.runs == 2
+    # A count's median stays a count: the lower of the two middle ones.
+    assert m.distributed.dropped["vision"] == 0
+    assert [r.distributed.frames_ms for r in m.each_run] == [r.distributed.frames_ms for r in runs]
     # The tail over every frame of the runs, not a median of each run's.
-    pooled = m["distributed"]["pooled"]
-    assert pooled["latency_ms"]["n"] == 5 and pooled["latency_ms"]["max"] == pytest.approx(14.0)
-    assert pooled["latency_ms"]["p50"] == pytest.approx(11.0)
-    assert pooled["frames_over_goal"] == 3  # 11, 12 and 14 ms
+    pooled = m.distributed.pooled
+    assert pooled.latency_ms.n == 5 and pooled.latency_ms.max == pytest.approx(14.0)
+    assert pooled.latency_ms.p50 == pytest.approx(11.0)
+    assert pooled.frames_over_goal == 3  # 11, 12 and 14 ms
     # The frame's hand-off (publish + frame_transport) pooled the same way.
-    assert pooled["frame_handoff_ms"]["n"] == 5
-    assert pooled["frame_handoff_ms"]["p50"] == pytest.approx(0.6)
+    assert pooled.frame_handoff_ms.n == 5
+    assert pooled.frame_handoff_ms.p50 == pytest.approx(0.6)
+    assert "medians of 2 runs" in format_report(m).splitlines()[0]
+
+
+@pytest.mark.parametrize("path", BENCH_JSON, ids=lambda p: p.stem)
+def test_the_stored_runs_load_and_are_written_back_as_they_are(path: Path) -> None:
+    """docs/bench/*.json (what ``umay docs`` reads) are reports: every key known, none lost."""
+    report = load_json(path)
+    assert json.dumps(report.to_json(), indent=2) + "\n" == path.read_text()
+    assert "latency excl. render" in format_report(report)
+
+
+def test_a_report_with_an_unknown_key_does_not_load() -> None:
+    data = json.loads(BENCH_JSON[0].read_text())
+    data["distributed"]["_velocities"] = {}
+    with pytest.raises(ValueError, match="_velocities"):
+        BenchReport.model_validate(data)
+
+
+def test_the_commands_compared_travel_outside_the_json() -> None:
+    """The velocities the in-process and distributed commands are compared with stay out of
+    the JSON; the comparison takes the frames both answered."""
+    run = one_run(10.0, 8.0, 0, [])
+    run.distributed.velocities = {5: [0.1, 0.2], 6: None, 7: [0.0, 0.0]}
+    run.inprocess.velocities = {5: [0.1, 0.25], 6: [1.0, 1.0]}
+    written = run.to_json()
+    assert "velocities" not in written["distributed"] and "velocities" not in written["inprocess"]
+    diff = same_commands_max_abs_diff(run.distributed.velocities, run.inprocess.velocities)
+    assert diff == pytest.approx(0.05)
+    assert same_commands_max_abs_diff({6: None}, {6: [1.0]}) is None
+
+
+def test_an_empty_summary_has_no_percentiles() -> None:
+    assert summary_ms([]).model_dump() == {
+        "n": 0,
+        "p50": None,
+        "p99": None,
+        "max": None,
+        "mean": None,
+    }
+    s = summary_ms([0.001, 0.003])
+    assert (s.n, s.p50, s.max, s.mean) == (
+        2,
+        pytest.approx(2.0),
+        pytest.approx(3.0),
+        pytest.approx(2.0),
+    )

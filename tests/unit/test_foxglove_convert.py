@@ -22,10 +22,11 @@ from common.messages import (
     RgbFrame,
     ServiceStatus,
 )
-from deploy.foxglove import convert as c
+from deploy.foxglove import convert, image, topics
 from deploy.foxglove.channels import TOPICS
 from deploy.foxglove.client import protobuf_class
 from deploy.foxglove.layout import layout_json
+from deploy.foxglove.transforms import quaternion_xyzw, rotation_from_quaternion
 from services.controller.ibvs import desired_observation, feature_error_px_rms
 from services.controller.step import observation
 
@@ -71,7 +72,7 @@ def compose(transforms: list, child: str) -> np.ndarray:
     pose = np.eye(4)
     while child != "base":
         t = by_child[child]
-        r = c.rotation_from_quaternion(t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w)
+        r = rotation_from_quaternion(t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w)
         tr = t.translation
         pose = kin.homogeneous(r, np.array([tr.x, tr.y, tr.z])) @ pose
         child = t.parent_frame_id
@@ -89,36 +90,36 @@ def test_quaternion_round_trip() -> None:
     for _ in range(200):
         q = rng.normal(size=4)
         q /= np.linalg.norm(q)
-        r = c.rotation_from_quaternion(*q)
-        back = c.quaternion_xyzw(r)
-        assert np.allclose(c.rotation_from_quaternion(*back), r, atol=1e-12)
+        r = rotation_from_quaternion(*q)
+        back = quaternion_xyzw(r)
+        assert np.allclose(rotation_from_quaternion(*back), r, atol=1e-12)
         assert back[3] >= 0
 
 
 def test_transforms_compose_to_forward_kinematics(scenario: Scenario) -> None:
     q = np.array([-1.2, 0.8, -1.5, 1.3, 0.4, -0.2])
     js = JointState(header=header(1.5), position_rad=q.tolist(), velocity_rad_s=[0.1] * 6)
-    outs = {o.topic: o for o in c.ViewState(scenario).on_joint_state(js)}
-    tf = decoded(outs[c.TRANSFORMS].message)
-    ee = compose(list(tf.transforms), c.EE)
+    outs = {o.topic: o for o in convert.ViewState(scenario).on_joint_state(js)}
+    tf = decoded(outs[topics.TRANSFORMS].message)
+    ee = compose(list(tf.transforms), topics.EE)
     assert np.allclose(ee, kin.forward_kinematics(q), atol=1e-12)
-    marker_pose = compose(list(tf.transforms), c.HAND_MARKER)
+    marker_pose = compose(list(tf.transforms), topics.HAND_MARKER)
     assert np.allclose(marker_pose, kin.forward_kinematics(q) @ kin.hand_marker_in_ee(), atol=1e-12)
-    assert np.allclose(compose(list(tf.transforms), c.CAMERA_TRUE), scenario.camera.pose())
-    assert outs[c.TRANSFORMS].log_time_ns == 1_500_000_000
+    assert np.allclose(compose(list(tf.transforms), topics.CAMERA_TRUE), scenario.camera.pose())
+    assert outs[topics.TRANSFORMS].log_time_ns == 1_500_000_000
     assert {t.timestamp.seconds for t in tf.transforms} == {1}
-    states = decoded(outs[c.JOINT_STATES].message)
+    states = decoded(outs[topics.JOINT_STATES].message)
     assert [j.position for j in states.joints] == pytest.approx(q.tolist(), abs=0)
     # The fixed scene comes with the first joint state, then once per STATIC_PERIOD_S.
-    assert c.SCENE in outs and c.CALIBRATION in outs
+    assert topics.SCENE in outs and topics.CALIBRATION in outs
 
 
 def test_annotations_carry_vision_corners_desired_corners_and_the_trail(scenario: Scenario) -> None:
-    state = c.ViewState(scenario, trail_max=3)
+    state = convert.ViewState(scenario, trail_max=3)
     for i in range(5):
         outs = {o.topic: o for o in state.on_features(features(scenario, 0.1 * i, 0.01 * i, i))}
     f = features(scenario, 0.4, 0.04, 4)
-    ann = decoded(outs[c.ANNOTATIONS].message)
+    ann = decoded(outs[topics.ANNOTATIONS].message)
     by_name = {dict((kv.key, kv.value) for kv in p.metadata)["name"]: p for p in ann.points}
     assert set(by_name) == {"hand", "target", "desired", "error", "trail"}
     for name, m in (("hand", f.hand), ("target", f.target)):
@@ -132,7 +133,7 @@ def test_annotations_carry_vision_corners_desired_corners_and_the_trail(scenario
     assert len(by_name["trail"].points) == 3  # capped
     trail_last = by_name["trail"].points[-1]
     assert [trail_last.x, trail_last.y] == pytest.approx(np.mean(f.hand.corners_px, axis=0))
-    err = outs[c.FEATURE_ERROR].message
+    err = outs[topics.FEATURE_ERROR].message
     json.dumps(err)  # a JSON topic
     e = np.array(err["error_px"]).reshape(4, 2)
     # The controller's own RMS error on the same pairing.
@@ -147,11 +148,11 @@ def test_a_lost_marker_is_not_drawn_and_gives_no_error(scenario: Scenario) -> No
     f = features(scenario, 0.0)
     lost = f.target.model_copy(update={"state": "lost"})
     f = f.model_copy(update={"target": lost})
-    outs = {o.topic: o for o in c.ViewState(scenario).on_features(f)}
-    ann = decoded(outs[c.ANNOTATIONS].message)
+    outs = {o.topic: o for o in convert.ViewState(scenario).on_features(f)}
+    ann = decoded(outs[topics.ANNOTATIONS].message)
     names = {dict((kv.key, kv.value) for kv in p.metadata)["name"] for p in ann.points}
     assert names == {"hand", "trail"}
-    assert outs[c.FEATURE_ERROR].message["error_px_rms"] is None
+    assert outs[topics.FEATURE_ERROR].message["error_px_rms"] is None
 
 
 def test_images(scenario: Scenario) -> None:
@@ -160,21 +161,21 @@ def test_images(scenario: Scenario) -> None:
     rgb = np.zeros((k.height_px, k.width_px, 3), np.uint8)
     rgb[100:200, 50:150] = (200, 30, 20)
     frame = RgbFrame(header=header(2.0), intrinsics=k, rgb=ImageData.from_array(rgb))
-    jpeg = decoded(c.compressed_image(frame, 95))
-    assert jpeg.format == "jpeg" and jpeg.frame_id == c.CAMERA
+    jpeg = decoded(image.compressed_image(frame, 95))
+    assert jpeg.format == "jpeg" and jpeg.frame_id == topics.CAMERA
     back = cv2.cvtColor(cv2.imdecode(np.frombuffer(jpeg.data, np.uint8), 1), cv2.COLOR_BGR2RGB)
     assert back.shape == rgb.shape
     assert np.abs(back.astype(int) - rgb).mean() < 2.0
     depth = rng.uniform(0.4, 1.0, (k.height_px, k.width_px)).astype(np.float32)
     dframe = DepthFrame(header=header(2.0), intrinsics=k, depth_m=ImageData.from_array(depth))
-    raw = decoded(c.depth_image(dframe))
+    raw = decoded(image.depth_image(dframe))
     assert (raw.width, raw.height, raw.encoding, raw.step) == (k.width_px, k.height_px, "32FC1",
                                                                4 * k.width_px)  # fmt: skip
     assert np.array_equal(np.frombuffer(raw.data, np.float32).reshape(depth.shape), depth)
 
 
 def test_phase_changes_are_logged_once(scenario: Scenario) -> None:
-    state = c.ViewState(scenario)
+    state = convert.ViewState(scenario)
 
     def twist(t: float, valid: bool, converged: bool = False, reason: str = "") -> EndEffectorTwist:
         return EndEffectorTwist(
@@ -188,18 +189,18 @@ def test_phase_changes_are_logged_once(scenario: Scenario) -> None:
         state.on_twist(twist(0.2, False, reason="target lost")),
         state.on_twist(twist(0.3, True, converged=True)),
     ]
-    logs = [[o.message for o in outs if o.topic == c.LOG] for outs in runs]
+    logs = [[o.message for o in outs if o.topic == topics.LOG] for outs in runs]
     assert [len(x) for x in logs] == [1, 0, 1, 1]
     assert "holding: target lost" in decoded(logs[2][0]).message
-    phases = [next(o.message for o in outs if o.topic == c.PHASE) for outs in runs]
+    phases = [next(o.message for o in outs if o.topic == topics.PHASE) for outs in runs]
     assert [p["phase_code"] for p in phases] == [0, 0, 1, 2]
-    tw = next(o.message for o in runs[0] if o.topic == c.TWIST)
+    tw = next(o.message for o in runs[0] if o.topic == topics.TWIST)
     assert tw["linear_m_s"] == [0.01, 0.0, 0.0] and tw["error_px_rms"] == 3.0
 
 
 def test_status_logs_warn_of_a_silent_service() -> None:
     st = ServiceStatus(service="vision", pid=12, host="h", uptime_s=3.0, state="running")
-    outs = c.status_logs([st], 4.0)
+    outs = convert.status_logs([st], 4.0)
     logs = {decoded(o.message).name: decoded(o.message) for o in outs}
     assert set(logs) == {"sim", "vision", "controller", "actuation"}
     assert "running" in logs["vision"].message
@@ -209,11 +210,11 @@ def test_status_logs_warn_of_a_silent_service() -> None:
 def test_every_view_topic_has_a_channel_and_the_layout_is_up_to_date() -> None:
     from pathlib import Path
 
-    path = Path(c.__file__).with_name("layout.json")
+    path = Path(topics.__file__).with_name("layout.json")
     assert path.read_text() == layout_json(), "regenerate: python -m deploy.foxglove.layout"
-    topics = {v for k, v in vars(c).items() if k.isupper() and isinstance(v, str)
-              and v.startswith("/")}  # fmt: skip
-    assert topics == set(TOPICS)
-    for topic in topics:  # the layout names only topics the view has
+    names = {v for k, v in vars(topics).items() if k.isupper() and isinstance(v, str)
+             and v.startswith("/")}  # fmt: skip
+    assert names == set(TOPICS)
+    for topic in names:  # the layout names only topics the view has
         if f'"{topic}' in path.read_text():
             assert topic in TOPICS

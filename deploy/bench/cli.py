@@ -1,6 +1,5 @@
-"""``umay bench`` on the command line: its parser and handler, apart from :mod:`deploy.bench`
-so that building the ``umay`` parser imports nothing heavy. It moves beside the bench's modules
-when ``deploy/bench.py`` becomes a folder of its own."""
+"""``umay bench`` on the command line: its parser and handler, apart from the bench's modules
+so that building the ``umay`` parser imports nothing heavy."""
 
 from __future__ import annotations
 
@@ -15,7 +14,10 @@ from deploy.paths import FIGURE_SUFFIXES, check_output_dir, check_output_file
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from deploy.bench import BenchError, format_report, median_of_runs, run_bench, write_json
+    from deploy.bench import BenchError
+    from deploy.bench.report import median_of_runs, write_json
+    from deploy.bench.run import run_bench
+    from deploy.bench.text import format_report
     from deploy.launch.run import prepare
 
     size = args.size.lower().split("x")
@@ -69,7 +71,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         runs.append(result)
         if args.repeat > 1:
             print(f"--- run {i + 1} of {args.repeat}\n{format_report(result)}\n", flush=True)
-    result = runs[0] if len(runs) == 1 else {**median_of_runs(runs), "each_run": runs}
+    result = runs[0] if len(runs) == 1 else median_of_runs(runs)
     print(format_report(result))
     try:  # checked before the runs; this fails only if the disk changed since (full, say)
         if args.json:
@@ -77,7 +79,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.figure:
             from deploy.recording.plots import write_bench_figure
 
-            write_bench_figure(runs[0], Path(args.figure))  # frame by frame: the first run
+            # frame by frame: the first run
+            write_bench_figure(runs[0].to_json(), Path(args.figure))
             print(f"figure: {args.figure}" + (" (the first run)" if len(runs) > 1 else ""))
     except OSError as exc:
         print(f"umay bench: could not write the results: {exc}", file=sys.stderr)

@@ -9,25 +9,25 @@ images, colour and depth, since it runs after whichever renderer drew them.
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import numpy as np
 
 from common.config import Scenario
+from deploy.bench.report import Percentiles, RendererTimes, RenderReport, SensorModelTimes
 from services.sim.sensor_model import exposed_rgb, noisy_depth
 from services.sim.world import World
 
 REFERENCE_RENDERER = "tiny"
 
 
-def _summary_ms(values_s: list[float]) -> dict[str, float | int]:
+def _summary_ms(values_s: list[float]) -> Percentiles:
     ms = 1000.0 * np.asarray(values_s)
-    return {
-        "n": len(ms),
-        "p50": round(float(np.median(ms)), 4),
-        "p99": round(float(np.percentile(ms, 99)), 4),
-        "max": round(float(ms.max()), 4),
-    }
+    return Percentiles(
+        n=len(ms),
+        p50=round(float(np.median(ms)), 4),
+        p99=round(float(np.percentile(ms, 99)), 4),
+        max=round(float(ms.max()), 4),
+    )
 
 
 def postures(scenario: Scenario, n: int) -> list[np.ndarray]:
@@ -39,7 +39,7 @@ def postures(scenario: Scenario, n: int) -> list[np.ndarray]:
     return sample_postures(scenario, n, np.random.default_rng(0))
 
 
-def time_renderer(scenario: Scenario, renderer: str, qs: list[np.ndarray]) -> dict[str, Any]:
+def time_renderer(scenario: Scenario, renderer: str, qs: list[np.ndarray]) -> RendererTimes:
     """Perfect colour + depth images (as :meth:`World.render` takes them, model off) at each
     posture of ``qs``, after one warm-up frame."""
     scenario = scenario.model_copy(
@@ -56,17 +56,17 @@ def time_renderer(scenario: Scenario, renderer: str, qs: list[np.ndarray]) -> di
                 world.render_perfect(world.depth_intrinsics)
             if i > 0:
                 times.append(time.perf_counter() - started)
-        return {
-            "requested": renderer,
-            "renderer": world.renderer,
-            "detail": world.renderer_detail,
-            "render_ms": _summary_ms(times),
-        }
+        return RendererTimes(
+            requested=renderer,
+            renderer=world.renderer,
+            detail=world.renderer_detail,
+            render_ms=_summary_ms(times),
+        )
     finally:
         world.close()
 
 
-def time_sensor_model(scenario: Scenario, frames: int) -> dict[str, Any]:
+def time_sensor_model(scenario: Scenario, frames: int) -> SensorModelTimes:
     """The Kinect model (the scenario's settings, switched on) on perfect images of the
     scenario's colour and depth sizes: colour and depth separately and together."""
     world = World(scenario)
@@ -88,38 +88,23 @@ def time_sensor_model(scenario: Scenario, frames: int) -> dict[str, Any]:
             colour_s.append(t1 - t0)
             depth_s.append(t2 - t1)
     total = [c + d for c, d in zip(colour_s, depth_s, strict=True)]
-    return {
-        "colour_px": [world.intrinsics.width_px, world.intrinsics.height_px],
-        "depth_px": [world.depth_intrinsics.width_px, world.depth_intrinsics.height_px],
-        "colour_ms": _summary_ms(colour_s),
-        "depth_ms": _summary_ms(depth_s),
-        "total_ms": _summary_ms(total),
-    }
+    return SensorModelTimes(
+        colour_px=[world.intrinsics.width_px, world.intrinsics.height_px],
+        depth_px=[world.depth_intrinsics.width_px, world.depth_intrinsics.height_px],
+        colour_ms=_summary_ms(colour_s),
+        depth_ms=_summary_ms(depth_s),
+        total_ms=_summary_ms(total),
+    )
 
 
-def run_render_bench(scenario: Scenario, frames: int, reference: bool = True) -> dict[str, Any]:
+def run_render_bench(scenario: Scenario, frames: int, reference: bool = True) -> RenderReport:
     """Render cost per renderer (the scenario's; TinyRenderer too when ``reference``) and the
     sensor model's cost, on ``frames`` postures."""
     qs = postures(scenario, frames)
     renderers = [scenario.sim.renderer]
     if reference and REFERENCE_RENDERER not in renderers:
         renderers.append(REFERENCE_RENDERER)
-    return {
-        "renderers": {name: time_renderer(scenario, name, qs) for name in renderers},
-        "sensor_model": time_sensor_model(scenario, frames),
-    }
-
-
-def format_render_report(r: dict[str, Any]) -> list[str]:
-    """Lines for ``umay bench``'s report."""
-    lines = [f"{'renderer':<10} {'p50 ms':>8} {'p99 ms':>8}   driver"]
-    for name, v in r["renderers"].items():
-        ms = v["render_ms"]
-        lines.append(f"{name:<10} {ms['p50']:>8.2f} {ms['p99']:>8.2f}   {v['detail']}")
-    s = r["sensor_model"]
-    lines.append(
-        f"Kinect model ({s['colour_px'][0]}x{s['colour_px'][1]} colour, "
-        f"{s['depth_px'][0]}x{s['depth_px'][1]} depth): p50 colour {s['colour_ms']['p50']:.2f} "
-        f"+ depth {s['depth_ms']['p50']:.2f} = {s['total_ms']['p50']:.2f} ms"
+    return RenderReport(
+        renderers={name: time_renderer(scenario, name, qs) for name in renderers},
+        sensor_model=time_sensor_model(scenario, frames),
     )
-    return lines

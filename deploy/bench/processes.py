@@ -1,0 +1,140 @@
+"""The processes ``umay bench`` measures: the machine's load, a process's CPU time and memory
+from ``/proc/<pid>``, the services coming up, their stamps and their own counters."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import zenoh
+
+from common.keys import Keys
+from common.transport import alive_services, query_stamps, query_status
+from deploy.bench import BenchError
+from deploy.bench.report import KeyCounts, ServiceCounters, ServiceUsage
+from deploy.bench.stages import PIPELINE
+from deploy.bench.trace import Trace
+from deploy.launch.supervisor import Supervisor
+
+# How often a long run collects the services' stamps while it runs: well within the
+# ``common.transport.STAMPS_KEPT`` messages per key they keep (2 min at 30 Hz).
+STAMPS_POLL_S = 30.0
+CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
+
+
+def machine_load() -> list[float]:
+    """1, 5 and 15 minute load averages (what ``uptime`` shows)."""
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+def process_cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of a process (all its threads) so far."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_PER_S  # utime, stime
+
+
+def process_memory_mb(pid: int) -> dict[str, float]:
+    """``VmHWM`` (peak resident set), ``VmRSS`` and ``RssShmem`` (shared memory pages, e.g.
+    Zenoh's pool, counted in the RSS) in MiB."""
+    out: dict[str, float] = {}
+    try:
+        lines = Path(f"/proc/{pid}/status").read_text().splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        name, _, value = line.partition(":")
+        if name in ("VmHWM", "VmRSS", "RssShmem"):
+            out[name] = round(int(value.split()[0]) / 1024.0, 1)
+    return out
+
+
+def wait_for_services(
+    session: zenoh.Session, keys: Keys, sup: Supervisor, names: tuple[str, ...], timeout_s: float
+) -> None:
+    """Until ``names`` answer; BenchError if one exits or they are not up in ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        dead = sup.exited()
+        if dead:
+            c = dead[0]
+            raise BenchError(f"{c.name} exited ({c.exit_codes[-1]}); see {c.log_path}")
+        if set(names) <= alive_services(session, keys, 0.5):
+            return
+        time.sleep(0.05)
+    raise BenchError(f"services did not come up within {timeout_s:.0f} s: {names}")
+
+
+def service_usage(
+    pids: dict[str, int | None], cpu_start: dict[str, float | None], frames: int
+) -> dict[str, ServiceUsage]:
+    """Each process's CPU time so far and since ``cpu_start``, per frame of ``frames``, and
+    its memory."""
+    out: dict[str, ServiceUsage] = {}
+    for name, pid in pids.items():
+        if pid is None:
+            continue
+        cpu = process_cpu_s(pid)
+        start = cpu_start.get(name)
+        window_cpu = None if cpu is None or start is None else cpu - start
+        mem = process_memory_mb(pid)
+        out[name] = ServiceUsage(
+            pid=pid,
+            cpu_s=None if cpu is None else round(cpu, 3),
+            window_cpu_s=None if window_cpu is None else round(window_cpu, 3),
+            cpu_ms_per_frame=(
+                None if window_cpu is None or frames <= 0 else round(1000 * window_cpu / frames, 2)
+            ),
+            peak_rss_mb=mem.get("VmHWM"),
+            rss_mb=mem.get("VmRSS"),
+            rss_shmem_mb=mem.get("RssShmem"),
+        )
+    return out
+
+
+def collect_stamps(
+    session: zenoh.Session, keys: Keys, trace: Trace, services: tuple[str, ...] = PIPELINE
+) -> None:
+    """Ask ``services`` for the stamps of what they published and add them to ``trace``.
+    BenchError naming the first that does not answer."""
+    for name in services:
+        published = query_stamps(session, keys, name)
+        if published is None:
+            raise BenchError(f"{name} did not answer for its stamps ({keys.stamps(name)})")
+        trace.add_stamps(published)
+
+
+def status_counters(session: zenoh.Session, keys: Keys) -> dict[str, ServiceCounters]:
+    """Each service's own counters: messages received/dropped, camera frames by reference,
+    by copy and fetched whole, rejected."""
+    return {
+        st.service: ServiceCounters(
+            received={
+                keys.relative(k): KeyCounts(
+                    count=v.count,
+                    dropped=v.dropped,
+                    by_ref=v.by_ref,
+                    by_copy=v.by_copy,
+                    fetched=v.fetched,
+                )
+                for k, v in st.received.items()
+            },
+            rejected=st.rejected,
+            processing_ms_p50=st.processing_ms_p50,
+            processing_ms_p99=st.processing_ms_p99,
+        )
+        for st in query_status(session, keys, 2.0)
+    }
+
+
+def zenoh_version() -> str:
+    """The installed Zenoh's version, for the report's machine."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("eclipse-zenoh")
+    except PackageNotFoundError:
+        return "unknown"
