@@ -160,6 +160,11 @@ class ViewState:
     static_sent_s: float | None = None
     sim_time_s: float = 0.0
 
+    @property
+    def oriented(self) -> bool:
+        """Corners paired i with i, as the controller does with ``marker.orientation_cue``."""
+        return self.scenario.marker.orientation_cue
+
     def _advance(self, t_s: float) -> None:
         self.sim_time_s = max(self.sim_time_s, t_s)
 
@@ -219,11 +224,11 @@ class ViewState:
         }
         rms = None
         if desired is not None and hand.usable:
-            e = paired_error_px(np.asarray(hand.corners_px, dtype=float), desired)
+            e = paired_error_px(np.asarray(hand.corners_px, dtype=float), desired, self.oriented)
             rms = float(np.sqrt(np.mean(e**2)))
             error.update(error_px=e.reshape(-1).tolist(), error_px_rms=rms)
         self.last_error_px_rms = rms
-        ann = image_annotations(features, desired, self.trail_px, rms)
+        ann = image_annotations(features, desired, self.trail_px, rms, self.oriented)
         return [
             Out(ANNOTATIONS, ann, ns),
             Out(FEATURE_ERROR, error, ns),

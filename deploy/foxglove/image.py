@@ -85,10 +85,13 @@ def desired_corners_px(features: Features, approach_height_m: float) -> FloatArr
     return np.asarray(target.corners_px, dtype=float)
 
 
-def paired_error_px(hand_px: FloatArray, desired_px: FloatArray) -> FloatArray:
+def paired_error_px(
+    hand_px: FloatArray, desired_px: FloatArray, oriented: bool = False
+) -> FloatArray:
     """e = s - s* (4×2) with the hand's corners paired to the desired ones as the controller
-    pairs them (the cyclic pairing of least cost)."""
-    k = choose_pairing(pairing_costs_px2(hand_px, desired_px), None)
+    pairs them: the cyclic pairing of least cost, or corner i with corner i when the markers
+    are ``oriented`` (``marker.orientation_cue``)."""
+    k = 0 if oriented else choose_pairing(pairing_costs_px2(hand_px, desired_px), None)
     return hand_px - np.roll(desired_px, -k, axis=0)
 
 
@@ -125,6 +128,7 @@ def image_annotations(
     desired_px: FloatArray | None,
     trail_px: list[tuple[float, float]],
     error_px_rms: float | None,
+    oriented: bool = False,
 ) -> ImageAnnotations:
     """Fig. 5.10-5.16's overlay: the hand's square (green), the target's (red), both orange
     when only partly seen, the desired corners s* (yellow), the error vectors s → s* (cyan),
@@ -154,7 +158,7 @@ def image_annotations(
         points.append(_points(loop, desired_px, YELLOW, t, "desired", 1.5))
         if features.hand.usable:
             hand = np.asarray(features.hand.corners_px, dtype=float)
-            err = paired_error_px(hand, desired_px)
+            err = paired_error_px(hand, desired_px, oriented)
             segments = np.stack([hand, hand - err], axis=1).reshape(-1, 2)
             points.append(_points(PointsAnnotationType.LineList, segments, CYAN, t, "error", 1.5))
     if trail_px:

@@ -218,3 +218,14 @@ def test_every_view_topic_has_a_channel_and_the_layout_is_up_to_date() -> None:
     for topic in names:  # the layout names only topics the view has
         if f'"{topic}' in path.read_text():
             assert topic in TOPICS
+
+
+def test_the_error_pairs_corners_as_the_controller_does_with_and_without_the_cue() -> None:
+    """A hand square half a turn from its goal: a plain square pairs by least turn (no error),
+    an oriented one pairs corner i with corner i (the whole half turn shows)."""
+    from deploy.foxglove.image import paired_error_px
+
+    desired = np.array([[100.0, 100.0], [140.0, 100.0], [140.0, 140.0], [100.0, 140.0]])
+    hand = np.roll(desired, 2, axis=0)  # the same square, labels half a turn on
+    np.testing.assert_allclose(paired_error_px(hand, desired), 0.0)
+    np.testing.assert_allclose(paired_error_px(hand, desired, oriented=True), hand - desired)
