@@ -76,10 +76,15 @@ class StudyDefinition(BaseModel):
     draws: int = Field(ge=1, le=1000)
     target_x_m: tuple[float, float]
     target_z_m: tuple[float, float]
-    target_yaw_deg: float = Field(ge=0.0, le=180.0)
+    target_yaw_deg: tuple[float, float]
+    # The goal's posture: inverse kinematics for the goal starts here, so every draw's goal is
+    # on this elbow and wrist branch (the one with room to turn the hand, see study.toml).
+    goal_seed_q_deg: tuple[float, float, float, float, float, float]
+    turn_signs: tuple[int, ...] = (1, -1)  # the rotation's sign is drawn among these
     fixed_distance_m: float
     success_goal: float = Field(0.95, gt=0.0, le=1.0)
     timeout_s: float = Field(gt=0.0, le=3600.0)
+    overrides: tuple[str, ...] = ()  # scenario overrides for every run (before --set's)
 
     @model_validator(mode="after")
     def _grid(self) -> StudyDefinition:
@@ -93,6 +98,10 @@ class StudyDefinition(BaseModel):
             values = getattr(self, name)
             if list(values) != sorted(set(values)):
                 raise ValueError(f"{name}: increasing, without repeats")
+        if not self.turn_signs or set(self.turn_signs) - {1, -1}:
+            raise ValueError("turn_signs: 1, -1 or both")
+        if not -180.0 <= self.target_yaw_deg[0] <= self.target_yaw_deg[1] <= 180.0:
+            raise ValueError("target_yaw_deg: [low, high] within ±180")
         if self.fixed_distance_m not in self.distances_m:
             raise ValueError("fixed_distance_m: must be one of distances_m")
         return self
@@ -194,8 +203,8 @@ def draw_domain_start(study: StudyDefinition, base: Scenario, cell: Cell, draw: 
         float(base.target.position[1]),
         float(rng.uniform(*study.target_z_m)),
     )
-    yaw = math.radians(float(rng.uniform(-study.target_yaw_deg, study.target_yaw_deg)))
-    sign = 1.0 if rng.integers(2) else -1.0
+    yaw = math.radians(float(rng.uniform(*study.target_yaw_deg)))
+    sign = float(study.turn_signs[int(rng.integers(len(study.turn_signs)))])
     scenario = with_target(base, position, yaw)
     camera = scenario.camera.pose()
     direction, angle = lateral_direction(camera, float(rng.uniform(0.0, 2.0 * math.pi)))
@@ -219,7 +228,7 @@ def draw_domain_start(study: StudyDefinition, base: Scenario, cell: Cell, draw: 
         return refuse(REFUSED_TARGET_OUTSIDE)
     if offset[1] < BLOCK_CLEARANCE_M - scenario.target.approach_height_m:
         return refuse(REFUSED_BELOW_BLOCK)
-    solved = solve_goal(scenario)
+    solved = solve_goal(with_q0(scenario, np.radians(study.goal_seed_q_deg)))
     if solved is None:
         return refuse(REFUSED_GOAL_OUT_OF_REACH)
     q = walk_to_start(scenario, solved[0], solved[1], offset, math.radians(turn))
@@ -282,7 +291,7 @@ def plan_tasks(
         if start.refused:
             continue
         for mode in modes:
-            items = job_overrides([*start.overrides(), timeout, *overrides], mode)
+            items = job_overrides([*start.overrides(), timeout, *study.overrides, *overrides], mode)
             task = RunTask(run_key(start.name, mode), start.name, mode, str(base_path), items)
             try:
                 task.scenario()

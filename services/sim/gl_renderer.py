@@ -158,6 +158,13 @@ class GlRenderer:
         self._buffers: list[object] = []
         self._targets: dict[tuple[int, int], _Target] = {}
 
+    def _make_current(self) -> None:
+        # GL calls go to the thread's current context, the last one made or entered: with
+        # several renderers in a process (worlds open at once, a context kept for the next
+        # world) this one must be made current first. Entered, never exited: exiting would
+        # make current again a context that may since have been released.
+        self.ctx.__enter__()
+
     @property
     def is_software(self) -> bool:
         """True on Mesa's CPU rasterisers (llvmpipe, softpipe), False on a GPU driver."""
@@ -166,9 +173,8 @@ class GlRenderer:
 
     def set_shapes(self, shapes: list[VisualShape]) -> None:
         """Upload the meshes of ``shapes`` (replacing the previous ones)."""
-        for buffer in self._buffers:
-            buffer.release()
-        self._meshes, self._buffers = [], []
+        self.release_meshes()
+        self._make_current()
         for shape in shapes:
             vertices, normals = shape_mesh(shape)
             data = np.hstack([vertices, normals]).astype(np.float32)
@@ -179,6 +185,17 @@ class GlRenderer:
             id_vao = self.ctx.vertex_array(self.id_program, [(buffer, "3f 12x", "in_position")])
             self._buffers.append(buffer)
             self._meshes.append((shape, vao, id_vao))
+
+    def release_meshes(self) -> None:
+        """Free the meshes (vertex arrays and buffers): moderngl frees nothing on garbage
+        collection, so a context drawing world after world must release them itself."""
+        self._make_current()
+        for _shape, vao, id_vao in self._meshes:
+            vao.release()
+            id_vao.release()
+        for buffer in self._buffers:
+            buffer.release()
+        self._meshes, self._buffers = [], []
 
     def _target(self, k: CameraIntrinsics) -> _Target:
         size = (k.width_px, k.height_px)
@@ -214,6 +231,7 @@ class GlRenderer:
         read nothing back yet."""
         import moderngl
 
+        self._make_current()
         target = self._target(k)
         ctx = self.ctx
         # Clears, not a full-screen background quad (on a CPU rasteriser a clear costs a

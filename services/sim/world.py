@@ -7,6 +7,7 @@ z to the robot's right (see ``common.kinematics``); gravity points along -y.
 from __future__ import annotations
 
 import logging
+import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -163,19 +164,44 @@ class Truth:
     ee_position_m: FloatArray
 
 
+# OpenGL renderers of closed worlds, kept for the next world of this process: making and
+# destroying an EGL context per world leaks native memory, and a domain study opens thousands.
+_idle_gl: list[GlRenderer] = []
+_inherited_gl: list[GlRenderer] = []  # a fork's parent's: never used, never released here
+
+
+def _forget_idle_gl() -> None:  # a forked child must not draw through its parent's contexts
+    _inherited_gl.extend(_idle_gl)
+    _idle_gl.clear()
+
+
+os.register_at_fork(after_in_child=_forget_idle_gl)
+
+
 def open_renderer(requested: str) -> tuple[str, str, GlRenderer | None]:
     """The renderer to use for ``sim.renderer = requested``: (name, detail, OpenGL renderer or
-    None). "gl" falls back to "tiny", once and loudly, where no EGL context can be made."""
+    None). "gl" falls back to "tiny", once and loudly, where no EGL context can be made. An
+    idle OpenGL renderer of this process is reused (:func:`close_renderer`)."""
     if requested == "tiny":
         return "tiny", "TinyRenderer (pybullet, CPU), as configured", None
     try:
-        gl = GlRenderer()
+        gl = _idle_gl.pop() if _idle_gl else GlRenderer()
     except GlUnavailable as exc:
         detail = f"TinyRenderer: OpenGL unavailable: {exc}"
         log.warning("sim.renderer = 'gl' fell back to %s", detail)
         return "tiny", detail, None
     kind = "software, CPU" if gl.is_software else "GPU"
     return "gl", f"OpenGL through EGL: {gl.description} ({kind})", gl
+
+
+def close_renderer(gl: GlRenderer) -> None:
+    """Free a closed world's meshes and keep its context for the next world; a second idle
+    one (two worlds were open at once) is released."""
+    gl.release_meshes()
+    if _idle_gl:
+        gl.release()
+    else:
+        _idle_gl.append(gl)
 
 
 class World:
@@ -565,5 +591,6 @@ class World:
 
     def close(self) -> None:
         if self._gl is not None:
-            self._gl.release()
+            close_renderer(self._gl)
+            self._gl = None
         self.client.disconnect()

@@ -26,7 +26,7 @@ def tiny_study(tmp_path: Path, draws: int = 2) -> Path:
         if line.startswith("rotations_deg"):
             line = "rotations_deg = [0, 15, 30]"
         elif line.startswith("distances_m"):
-            line = "distances_m = [0.05]"
+            line = "distances_m = [0.03]"
         elif line.startswith("depths_m"):
             line = "depths_m = [0.0]"
         elif line.startswith("draws"):

@@ -57,7 +57,7 @@ def test_the_published_grid_reaches_180_degrees_in_15_degree_steps() -> None:
 
 
 def test_a_draw_depends_on_the_seed_cell_and_draw_only() -> None:
-    cell = cells(STUDY)[3 * 12 + 4]  # 45°, 5 cm, level
+    cell = cells(STUDY)[3 * 9 + 4]  # 45°, 3 cm, level
     a = draw_domain_start(STUDY, BASE, cell, 1)
     assert draw_domain_start(STUDY, BASE, cell, 1) == a
     assert draw_domain_start(STUDY, BASE, cell, 0) != a
@@ -70,10 +70,11 @@ def test_a_draw_depends_on_the_seed_cell_and_draw_only() -> None:
 
 def test_a_start_is_its_goal_turned_about_the_optical_axis_and_moved() -> None:
     checked = 0
-    for index, draw in [(3 * 12 + 4, 0), (1 * 12 + 7, 1), (2 * 12 + 1, 2), (12 * 12 + 4, 0)]:
+    for index, draw in [(3 * 9 + 4, 0), (1 * 9 + 7, 1), (2 * 9 + 1, 2), (12 * 9 + 4, 0)]:
         cell = cells(STUDY)[index]
         s = draw_domain_start(STUDY, BASE, cell, draw)
         assert abs(s.turn_deg) == cell.rotation_deg
+        assert s.turn_deg == 0.0 or math.copysign(1, s.turn_deg) in STUDY.turn_signs
         assert abs(image_turn_deg(s.turn_deg)) <= 45.0
         scenario = BASE.model_copy(
             update={
@@ -90,7 +91,8 @@ def test_a_start_is_its_goal_turned_about_the_optical_axis_and_moved() -> None:
         assert np.linalg.norm(across) == pytest.approx(cell.distance_m, abs=1e-9)
         assert across[1] >= -1e-12
         assert STUDY.target_x_m[0] <= s.target_position_m[0] <= STUDY.target_x_m[1]
-        assert abs(math.degrees(s.target_yaw_rad)) <= STUDY.target_yaw_deg
+        lo, hi = STUDY.target_yaw_deg
+        assert lo <= math.degrees(s.target_yaw_rad) <= hi
         if s.q0_rad is None or s.refused:
             continue
         hand = kin.forward_kinematics(np.array(s.q0_rad)) @ kin.hand_marker_in_ee()
@@ -148,10 +150,16 @@ def test_tasks_rebuild_each_runnable_start_with_every_strategy() -> None:
     assert scenario.controller.mode.value == "mpj"
     assert scenario.run.timeout_s == STUDY.timeout_s
     assert scenario.name == good.name
+    # The study's own overrides reach every run (the orientation cue, once on main).
+    changed = STUDY.model_copy(update={"overrides": ("camera.rgb_hz=10.0",)})
+    again = plan_tasks(changed, BASE_PATH, [good], ["dynamic"])[0].scenario()
+    assert again.camera.rgb_hz == 10.0 and scenario.camera.rgb_hz != 10.0
 
 
 def test_a_bad_study_file_is_refused(tmp_path: Path) -> None:
-    text = DEFAULT_STUDY.read_text().replace("fixed_distance_m = 0.05", "fixed_distance_m = 0.07")
+    with pytest.raises(CompareError, match="turn_signs"):
+        load_study(DEFAULT_STUDY, turn_signs=[2])
+    text = DEFAULT_STUDY.read_text().replace("fixed_distance_m = 0.03", "fixed_distance_m = 0.07")
     (tmp_path / "s.toml").write_text(text)
     with pytest.raises(CompareError, match="fixed_distance_m"):
         load_study(tmp_path / "s.toml")
@@ -185,7 +193,12 @@ def small_study() -> Study:
     fails once at 15° (joint limit), mpj at 30° twice (local minimum, marker left the image);
     30° at 10 cm is refused."""
     study = STUDY.model_copy(
-        update={"rotations_deg": (0.0, 15.0, 30.0), "distances_m": (0.05, 0.10), "depths_m": (0.0,)}
+        update={
+            "rotations_deg": (0.0, 15.0, 30.0),
+            "distances_m": (0.05, 0.10),
+            "depths_m": (0.0,),
+            "fixed_distance_m": 0.05,
+        }
     )
     starts = [start(i * 2 + 0, d, r, 0.05) for i, r in enumerate((0.0, 15.0, 30.0)) for d in (0, 1)]
     starts += [start(1, 0, 0.0, 0.10), start(5, 0, 30.0, 0.10, refused="start pose out of reach")]
