@@ -21,8 +21,9 @@ ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end 
 
 
 def observation(m: MarkerFeatures) -> Marker:
-    """Kept for deploy/bench.py and deploy/foxglove/convert.py until they call
-    :meth:`Marker.from_wire` themselves (another branch is moving those files)."""
+    """One marker's wire features as the controller reads them (:meth:`Marker.from_wire`);
+    left for its callers outside the controller (deploy/bench.py, deploy/foxglove/convert.py)
+    until they call ``Marker.from_wire`` directly."""
     return Marker.from_wire(m)
 
 
