@@ -22,8 +22,8 @@ ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end 
 
 def observation(m: MarkerFeatures) -> Marker:
     """One marker's wire features as the controller reads them (:meth:`Marker.from_wire`);
-    left for its callers outside the controller (deploy/bench.py, deploy/foxglove/convert.py)
-    until they call ``Marker.from_wire`` directly."""
+    left for its callers outside the controller (deploy/bench/inprocess.py,
+    deploy/foxglove/image.py) until they call ``Marker.from_wire`` directly."""
     return Marker.from_wire(m)
 
 
