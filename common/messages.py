@@ -218,6 +218,9 @@ class MarkerFeatures(Message):
     known square, on its known plane, to the edges of it that are seen. ``occluded``: the
     depth image (or, between depth images, the hand marker) shows something in front of the
     marker or of where it was last seen, i.e. it is hidden, not gone.
+
+    Vision and the controller work on :class:`common.marker.Marker` (the same fields as
+    arrays); ``Marker.to_wire`` / ``Marker.from_wire`` convert.
     """
 
     state: MarkerState

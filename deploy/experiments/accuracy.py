@@ -25,10 +25,11 @@ from pydantic import BaseModel
 from common import kinematics as kin
 from common.camera import CameraIntrinsics
 from common.config import KinectConfig, Scenario, VisionConfig
+from common.marker import Marker
 from deploy.experiments.reachability import check_scenario
 from services.sim.sensor_model import axial_sigma_m, exposed_rgb, noisy_depth
 from services.sim.world import World
-from services.vision.measurement import MarkerMeasurement, measure_markers
+from services.vision.measurement import measure_markers
 
 MARKER_POSES = {"hand": "hand_marker_pose", "target": "target_marker_pose"}
 POSTURE_NOISE_RAD = 0.08  # joint-space spread around the start-to-goal motion
@@ -157,7 +158,7 @@ def _true_depths_m(world: World, pose_in_base: np.ndarray, size_m: float) -> np.
 
 def _score(
     tally: _Tally,
-    measured: dict[str, MarkerMeasurement],
+    measured: dict[str, Marker],
     truth_px: dict[str, np.ndarray],
     truth_z: dict[str, np.ndarray],
 ) -> None:
@@ -172,9 +173,9 @@ def _score(
         index = match_corners(m.corners_px, truth_px[name])
         tally.corner_err_px += np.linalg.norm(m.corners_px - truth_px[name][index], axis=1).tolist()
         z = truth_z[name][index]
-        tally.depth_err_m += (m.depths_m - z).tolist()
+        tally.depth_err_m += (m.depth_m - z).tolist()
         tally.sigma_z_m += axial_sigma_m(z).tolist()
-        tally.reported_sigma_m += m.depth_sigmas_m.tolist()
+        tally.reported_sigma_m += m.depth_sigma_m.tolist()
 
 
 def evaluate(
@@ -243,7 +244,7 @@ def _observe_posture(
     scenario: Scenario,
     conditions: list[Condition],
     rng: np.random.Generator,
-) -> dict[str, dict[str, MarkerMeasurement]]:
+) -> dict[str, dict[str, Marker]]:
     """What vision makes of the current posture under each condition."""
     k = world.intrinsics
     rgb, depth = world.render_perfect(k)

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode
 from common.kinematics import BASE_UP, cross, skew
-from common.messages import is_usable
+from common.marker import Marker
 from common.motion import MarkerMotion
 from services.controller import acquisition as acq
 
@@ -143,32 +143,7 @@ def clamp_twist(twist: FloatArray, max_linear_m_s: float, max_angular_rad_s: flo
     return twist * scale
 
 
-@dataclass(frozen=True)
-class MarkerObservation:
-    """What the controller needs of one marker: its state (``visible``, ``partial``, ``lost``
-    or ``no_depth``, see :class:`common.messages.MarkerFeatures`), pixel corners (4×2), depths
-    (4,), the corners' 3-D points in the camera frame (4×3), and whether something is seen in
-    front of it (hidden rather than gone)."""
-
-    state: str
-    corners_px: FloatArray
-    depth_m: FloatArray
-    points_m: FloatArray
-    occluded: bool = False
-    fitted: bool = False  # partly hidden, corners fitted from its visible edges (usable)
-
-    @property
-    def visible(self) -> bool:
-        return self.state == "visible"
-
-    @property
-    def usable(self) -> bool:
-        return is_usable(self.state, self.fitted)
-
-
-def desired_observation(
-    target: MarkerObservation, approach_height_m: float, k: CameraIntrinsics
-) -> MarkerObservation:
+def desired_observation(target: Marker, approach_height_m: float, k: CameraIntrinsics) -> Marker:
     """Desired features s*: the red marker's measured 3-D corners raised by the approach
     height along the marker's normal (pointing towards the camera), then projected.
 
@@ -183,10 +158,11 @@ def desired_observation(
     if normal @ p.mean(axis=0) > 0:  # make it face the camera (at the origin)
         normal = -normal
     raised = p + approach_height_m * normal
-    return MarkerObservation("visible", project(raised, k), raised[:, 2].copy(), raised)
+    # Its depths come from the target's, moved by a known height: the same uncertainty.
+    return Marker.seen_at(raised, k, target.depth_sigma_m)
 
 
-def carried(last: MarkerObservation, shift_m: FloatArray, k: CameraIntrinsics) -> MarkerObservation:
+def carried(last: Marker, shift_m: FloatArray, k: CameraIntrinsics) -> Marker:
     """``last`` moved by ``shift_m`` (camera frame): where a hidden target is by now."""
     if not np.any(shift_m):
         return last
@@ -244,13 +220,13 @@ def describe_hold(
     return f"holding: {reason} ({stuck}for {now_s - since:.1f} s, since sim time {since:.2f} s)"
 
 
-def may_be_behind_the_hand(target: MarkerObservation) -> bool:
+def may_be_behind_the_hand(target: Marker) -> bool:
     """Seen partly, or with something in front: what moving the hand away can uncover (a
     target simply gone, with nothing in front of it, cannot be)."""
     return target.state == "partial" or target.occluded
 
 
-def rolled(observation: MarkerObservation, shift: int) -> MarkerObservation:
+def rolled(observation: Marker, shift: int) -> Marker:
     """The same marker with its corners relabelled: corner i becomes corner (i + shift) % 4."""
     if shift == 0:
         return observation
@@ -258,6 +234,7 @@ def rolled(observation: MarkerObservation, shift: int) -> MarkerObservation:
         observation,
         corners_px=np.roll(observation.corners_px, -shift, axis=0),
         depth_m=np.roll(observation.depth_m, -shift, axis=0),
+        depth_sigma_m=np.roll(observation.depth_sigma_m, -shift, axis=0),
         points_m=np.roll(observation.points_m, -shift, axis=0),
     )
 
@@ -298,7 +275,7 @@ def choose_pairing(costs_px2: FloatArray, current: int | None) -> int:
 OCCLUSION_RADIUS_DIAGONALS = 2.0
 
 
-def hand_hides_target(hand: MarkerObservation, last_target: MarkerObservation) -> bool:
+def hand_hides_target(hand: Marker, last_target: Marker) -> bool:
     """In eye-to-hand servoing the hand must end up in front of the target, hiding it."""
     if not hand.visible:
         return False
@@ -329,7 +306,7 @@ class IbvsController:
     oriented_markers: bool = False
     l_constant: FloatArray | None = None  # 8×6, rows in the target's own corner labelling
     frames_below: int = 0
-    last_target: MarkerObservation | None = None
+    last_target: Marker | None = None
     pairing: int | None = None  # hand corner i goes to target corner (i + pairing) % 4
     motion: MarkerMotion = field(default_factory=MarkerMotion)  # the target's
     # The hidden target is where its motion predicts, unconfirmed since: not a goal to stop on.
@@ -343,8 +320,8 @@ class IbvsController:
 
     def step(
         self,
-        hand: MarkerObservation,
-        target: MarkerObservation,
+        hand: Marker,
+        target: Marker,
         k: CameraIntrinsics,
         p_ee_base_m: FloatArray,
         t_s: float = 0.0,
@@ -445,7 +422,7 @@ class IbvsController:
     def _start_acquisition(
         self,
         why: str,
-        hand: MarkerObservation,
+        hand: Marker,
         k: CameraIntrinsics,
         p_ee_base_m: FloatArray,
         t_s: float,
@@ -484,7 +461,7 @@ class IbvsController:
         return project(p_cam[None, :], k)[0]
 
     def _acquire(
-        self, hand: MarkerObservation, k: CameraIntrinsics, p_ee_base_m: FloatArray, t_s: float
+        self, hand: Marker, k: CameraIntrinsics, p_ee_base_m: FloatArray, t_s: float
     ) -> ControlOutput:
         """One step of the acquisition under way: its twist, or a hold once it has failed."""
         assert self.acquisition is not None
@@ -517,7 +494,7 @@ class IbvsController:
         return ControlOutput(twist, True, 0.0, False, False, reason, ACQUIRING)
 
     def _image_law(
-        self, hand: MarkerObservation, target: MarkerObservation, k: CameraIntrinsics
+        self, hand: Marker, target: Marker, k: CameraIntrinsics
     ) -> tuple[FloatArray, FloatArray]:
         """``(e, M)`` on the normalized image points (constant, dynamic, pmj, mpj); ``target``
         already paired with the hand's corners."""
@@ -535,9 +512,7 @@ class IbvsController:
         return error, control_matrix(mode, l_current, l_desired, l_constant)
 
     @staticmethod
-    def _points3d_law(
-        hand: MarkerObservation, target: MarkerObservation
-    ) -> tuple[FloatArray, FloatArray]:
+    def _points3d_law(hand: Marker, target: Marker) -> tuple[FloatArray, FloatArray]:
         """``(e, M)`` on the measured 3-D corners (points3d); J at the current points, since
         only they (not the goal points) ride on the hand."""
         error = (hand.points_m - target.points_m).reshape(-1)

@@ -13,22 +13,18 @@ import numpy as np
 
 from common import kinematics as kin
 from common.kinematics import FloatArray
+from common.marker import Marker
 from common.messages import EndEffectorTwist, Features, Header, MarkerFeatures
-from services.controller.ibvs import ControlOutput, IbvsController, MarkerObservation
+from services.controller.ibvs import ControlOutput, IbvsController
 
 ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
 
 
-def observation(m: MarkerFeatures) -> MarkerObservation:
-    """One marker's wire features as the controller reads them."""
-    return MarkerObservation(
-        m.state,
-        np.array(m.corners_px),
-        np.array(m.depth_m),
-        np.array(m.points_m),
-        m.occluded,
-        m.fitted,
-    )
+def observation(m: MarkerFeatures) -> Marker:
+    """One marker's wire features as the controller reads them (:meth:`Marker.from_wire`);
+    left for its callers outside the controller (deploy/bench/inprocess.py,
+    deploy/foxglove/image.py) until they call ``Marker.from_wire`` directly."""
+    return Marker.from_wire(m)
 
 
 def control_step(
@@ -38,8 +34,8 @@ def control_step(
     (the joint state of the same frame)."""
     frames = kin.frame_transforms(np.array(q_rad))
     return controller.step(
-        observation(features.hand),
-        observation(features.target),
+        Marker.from_wire(features.hand),
+        Marker.from_wire(features.target),
         features.intrinsics,
         frames[-1][:3, 3],
         features.header.sim_time_s,

@@ -1,4 +1,4 @@
-"""One frame's measurement of both markers, and the measurement type vision works with.
+"""One frame's measurement of both markers, and the record vision keeps of each.
 
 Pure functions on numpy arrays (no networking, no global state). Conventions:
 
@@ -29,7 +29,8 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized
 from common.config import VisionConfig
-from common.messages import is_usable
+from common.marker import Marker
+from common.messages import MarkerState
 from common.metrics import percentile
 from services.vision.cue import CUE_HIDDEN, label_corners
 from services.vision.depth import (
@@ -53,7 +54,7 @@ FloatArray = NDArray[np.float64]
 
 
 # Why a marker is not usable → its state (see common.messages.MarkerFeatures).
-REASON_STATES: dict[str, str] = {
+REASON_STATES: dict[str, MarkerState] = {
     "no blob": "lost",
     "blob too small": "partial",  # a sliver of it shows
     "touches image border": "partial",
@@ -69,51 +70,17 @@ REASON_STATES: dict[str, str] = {
 
 @dataclass(frozen=True)
 class MarkerMeasurement:
-    """One marker in one frame.
+    """One marker in one frame as vision measured it: the :class:`~common.marker.Marker` it
+    publishes (its ``reason`` a key of :data:`REASON_STATES`), and the depth plane its depths
+    come from (None when they do not come from a fit), which only vision's tracking keeps."""
 
-    ``corners_px`` (4, 2) sub-pixel (u, v) in canonical order; ``depths_m`` (4,) Z of each
-    corner (m) and ``depth_sigmas_m`` (4,) its 1-σ uncertainty; ``points_m`` (4, 3) corners in
-    the camera optical frame (m); ``area_px`` the blob's pixel count (0 when there is no blob);
-    ``plane`` the depth plane the depths come from (None when they do not come from a fit).
-    ``state``: "visible", or why not (see :data:`REASON_STATES`, ``reason`` says which);
-    when not visible the arrays are zeros, unless ``fitted``: a partly hidden marker whose
-    corners were found from its visible edges, known size and plane
-    (:mod:`services.vision.partial`). ``occluded``: something is seen in front of it.
-    """
-
-    state: str
-    corners_px: FloatArray
-    depths_m: FloatArray
-    depth_sigmas_m: FloatArray
-    points_m: FloatArray
-    area_px: float
-    reason: str
-    occluded: bool = False
+    marker: Marker
     plane: PlaneFit | None = None
-    fitted: bool = False
-
-    @property
-    def visible(self) -> bool:
-        return self.state == "visible"
-
-    @property
-    def usable(self) -> bool:
-        """Corners and depths can be acted on: seen whole, or fitted from what is seen."""
-        return is_usable(self.state, self.fitted)
 
 
-def not_visible(reason: str, area_px: float = 0.0, occluded: bool = False) -> MarkerMeasurement:
+def not_visible(reason: str, occluded: bool = False) -> MarkerMeasurement:
     """A marker that cannot be used, for ``reason`` (a key of :data:`REASON_STATES`)."""
-    return MarkerMeasurement(
-        state=REASON_STATES[reason],
-        corners_px=np.zeros((4, 2)),
-        depths_m=np.zeros(4),
-        depth_sigmas_m=np.zeros(4),
-        points_m=np.zeros((4, 3)),
-        area_px=float(area_px),
-        reason=reason,
-        occluded=occluded,
-    )
+    return MarkerMeasurement(Marker.unseen(REASON_STATES[reason], reason, occluded))
 
 
 def _measure(
@@ -127,11 +94,11 @@ def _measure(
     ring_px = depth_ring_px(ring_px, k, k_depth)
     if quad.corners_px is None:
         occluded = quad.area_px > 0 and _blob_occluded(quad.mask, depth_m, k_depth or k, ring_px)
-        return not_visible(quad.reason, quad.area_px, occluded)
+        return not_visible(quad.reason, occluded)
     corners, mask = quad.corners_px, quad.mask
     depth = corner_depths(depth_m, mask, corners, k, k_depth)
     if depth is None:
-        return not_visible("no valid depth", quad.area_px)
+        return not_visible("no valid depth")
     k_depth = k_depth or k
     depth_corners = corners if k_depth == k else to_depth_pixels(corners, k, k_depth)
     bounds = bounding_box(depth_corners, ring_px + 3, depth_m.shape)
@@ -139,17 +106,15 @@ def _measure(
     crop_mask = registered_mask(mask, depth_m.shape)[r0:r1, c0:c1]
     surface = marker_surface(depth.plane, depth.depths_m, k_depth, bounds)
     if is_occluded(depth_m[r0:r1, c0:c1], crop_mask, surface, ring_px):
-        return not_visible("occluded", quad.area_px, occluded=True)
-    return MarkerMeasurement(
-        "visible",
-        corners,
-        depth.depths_m,
-        depth.sigmas_m,
-        depth.points_m,
-        quad.area_px,
-        "",
-        plane=depth.plane,
+        return not_visible("occluded", occluded=True)
+    marker = Marker(
+        state="visible",
+        corners_px=corners,
+        depth_m=depth.depths_m,
+        depth_sigma_m=depth.sigmas_m,
+        points_m=depth.points_m,
     )
+    return MarkerMeasurement(marker, depth.plane)
 
 
 def _blob_occluded(
@@ -234,13 +199,13 @@ def measure_markers(
     previous: dict[str, np.ndarray] | None = None,
     k_depth: CameraIntrinsics | None = None,
     orientation_cue: bool = False,
-) -> dict[str, MarkerMeasurement]:
+) -> dict[str, Marker]:
     """Both markers, keyed ``"hand"`` (green) and ``"target"`` (red), from a colour image and
     the depth image taken with it; ``previous`` maps the same keys to last frame's corners
     (missing keys: no previous); ``orientation_cue``: see :func:`find_marker_quads`."""
     _check_frame(rgb, depth_m, k_depth)
     return {
-        name: measure_quad(quad, depth_m, k, cfg, k_depth)
+        name: measure_quad(quad, depth_m, k, cfg, k_depth).marker
         for name, quad in find_marker_quads(rgb, cfg, previous, orientation_cue).items()
     }
 

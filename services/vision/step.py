@@ -14,23 +14,9 @@ import numpy as np
 
 from common.camera import CameraIntrinsics
 from common.config import VisionConfig
-from common.messages import DepthFrame, Features, Header, MarkerFeatures, RgbFrame
-from services.vision.measurement import MarkerMeasurement
+from common.marker import Marker
+from common.messages import DepthFrame, Features, Header, RgbFrame
 from services.vision.tracking import DepthImage, TrackerState, observe
-
-
-def to_message(m: MarkerMeasurement) -> MarkerFeatures:
-    """One marker's measurement in the wire format."""
-    return MarkerFeatures(
-        state=m.state,  # type: ignore[arg-type]
-        corners_px=m.corners_px.tolist(),
-        depth_m=m.depths_m.tolist(),
-        depth_sigma_m=m.depth_sigmas_m.tolist(),
-        points_m=m.points_m.tolist(),
-        occluded=m.occluded,
-        fitted=m.fitted,
-        reason=m.reason,
-    )
 
 
 def depth_for(frame: RgbFrame, depths: OrderedDict[int, DepthFrame]) -> DepthFrame | None:
@@ -52,7 +38,7 @@ def depth_image(
 class VisionStep:
     """One frame's measurements (``measured``: vision's own), and the state for the next."""
 
-    measured: dict[str, MarkerMeasurement]
+    measured: dict[str, Marker]
     tracker: TrackerState
     depth_age_s: float | None
 
@@ -61,8 +47,8 @@ class VisionStep:
         return Features(
             header=header,
             intrinsics=intrinsics,
-            hand=to_message(self.measured["hand"]),
-            target=to_message(self.measured["target"]),
+            hand=self.measured["hand"].to_wire(),
+            target=self.measured["target"].to_wire(),
             depth_age_s=self.depth_age_s,
         )
 

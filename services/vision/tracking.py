@@ -26,6 +26,7 @@ import numpy as np
 
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized, project
 from common.config import VisionConfig
+from common.marker import Marker
 from common.motion import MarkerMotion
 from services.vision.depth import FloatArray, PlaneFit, marker_surface, to_depth_pixels
 from services.vision.measurement import (
@@ -69,17 +70,17 @@ class MarkerMemory:
     """A marker's last view with a depth image taken at the same time."""
 
     corners_px: FloatArray
-    depths_m: FloatArray
-    depth_sigmas_m: FloatArray
+    depth_m: FloatArray
+    depth_sigma_m: FloatArray
     plane: PlaneFit | None
 
     def carried(self, shift_m: FloatArray, k: CameraIntrinsics) -> MarkerMemory:
         """Where this view is by now if the marker slid by ``shift_m`` (camera frame)."""
         if not np.any(shift_m):
             return self
-        points = back_project(self.corners_px, self.depths_m, k) + shift_m
+        points = back_project(self.corners_px, self.depth_m, k) + shift_m
         plane = None if self.plane is None else self.plane.shifted(shift_m)
-        return MarkerMemory(project(points, k), points[:, 2].copy(), self.depth_sigmas_m, plane)
+        return MarkerMemory(project(points, k), points[:, 2].copy(), self.depth_sigma_m, plane)
 
 
 @dataclass(frozen=True)
@@ -155,7 +156,7 @@ def _hidden_in_depth(
     depth_crop = _depth_under(depth, k, bounds)
     colour = colour_mask(rgb[r0:r1, c0:c1], MARKERS[name], cfg)
     surface = np.broadcast_to(
-        marker_surface(memory.plane, memory.depths_m, k, bounds), depth_crop.shape
+        marker_surface(memory.plane, memory.depth_m, k, bounds), depth_crop.shape
     )
     return hidden_behind(depth_crop, region[r0:r1, c0:c1], surface, colour)
 
@@ -167,26 +168,25 @@ class _PartialFit:
     pixel around it is closer than that plane (something in front of it)."""
 
     corners_px: FloatArray
-    depths_m: FloatArray
-    depth_sigmas_m: FloatArray
+    depth_m: FloatArray
+    depth_sigma_m: FloatArray
     points_m: FloatArray
     plane: PlaneFit
     occluder_seen: bool
 
-    def measurement(self, reason: str, area_px: float, occluded: bool) -> MarkerMeasurement:
+    def measurement(self, reason: str, occluded: bool) -> MarkerMeasurement:
         """As a measurement of a marker seen only in part, for ``reason``."""
-        return MarkerMeasurement(
-            "partial",
-            self.corners_px,
-            self.depths_m,
-            self.depth_sigmas_m,
-            self.points_m,
-            area_px,
-            reason,
+        marker = Marker(
+            state="partial",
+            corners_px=self.corners_px,
+            depth_m=self.depth_m,
+            depth_sigma_m=self.depth_sigma_m,
+            points_m=self.points_m,
             occluded=occluded or self.occluder_seen,
-            plane=self.plane,
             fitted=True,
+            reason=reason,
         )
+        return MarkerMeasurement(marker, self.plane)
 
 
 def _fit_partial(
@@ -202,7 +202,7 @@ def _fit_partial(
     does not hold."""
     if memory is None or memory.plane is None or quad.area_px <= 0:
         return None
-    points = back_project(memory.corners_px, memory.depths_m, k)
+    points = back_project(memory.corners_px, memory.depth_m, k)
     square = SquareOnPlane.from_corners(points, marker_size_m)
     bounds = mask_bounds(quad.mask, 2 * cfg.occlusion_ring_px + 2)
     if bounds is None:
@@ -210,7 +210,7 @@ def _fit_partial(
     r0, r1, c0, c1 = bounds
     depth_crop = _depth_under(depth, k, bounds)
     occluder = occluder_map(
-        depth_crop, marker_surface(memory.plane, memory.depths_m, k, bounds), cfg.occlusion_ring_px
+        depth_crop, marker_surface(memory.plane, memory.depth_m, k, bounds), cfg.occlusion_ring_px
     )
     mask = quad.mask[r0:r1, c0:c1]
     edges = true_edge_points(mask, occluder, (c0, r0))
@@ -240,23 +240,24 @@ def _held(
     """A marker found in colour, measured with the depth remembered from its last full view."""
     assert quad.corners_px is not None
     if memory is None:
-        return not_visible("no valid depth", quad.area_px)
+        return not_visible("no valid depth")
     corners = quad.corners_px
     if HELD_DEPTH[name] == "plane" and memory.plane is not None:
         xy = pixel_to_normalized(corners, k)
         depths, sigmas = memory.plane.depths_m(xy), memory.plane.depth_sigmas_m(xy)
         if not np.all((depths > 0) & np.isfinite(depths)):
-            return not_visible("no valid depth", quad.area_px)
+            return not_visible("no valid depth")
         points = back_project(corners, depths, k)
         sides = side_lengths_m(points)
         if np.max(np.abs(sides / marker_size_m - 1.0)) > SIZE_TOLERANCE:
-            return not_visible("not the marker's size", quad.area_px)
+            return not_visible("not the marker's size")
     else:
-        depths, sigmas = memory.depths_m.copy(), memory.depth_sigmas_m.copy()
+        depths, sigmas = memory.depth_m.copy(), memory.depth_sigma_m.copy()
         points = back_project(corners, depths, k)
-    return MarkerMeasurement(
-        "visible", corners, depths, sigmas, points, quad.area_px, "", plane=memory.plane
+    marker = Marker(
+        state="visible", corners_px=corners, depth_m=depths, depth_sigma_m=sigmas, points_m=points
     )
+    return MarkerMeasurement(marker, memory.plane)
 
 
 def _measure_fresh(
@@ -277,15 +278,16 @@ def _measure_fresh(
         fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
         if fit is not None and fit.occluder_seen:
             # Occluded whatever the blob's own depth says: its check (measure_quad) is skipped.
-            return fit.measurement(quad.reason, quad.area_px, occluded=True)
+            return fit.measurement(quad.reason, occluded=True)
     m = measure_quad(quad, depth.depth_m, k, cfg, depth.intrinsics)
-    if not m.visible and not m.occluded and _hidden_in_depth(name, memory, rgb, k, depth, cfg):
-        m = not_visible(m.reason, m.area_px, occluded=True)
-    if name in FITTED and m.state == "partial":
+    seen = m.marker
+    if not (seen.visible or seen.occluded) and _hidden_in_depth(name, memory, rgb, k, depth, cfg):
+        m = not_visible(seen.reason, occluded=True)
+    if name in FITTED and m.marker.state == "partial":
         if not fit_first:  # a quadrilateral, but something in front of it in depth
             fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
         if fit is not None:
-            m = fit.measurement(m.reason, m.area_px, m.occluded)
+            m = fit.measurement(m.marker.reason, m.marker.occluded)
     return m
 
 
@@ -298,7 +300,7 @@ def observe(
     state: TrackerState,
     t_s: float = 0.0,
     orientation_cue: bool = False,
-) -> tuple[dict[str, MarkerMeasurement], TrackerState]:
+) -> tuple[dict[str, Marker], TrackerState]:
     """Both markers in one colour frame taken at sim time ``t_s``, with the newest depth image
     (None: none yet), and the state for the next frame. ``orientation_cue``
     (``marker.orientation_cue``): corners labelled by each marker's cue
@@ -314,7 +316,7 @@ def observe(
             assert depth is not None
             m = _measure_fresh(name, quad, memory, rgb, k, depth, cfg, marker_size_m)
         elif quad.corners_px is None:
-            m = not_visible(quad.reason, quad.area_px)
+            m = not_visible(quad.reason)
         elif not usable:
             m = not_visible("no depth image" if depth is None else "depth image too old")
         else:
@@ -323,12 +325,13 @@ def observe(
     if not fresh:  # no depth to tell: the hand over the target's last place is what hides it
         target, last = measured["target"], expected["target"]
         if (
-            not target.visible
+            not target.marker.visible
             and last is not None
             and hand_over(quads["hand"].corners_px, last.corners_px)
         ):
-            measured["target"] = not_visible(target.reason, target.area_px, occluded=True)
-    return measured, _next_state(state, measured, fresh, t_s, orientation_cue)
+            measured["target"] = not_visible(target.marker.reason, occluded=True)
+    markers = {name: m.marker for name, m in measured.items()}
+    return markers, _next_state(state, measured, fresh, t_s, orientation_cue)
 
 
 def _next_state(
@@ -342,11 +345,12 @@ def _next_state(
     memory = dict(state.memory)
     motion = dict(state.motion)
     for name, m in measured.items():
-        if m.visible:
-            previous[name] = m.corners_px
+        seen = m.marker
+        if seen.visible:
+            previous[name] = seen.corners_px
         elif orientation_cue:  # a labelling is carried on from the frame before only
             previous.pop(name, None)
-        if m.usable and fresh:  # measured with depth (a fitted view keeps its plane)
-            memory[name] = MarkerMemory(m.corners_px, m.depths_m, m.depth_sigmas_m, m.plane)
-            motion[name] = motion.get(name, MarkerMotion()).seen(t_s, m.points_m)
+        if seen.usable and fresh:  # measured with depth (a fitted view keeps its plane)
+            memory[name] = MarkerMemory(seen.corners_px, seen.depth_m, seen.depth_sigma_m, m.plane)
+            motion[name] = motion.get(name, MarkerMotion()).seen(t_s, seen.points_m)
     return TrackerState(previous, memory, motion)

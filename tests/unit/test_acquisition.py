@@ -7,8 +7,9 @@ import pytest
 
 from common.camera import CameraIntrinsics, project
 from common.config import ControllerConfig
+from common.marker import Marker
 from services.controller import acquisition as acq
-from services.controller.ibvs import ACQUISITION_FAILED, IbvsController, MarkerObservation
+from services.controller.ibvs import ACQUISITION_FAILED, IbvsController
 from tests.unit.test_ibvs import moved, not_seen, observe, square_points
 
 K = CameraIntrinsics.from_fov(640, 480, 57.0)
@@ -57,7 +58,7 @@ def test_the_law_slides_the_hand_image_to_its_goal_without_turning_it() -> None:
     assert np.ptp(points[:, 2]) < 1e-3  # still facing the camera as before
 
 
-def start_covering(config: ControllerConfig) -> tuple[IbvsController, MarkerObservation]:
+def start_covering(config: ControllerConfig) -> tuple[IbvsController, Marker]:
     hand = observe(square_points(np.array([0.0, 0.05, 0.45])))
     return IbvsController(config, np.eye(4)), hand
 

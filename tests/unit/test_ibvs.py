@@ -6,14 +6,15 @@ import numpy as np
 import pytest
 
 from common import kinematics as kin
-from common.camera import CameraIntrinsics, project
+from common.camera import CameraIntrinsics
 from common.config import ControllerConfig, JacobianMode
+from common.marker import Marker
+from common.messages import MarkerState
 from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
 from services.controller.ibvs import (
     USES_CURRENT,
     USES_DESIRED,
     IbvsController,
-    MarkerObservation,
     camera_twist_to_base_ee,
     choose_pairing,
     clamp_twist,
@@ -141,8 +142,8 @@ def test_clamp_keeps_direction() -> None:
     np.testing.assert_allclose(out / np.linalg.norm(out), twist / np.linalg.norm(twist))
 
 
-def observe(points: np.ndarray) -> MarkerObservation:
-    return MarkerObservation("visible", project(points, K), points[:, 2].copy(), points)
+def observe(points: np.ndarray) -> Marker:
+    return Marker.seen_at(points, K)
 
 
 @pytest.mark.parametrize("mode", list(JacobianMode))
@@ -197,8 +198,8 @@ def _axis_angle_safe(w: np.ndarray, dt: float) -> np.ndarray:
     return np.eye(3) if angle == 0 else _axis_angle(w / np.linalg.norm(w), angle)
 
 
-def not_seen(state: str, occluded: bool = False) -> MarkerObservation:
-    return MarkerObservation(state, np.zeros((4, 2)), np.zeros(4), np.zeros((4, 3)), occluded)
+def not_seen(state: MarkerState, occluded: bool = False) -> Marker:
+    return Marker.unseen(state, occluded=occluded)
 
 
 def test_hold_when_a_marker_is_missing_and_memory_when_the_hand_hides_the_target() -> None:
@@ -295,7 +296,7 @@ def test_desired_features_rise_towards_the_camera() -> None:
     np.testing.assert_allclose(raised.depth_m, target.depth_m - 0.03)
 
     # Closer to the camera, the same square looks bigger.
-    def diagonal(o: MarkerObservation) -> float:
+    def diagonal(o: Marker) -> float:
         return float(np.linalg.norm(o.corners_px[0] - o.corners_px[2]))
 
     assert diagonal(raised) > diagonal(target) * 1.05

@@ -42,7 +42,7 @@ def test_predicted_feature_motion_matches_the_rendered_one(world, scenario) -> N
         jac = kin.geometric_jacobian(q)
         p_ee = kin.forward_kinematics(q)[:3, 3]
         xy = pixel_to_normalized(before.corners_px, k)
-        l_s = interaction_matrix(xy, before.depths_m)
+        l_s = interaction_matrix(xy, before.depth_m)
         direction = rng.normal(size=6)
         # Scale the motion so the corners move by about 12 px: far above corner noise,
         # small enough for the first-order model.

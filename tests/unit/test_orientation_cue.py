@@ -15,7 +15,8 @@ import pytest
 from common import kinematics as kin
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode, VisionConfig
-from services.controller.ibvs import IbvsController, MarkerObservation
+from common.marker import Marker
+from services.controller.ibvs import IbvsController
 from services.vision.cue import (
     CUE_HIDDEN,
     closest_roll,
@@ -186,7 +187,7 @@ def test_depth_ignores_the_cue_pixels() -> None:
     proud = measure_markers(rgb, depth, K, CFG, orientation_cue=True)
     for name in ("hand", "target"):
         assert proud[name].visible and not proud[name].occluded
-        np.testing.assert_allclose(proud[name].depths_m, flush[name].depths_m, atol=1e-9)
+        np.testing.assert_allclose(proud[name].depth_m, flush[name].depth_m, atol=1e-9)
 
 
 def hide_cue(rgb: np.ndarray, name: str, turn_rad: float) -> None:
@@ -250,8 +251,8 @@ def test_with_oriented_markers_the_controller_pairs_corner_i_with_corner_i() -> 
         [0.02, 0.03, 0.50]
     )  # turned by 180° about the z axis
 
-    def obs(points: np.ndarray) -> MarkerObservation:
-        return MarkerObservation("visible", project(points, K), points[:, 2].copy(), points)
+    def obs(points: np.ndarray) -> Marker:
+        return Marker.seen_at(points, K)
 
     turns = {}
     for oriented in (False, True):

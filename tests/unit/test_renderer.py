@@ -131,7 +131,7 @@ def test_gl_agrees_with_tinyrenderer_on_the_accuracy_postures(gl_world: World) -
             for name in ("hand", "target"):
                 assert gl[name].visible and ref[name].visible, name
                 np.testing.assert_allclose(gl[name].corners_px, ref[name].corners_px, atol=0.05)
-                np.testing.assert_allclose(gl[name].depths_m, ref[name].depths_m, atol=5e-5)
+                np.testing.assert_allclose(gl[name].depth_m, ref[name].depth_m, atol=5e-5)
             ids_gl, ids_ref = (w.segmentation(w.intrinsics) for w in (gl_world, tiny))
             assert (ids_gl == ids_ref).mean() > 0.99  # limbs differ: Bullet's fat hull
             hand_id = gl_world.robot + ((gl_world.ee_link + 1) << 24)

@@ -77,7 +77,7 @@ def test_a_partly_hidden_target_is_fitted_from_its_visible_edges() -> None:
     assert m.state == "partial" and m.fitted and m.usable and m.occluded, m.reason
     err = np.abs(match_order(m.corners_px, target.corners_px) - order_corners(target.corners_px))
     assert err.max() < 0.3, f"fitted corners off by {err.max():.2f} px"
-    np.testing.assert_allclose(np.sort(m.depths_m), np.sort(target.points_m[:, 2]), atol=1e-3)
+    np.testing.assert_allclose(np.sort(m.depth_m), np.sort(target.points_m[:, 2]), atol=1e-3)
 
 
 def test_a_target_slid_partly_out_of_the_picture_is_fitted_and_not_occluded() -> None:
@@ -178,8 +178,8 @@ def test_between_depth_images_target_keeps_its_plane_and_hand_its_depths() -> No
     order = [
         int(np.argmin(np.linalg.norm(moved_target.corners_px - c, axis=1))) for c in t.corners_px
     ]
-    np.testing.assert_allclose(t.depths_m, moved_target.points_m[order, 2], atol=2e-3)
-    np.testing.assert_array_equal(h.depths_m, state.memory["hand"].depths_m)  # held as measured
+    np.testing.assert_allclose(t.depth_m, moved_target.points_m[order, 2], atol=2e-3)
+    np.testing.assert_array_equal(h.depth_m, state.memory["hand"].depth_m)  # held as measured
 
 
 def test_a_cut_target_between_depth_images_is_refused_by_its_size() -> None:
@@ -231,7 +231,7 @@ def test_depth_at_a_lower_resolution_is_registered_to_colour() -> None:
         order = [
             int(np.argmin(np.linalg.norm(marker.corners_px - c, axis=1))) for c in m.corners_px
         ]
-        np.testing.assert_allclose(m.depths_m, marker.points_m[order, 2], atol=1e-3)
+        np.testing.assert_allclose(m.depth_m, marker.points_m[order, 2], atol=1e-3)
 
 
 def test_occlusion_is_seen_past_the_invalid_band_along_an_occluder() -> None:
@@ -285,8 +285,8 @@ def test_corner_depth_uncertainty_is_calibrated_on_noisy_planes() -> None:
         order = [
             int(np.argmin(np.linalg.norm(marker.corners_px - c, axis=1))) for c in m.corners_px
         ]
-        err = np.abs(m.depths_m - marker.points_m[order, 2])
-        within += int(np.count_nonzero(err <= 2.0 * m.depth_sigmas_m))
+        err = np.abs(m.depth_m - marker.points_m[order, 2])
+        within += int(np.count_nonzero(err <= 2.0 * m.depth_sigma_m))
         total += 4
     coverage = within / total
     print(f"corner depths within 2 reported sigma: {coverage:.1%} of {total}")

@@ -353,7 +353,7 @@ def test_tiny_blob_is_too_small():
     rgb, depth = paint([[300.2, 200.3], [306.1, 200.2], [306.3, 206.4], [300.1, 206.2]])
     m = measure_markers(rgb, depth, K, CFG)["target"]
     assert not m.visible and m.reason == "blob too small"
-    assert 0 < m.area_px < CFG.min_area_px
+    assert 0 < find_marker_quads(rgb, CFG)["target"].area_px < CFG.min_area_px
 
 
 def test_blob_touching_the_border_is_not_visible():
@@ -382,11 +382,11 @@ def test_non_quadrilaterals_are_rejected(corners):
 
 def test_area_is_the_pixel_count():
     marker = Marker(square_at_pixel((320.4, 240.3), 70.0, rotation(0.3, 0.2, 0.6)), RED)
-    rgb, depth = render([marker])
-    m = measure_markers(rgb, depth, K, CFG)["target"]
+    rgb, _ = render([marker])
+    area_px = find_marker_quads(rgb, CFG)["target"].area_px
     blob = segment(rgb, "red", CFG)  # the opening nibbles a few corner pixels off
-    assert m.area_px == np.count_nonzero(blob)
-    assert abs(m.area_px - np.count_nonzero(polygon_mask(marker.corners_px))) < 10
+    assert isinstance(area_px, float) and area_px == np.count_nonzero(blob)
+    assert abs(area_px - np.count_nonzero(polygon_mask(marker.corners_px))) < 10
 
 
 # --- 5. per-frame result -----------------------------------------------------------------------
@@ -399,16 +399,16 @@ def test_measure_markers_shapes_and_3d_points():
         m = result[name]
         assert m.visible and m.reason == ""
         assert m.corners_px.shape == (4, 2) and m.corners_px.dtype == np.float64
-        assert m.depths_m.shape == (4,) and m.depths_m.dtype == np.float64
+        assert m.depth_m.shape == (4,) and m.depth_m.dtype == np.float64
+        assert m.depth_sigma_m.shape == (4,) and m.depth_sigma_m.dtype == np.float64
         assert m.points_m.shape == (4, 3) and m.points_m.dtype == np.float64
-        assert isinstance(m.area_px, float) and m.area_px > 0
         nearest = [np.argmin(np.linalg.norm(marker.corners_px - c, axis=1)) for c in m.corners_px]
         np.testing.assert_allclose(m.points_m, marker.points_m[nearest], atol=2e-3)
-        np.testing.assert_allclose(m.points_m[:, 2], m.depths_m)
+        np.testing.assert_allclose(m.points_m[:, 2], m.depth_m)
     np.testing.assert_allclose(result["hand"].corners_px, hand.corners_px, atol=0.5)
     invisible = measure_markers(render([])[0], depth, K, CFG)
     for m in invisible.values():
-        assert m.corners_px.shape == (4, 2) and m.depths_m.shape == (4,)
+        assert m.corners_px.shape == (4, 2) and m.depth_m.shape == (4,)
         assert m.points_m.shape == (4, 3) and not m.visible
 
 
