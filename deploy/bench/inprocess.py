@@ -59,7 +59,7 @@ def run_inprocess(
     """The in-process pipeline (:class:`services.pipeline.Pipeline`, the services' pure steps)
     on the lockstep frames, timed stage by stage (see the module doc); returns the statistics
     and the first ``keep`` frames (for the synthetic source)."""
-    from services.controller.step import observation
+    from common.marker import Marker
     from services.pipeline import Pipeline
 
     times: dict[str, list[float]] = {
@@ -122,7 +122,7 @@ def run_inprocess(
             for _ in PIPELINE[1:]:  # the controller and actuation both decode the joint state
                 decode(frame_payloads[0], JointState, DEFAULT_MAX_BYTES)
             c1 = clock()
-            observation(decode(encode(f.features), Features, DEFAULT_MAX_BYTES).hand)
+            Marker.from_wire(decode(encode(f.features), Features, DEFAULT_MAX_BYTES).hand)
             c2 = clock()
             decode(encode(f.twist), EndEffectorTwist, DEFAULT_MAX_BYTES)
             c3 = clock()

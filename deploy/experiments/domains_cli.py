@@ -137,7 +137,11 @@ def cmd_domains(args: argparse.Namespace) -> int:
     jsonl = out_dir / "runs.jsonl"
     try:
         cells = [c for c in dom.cells(study) if c.index in chosen]
-        items = [(study, str(base_path), c, d) for c in cells for d in range(study.draws)]
+        items = [
+            (study, str(base_path), c, d, tuple(args.set))
+            for c in cells
+            for d in range(study.draws)
+        ]
         with Progress(*columns, console=console) as bar:
             task = bar.add_task("drawing starts", total=len(items))
             drawn = gather(executor, draw_one, items, stop, lambda _i, _v: bar.advance(task))

@@ -102,11 +102,21 @@ def execute(task: RunTask, pipeline: str) -> DomainRecord:
     return judge(task, resolve_runner(pipeline)(task))
 
 
-def draw_one(study: StudyDefinition, base_path: str, cell: Cell, draw: int) -> DomainStart:
-    """One start, drawn in this process (the inverse kinematics is most of a plan's time)."""
+def draw_one(
+    study: StudyDefinition,
+    base_path: str,
+    cell: Cell,
+    draw: int,
+    overrides: tuple[str, ...] = (),
+) -> DomainStart:
+    """One start, drawn in this process (the inverse kinematics is most of a plan's time), on
+    the base scenario as its runs will see it: the study's overrides, then ``overrides`` (the
+    command line's); e.g. with the orientation cue only the unturned goal is a goal."""
     from common.config import load_scenario
+    from common.runtime import parse_overrides
 
-    return draw_domain_start(study, load_scenario(base_path), cell, draw)
+    base = load_scenario(base_path, parse_overrides([*study.overrides, *overrides]))
+    return draw_domain_start(study, base, cell, draw)
 
 
 # --- executors -----------------------------------------------------------------------------

@@ -20,12 +20,12 @@ from foxglove.messages import (
 )
 
 from common.camera import CameraIntrinsics
+from common.marker import Marker
 from common.messages import DepthFrame, Features, MarkerFeatures, RgbFrame
 from deploy.foxglove.style import CYAN, GREEN, ORANGE, RED, WHITE, YELLOW, color
 from deploy.foxglove.topics import CAMERA
 from deploy.foxglove.transforms import stamp
 from services.controller.ibvs import choose_pairing, desired_observation, pairing_costs_px2
-from services.controller.step import observation
 
 FloatArray = np.ndarray
 
@@ -80,7 +80,7 @@ def desired_corners_px(features: Features, approach_height_m: float) -> FloatArr
     if not features.target.usable:
         return None
     target = desired_observation(
-        observation(features.target), approach_height_m, features.intrinsics
+        Marker.from_wire(features.target), approach_height_m, features.intrinsics
     )
     return np.asarray(target.corners_px, dtype=float)
 

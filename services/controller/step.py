@@ -14,17 +14,10 @@ import numpy as np
 from common import kinematics as kin
 from common.kinematics import FloatArray
 from common.marker import Marker
-from common.messages import EndEffectorTwist, Features, Header, MarkerFeatures
+from common.messages import EndEffectorTwist, Features, Header
 from services.controller.ibvs import ControlOutput, IbvsController
 
 ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
-
-
-def observation(m: MarkerFeatures) -> Marker:
-    """One marker's wire features as the controller reads them (:meth:`Marker.from_wire`);
-    left for its callers outside the controller (deploy/bench/inprocess.py,
-    deploy/foxglove/image.py) until they call ``Marker.from_wire`` directly."""
-    return Marker.from_wire(m)
 
 
 def control_step(

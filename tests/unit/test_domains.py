@@ -262,3 +262,21 @@ def test_study_differences_ignore_only_the_wall_time() -> None:
     c = [*b[:-1], b[-1].model_copy(update={"frames": 1})]
     assert study_differences(a, c) == [f"{a[-1].key}: differs"]
     assert study_differences(a, b[:-1]) == [f"{a[-1].key}: only in the first"]
+
+
+def test_starts_are_drawn_on_the_scenario_the_runs_see() -> None:
+    """With the study's orientation cue only the unturned goal is a goal (corner 0 over the
+    target's corner 0): the 0° start on the goal must be that one, not a quarter turn of it
+    that a plain square would accept and the cue would make a real turn."""
+    from common.runtime import parse_overrides
+    from deploy.experiments.campaign import with_target
+    from deploy.experiments.domains_run import draw_one
+
+    assert "marker.orientation_cue=true" in STUDY.overrides
+    cell = next(c for c in cells(STUDY) if (c.rotation_deg, c.distance_m, c.depth_m) == (0, 0, 0))
+    start = draw_one(STUDY, str(BASE_PATH), cell, 0)
+    assert not start.refused and start.q0_rad is not None
+    cued = load_scenario(BASE_PATH, parse_overrides(list(STUDY.overrides)))
+    target = with_target(cued, start.target_position_m, start.target_yaw_rad)
+    hand = kin.forward_kinematics(np.array(start.q0_rad)) @ kin.hand_marker_in_ee()
+    assert kin.rotation_error_rad(hand[:3, :3], goal_pose(target)[:3, :3]) < 1e-3

@@ -11,6 +11,7 @@ import pytest
 from common import kinematics as kin
 from common.camera import project
 from common.config import Scenario
+from common.marker import Marker
 from common.messages import (
     DepthFrame,
     EndEffectorTwist,
@@ -28,7 +29,6 @@ from deploy.foxglove.client import protobuf_class
 from deploy.foxglove.layout import layout_json
 from deploy.foxglove.transforms import quaternion_xyzw, rotation_from_quaternion
 from services.controller.ibvs import desired_observation, feature_error_px_rms
-from services.controller.step import observation
 
 
 def header(t_s: float, seq: int = 0) -> Header:
@@ -126,7 +126,7 @@ def test_annotations_carry_vision_corners_desired_corners_and_the_trail(scenario
         got = np.array([[p.x, p.y] for p in by_name[name].points])
         assert np.array_equal(got, np.array(m.corners_px))
     desired = desired_observation(
-        observation(f.target), scenario.target.approach_height_m, f.intrinsics
+        Marker.from_wire(f.target), scenario.target.approach_height_m, f.intrinsics
     ).corners_px
     got = np.array([[p.x, p.y] for p in by_name["desired"].points])
     assert np.allclose(got, desired, atol=1e-9)
