@@ -1,6 +1,6 @@
 """The ``umay`` command: builds the top parser from the commands each folder registers
 (:mod:`deploy.launch.cli`, :mod:`deploy.recording.cli`, :mod:`deploy.experiments.cli`,
-:mod:`deploy.bench.cli`, :mod:`deploy.docs_cli`) and dispatches, turning the errors every
+:mod:`deploy.bench.cli`, :mod:`deploy.docs.cli`) and dispatches, turning the errors every
 command can meet into its exit code."""
 
 from __future__ import annotations
@@ -46,8 +46,8 @@ HELP_ORDER = (
 
 def commands() -> dict[str, Callable[[argparse._SubParsersAction], None]]:
     """Every command's name -> the function adding its parser, from each folder's ``cli``."""
-    from deploy import docs_cli
     from deploy.bench import cli as bench_cli
+    from deploy.docs import cli as docs_cli
     from deploy.experiments import cli as experiments
     from deploy.launch import cli as launch
     from deploy.recording import cli as recording

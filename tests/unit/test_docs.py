@@ -1,5 +1,5 @@
 """``umay docs``: the generated tables of README.md and docs/*.md agree with their JSON, and the
-rendering and the block markers behave (deploy/docs.py)."""
+rendering and the block markers behave (deploy/docs/)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,21 @@ from typing import Any
 import pytest
 
 from deploy.cli import main
-from deploy.docs import (
-    BLOCKS,
-    END,
+from deploy.docs.bench_tables import (
+    bench_commands,
+    bench_distribution,
+    bench_dropped,
+    bench_latency,
+    bench_render,
+    frame_handoff_ms,
+    latency,
+    link,
+    run_label,
+)
+from deploy.docs.blocks import BLOCKS
+from deploy.docs.documents import END, Outdated, documents, find_blocks, rewrite, update
+from deploy.docs.results_tables import results_compact
+from deploy.docs.sources import (
     KINECT_LOCKSTEP_RUN,
     KINECT_REALTIME_RUN,
     LOCKSTEP_RUN,
@@ -23,21 +35,6 @@ from deploy.docs import (
     BenchRun,
     DocsError,
     Inputs,
-    Outdated,
-    bench_commands,
-    bench_distribution,
-    bench_dropped,
-    bench_latency,
-    bench_render,
-    documents,
-    find_blocks,
-    frame_handoff_ms,
-    latency,
-    link,
-    results_compact,
-    rewrite,
-    run_label,
-    update,
 )
 from deploy.experiments.compare import rows_from_json, strategy_table, summarize_modes
 
@@ -321,7 +318,8 @@ def test_umay_docs_refuses_malformed_docs(
 
 
 def test_domain_blocks_say_how_to_run_the_study_until_it_is_run() -> None:
-    from deploy.docs import BLOCKS, DOMAINS_JSON
+    from deploy.docs.blocks import BLOCKS
+    from deploy.docs.sources import DOMAINS_JSON
     from tests.unit.test_domains import small_study
 
     for name in ("domains-summary", "domains-bands", "domains-verdict"):

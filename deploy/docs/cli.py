@@ -1,5 +1,5 @@
-"""``umay docs`` on the command line: its parser and handler, apart from :mod:`deploy.docs`
-(which loads the comparison's modules) so that building the ``umay`` parser stays light."""
+"""``umay docs`` on the command line: its parser and handler, apart from the blocks (which load
+the comparison's modules) so that building the ``umay`` parser stays light."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ from deploy.exit_codes import EXIT_BAD_INPUT
 
 
 def cmd_docs(args: argparse.Namespace) -> int:
-    from deploy.docs import REPO_ROOT, DocsError, update
+    from deploy.docs.documents import update
+    from deploy.docs.sources import REPO_ROOT, DocsError
 
     try:
         outdated = update(Path(args.root) if args.root else REPO_ROOT, check=args.check)

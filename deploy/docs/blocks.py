@@ -1,0 +1,45 @@
+"""Every generated block by name: what renders it and what it comes from."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from deploy.docs.bench_tables import (
+    bench_commands,
+    bench_distribution,
+    bench_dropped,
+    bench_headline,
+    bench_kinect,
+    bench_latency,
+    bench_render,
+    bench_runs,
+    bench_services,
+)
+from deploy.docs.domains_tables import domains_bands, domains_summary, domains_verdict
+from deploy.docs.results_tables import results_compact, results_strategies
+from deploy.docs.sources import BENCH_DIR, DOMAINS_JSON, RESULTS_JSON, Inputs
+
+
+@dataclass(frozen=True)
+class Block:
+    render: Callable[[Inputs, str], str]
+    sources: str  # what it is generated from, for messages
+
+
+BLOCKS: dict[str, Block] = {
+    "results-compact": Block(results_compact, RESULTS_JSON),
+    "results-strategies": Block(results_strategies, RESULTS_JSON),
+    "bench-headline": Block(bench_headline, f"{BENCH_DIR}/*.json"),
+    "bench-runs": Block(bench_runs, f"{BENCH_DIR}/*.json"),
+    "bench-commands": Block(bench_commands, f"{BENCH_DIR}/*.json"),
+    "bench-render": Block(bench_render, f"{BENCH_DIR}/*.json"),
+    "bench-kinect": Block(bench_kinect, f"{BENCH_DIR}/*.json"),
+    "bench-latency": Block(bench_latency, f"{BENCH_DIR}/*.json"),
+    "bench-distribution": Block(bench_distribution, f"{BENCH_DIR}/*.json"),
+    "bench-services": Block(bench_services, f"{BENCH_DIR}/*.json"),
+    "bench-dropped": Block(bench_dropped, f"{BENCH_DIR}/*.json"),
+    "domains-summary": Block(domains_summary, DOMAINS_JSON),
+    "domains-bands": Block(domains_bands, DOMAINS_JSON),
+    "domains-verdict": Block(domains_verdict, DOMAINS_JSON),
+}

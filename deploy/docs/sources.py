@@ -1,0 +1,70 @@
+"""What the generated tables come from: the comparison's rows, the benchmark runs, the domain
+study; loaded once per ``umay docs``."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from deploy.experiments.compare import CompareRow, rows_from_json
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+RESULTS_JSON = "docs/results/results.json"
+BENCH_DIR = "docs/bench"
+DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
+
+# The benchmark runs the headline figures come from (docs/bench/<name>.json).
+LOCKSTEP_RUN = "lockstep_640x480"
+KINECT_LOCKSTEP_RUN = "lockstep_640x480_kinect_depth320x240"
+KINECT_REALTIME_RUN = "realtime_640x480_kinect"
+
+
+class DocsError(ValueError):
+    """A document whose markers are malformed, or a source that cannot be read."""
+
+
+# --- inputs ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BenchRun:
+    """One ``umay bench --json`` file: its name (the file's stem) and its content."""
+
+    name: str
+    data: Mapping[str, Any]
+
+    @property
+    def path(self) -> str:
+        return f"{BENCH_DIR}/{self.name}.json"
+
+
+@dataclass(frozen=True)
+class Inputs:
+    results: Sequence[CompareRow] = ()
+    bench: Sequence[BenchRun] = ()  # sorted by name
+    domains: Any = None  # the domain study (deploy.experiments.domains_report.Study), if run
+
+    def run(self, name: str) -> BenchRun:
+        for r in self.bench:
+            if r.name == name:
+                return r
+        raise DocsError(f"{BENCH_DIR}/{name}.json is missing (run the command in performance.md)")
+
+
+def load_inputs(root: Path) -> Inputs:
+    """The comparison's rows and every benchmark run under ``root``."""
+    try:
+        results = rows_from_json((root / RESULTS_JSON).read_text())
+        bench = [
+            BenchRun(p.stem, json.loads(p.read_text()))
+            for p in sorted((root / BENCH_DIR).glob("*.json"))
+        ]
+        domains = None
+        if (root / DOMAINS_JSON).is_file():
+            from deploy.experiments.domains_report import load_study_json
+
+            domains = load_study_json(root / DOMAINS_JSON)
+    except (OSError, ValueError) as exc:
+        raise DocsError(f"cannot read the sources: {exc}") from exc
+    return Inputs(results=results, bench=bench, domains=domains)
