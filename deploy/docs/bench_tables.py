@@ -13,7 +13,7 @@ from deploy.docs.sources import (
     BenchRun,
     Inputs,
 )
-from deploy.experiments.compare import markdown_table
+from deploy.experiments.compare.summary import markdown_table
 
 
 # --- formatting ------------------------------------------------------------------------------

@@ -6,10 +6,10 @@ from collections.abc import Sequence
 
 from deploy.docs.bench_tables import link
 from deploy.docs.sources import RESULTS_JSON, Inputs
-from deploy.experiments.compare import (
-    ALL_MODES,
+from deploy.experiments.compare import ALL_MODES
+from deploy.experiments.compare.rows import CompareRow
+from deploy.experiments.compare.summary import (
     METRICS,
-    CompareRow,
     best_per_metric,
     best_table,
     strategy_table,

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from deploy.experiments.compare import CompareRow, rows_from_json
+from deploy.experiments.compare.rows import CompareRow, rows_from_json
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 RESULTS_JSON = "docs/results/results.json"

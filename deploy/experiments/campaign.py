@@ -30,16 +30,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from common import kinematics as kin
 from common.config import Scenario, ScenarioError, load_scenario
 from common.runtime import parse_overrides
-from deploy.experiments.compare import (
-    ON_GOAL_M,
-    CompareError,
-    CompareRow,
-    Job,
-    Plan,
-    format_cell,
-    job_overrides,
-    markdown_table,
-)
+from deploy.experiments.compare import CompareError
+from deploy.experiments.compare.plan import Job, Plan, job_overrides
+from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
+from deploy.experiments.compare.summary import format_cell, markdown_table
 from deploy.experiments.reachability import (
     MAX_VIEW_ANGLE_DEG,
     arm_hides_hand_marker,
@@ -446,7 +440,7 @@ def starts_json(starts: Sequence[Start]) -> str:
 def run_campaign(
     cplan: CampaignPlan, n_jobs: int, out_dir: Path, stop, on_start, on_done
 ) -> list[CompareRow]:
-    from deploy.experiments.compare import run_all
+    from deploy.experiments.compare.run import run_all
 
     return run_all(cplan.plan.jobs, n_jobs, out_dir, stop, on_start, on_done)
 
@@ -455,7 +449,7 @@ def write_campaign(
     cplan: CampaignPlan, rows: Sequence[CompareRow], out_dir: Path, figures, note: str
 ) -> list[Path]:
     """compare's outputs, plus campaign.md (the taxonomy), causes.json and starts.json."""
-    from deploy.experiments.compare import write_outputs
+    from deploy.experiments.compare.run import write_outputs
 
     written = write_outputs(cplan.plan, rows, out_dir, figures, note) if rows else []
     modes = cplan.plan.modes

@@ -87,20 +87,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
 
     from common.config import ScenarioError
-    from deploy.experiments.compare import (
-        CompareError,
-        CompareRow,
-        Job,
-        check_against,
-        format_cell,
-        job_label,
-        make_figures,
-        parse_modes,
-        plan,
-        rows_from_json,
-        run_all,
-        write_outputs,
-    )
+    from deploy.experiments.compare import CompareError
+    from deploy.experiments.compare.plan import Job, parse_modes, plan
+    from deploy.experiments.compare.rows import CompareRow, check_against, rows_from_json
+    from deploy.experiments.compare.run import job_label, make_figures, run_all, write_outputs
+    from deploy.experiments.compare.summary import format_cell
     from deploy.paths import OutputPathError, check_output_dir
 
     console = Console(stderr=True)
@@ -230,14 +221,11 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         run_campaign,
         write_campaign,
     )
-    from deploy.experiments.compare import (
-        CompareError,
-        CompareRow,
-        Job,
-        format_cell,
-        make_figures,
-        parse_modes,
-    )
+    from deploy.experiments.compare import CompareError
+    from deploy.experiments.compare.plan import Job, parse_modes
+    from deploy.experiments.compare.rows import CompareRow
+    from deploy.experiments.compare.run import make_figures
+    from deploy.experiments.compare.summary import format_cell
     from deploy.paths import OutputPathError, check_output_dir
 
     console = Console(stderr=True)

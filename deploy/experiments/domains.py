@@ -41,7 +41,9 @@ from deploy.experiments.campaign import (
     with_q0,
     with_target,
 )
-from deploy.experiments.compare import CompareError, CompareRow, is_on_goal, job_overrides
+from deploy.experiments.compare import CompareError
+from deploy.experiments.compare.plan import job_overrides
+from deploy.experiments.compare.rows import CompareRow, is_on_goal
 from deploy.experiments.evaluate import RunResult
 from deploy.experiments.reachability import (
     MAX_VIEW_ANGLE_DEG,

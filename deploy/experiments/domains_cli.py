@@ -94,7 +94,8 @@ def cmd_domains(args: argparse.Namespace) -> int:
     )
 
     from deploy.experiments import domains as dom
-    from deploy.experiments.compare import CompareError, parse_modes
+    from deploy.experiments.compare import CompareError
+    from deploy.experiments.compare.plan import parse_modes
     from deploy.experiments.domains_run import (
         ExecutorError,
         draw_one,

@@ -17,7 +17,8 @@ from pathlib import Path
 from pydantic import BaseModel
 
 from deploy.experiments.campaign import cause_family
-from deploy.experiments.compare import ALL_MODES, markdown_table
+from deploy.experiments.compare import ALL_MODES
+from deploy.experiments.compare.summary import markdown_table
 from deploy.experiments.domains import DomainRecord, DomainStart, StudyDefinition
 
 # One letter per failure cause, written in the heat map's cells (docs/domains.md has the key).

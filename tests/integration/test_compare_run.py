@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from deploy.experiments.compare import rows_from_json, summarize_modes
+from deploy.experiments.compare.rows import rows_from_json
+from deploy.experiments.compare.summary import summarize_modes
 from tests.conftest import processes_mentioning
 from tests.unit.test_compare import CHEAP, MODES, SMALL_SUITE, _suite_copy, rows_from_csv
 from tests.unit.test_plots import PNG_SIGNATURE

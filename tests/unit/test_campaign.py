@@ -17,7 +17,7 @@ from deploy.experiments.campaign import (
     taxonomy_markdown,
     waited_for,
 )
-from deploy.experiments.compare import CompareRow
+from deploy.experiments.compare.rows import CompareRow
 from deploy.experiments.reachability import (
     check_scenario,
     goal_pose,

@@ -10,25 +10,26 @@ from pathlib import Path
 
 import pytest
 
-from deploy.experiments.compare import (
+from deploy.experiments.compare import CompareError
+from deploy.experiments.compare.plan import parse_modes, plan
+from deploy.experiments.compare.plots import write_overlay
+from deploy.experiments.compare.rows import (
     CSV_COLUMNS,
-    CompareError,
     CompareRow,
-    best_per_metric,
     check_against,
     differences,
     largest_float_difference,
-    paired_medians,
-    parse_modes,
-    plan,
     rows_csv,
     rows_from_json,
     rows_json,
     same_runs,
+)
+from deploy.experiments.compare.summary import (
+    best_per_metric,
+    paired_medians,
     summarize_modes,
     summary_markdown,
 )
-from deploy.experiments.compare_plots import write_overlay
 from deploy.recording.plots import load_series
 from tests.unit.test_plots import PNG_SIGNATURE, write_recording
 

@@ -36,7 +36,8 @@ from deploy.docs.sources import (
     DocsError,
     Inputs,
 )
-from deploy.experiments.compare import rows_from_json, strategy_table, summarize_modes
+from deploy.experiments.compare.rows import rows_from_json
+from deploy.experiments.compare.summary import strategy_table, summarize_modes
 
 
 def test_every_generated_table_agrees_with_its_json() -> None:
