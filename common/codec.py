@@ -23,7 +23,7 @@ pixels are in a shared-memory ring of the publisher's host (:mod:`common.frame_r
 ring's slot (:meth:`~common.messages.ImageData.intact` says whether it still shows that
 frame). A reference it cannot map (another host, a segment gone) raises
 :class:`FrameUnreachable`, which carries the reference so that the caller can ask the publisher
-for the whole frame (:mod:`common.transport`); a slot overwritten before it was read is a
+for the whole frame (:mod:`common.publishers`); a slot overwritten before it was read is a
 :class:`MessageError` like any unusable payload. :func:`whole_frame` turns a by-reference
 payload into the ordinary layout (a copy of the pixels), for tools that keep payloads
 (recordings).

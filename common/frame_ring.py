@@ -25,7 +25,7 @@ never read as a wrong frame.
 
 A reader on another host, or whose ``/dev/shm`` is not the writer's (a container), cannot map
 the segment: :meth:`RingReader.view` raises :class:`RingUnreachable` and the caller gets the
-whole frame another way (:mod:`common.transport` asks the publisher for it). The host is
+whole frame another way (:mod:`common.publishers` asks the publisher for it). The host is
 identified by its hostname and boot id, so a reader does not even try a segment name of
 another machine.
 

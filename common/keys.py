@@ -31,7 +31,7 @@ WHOLE_FRAME = "whole"  # queryable under a camera stream's key: its whole frames
 def whole_frame_key(key: str) -> str:
     """The queryable of a camera stream on ``key`` that answers with the whole frame of a
     reference (``?segment=S;seq=N``), for subscribers that cannot map the publisher's
-    shared-memory ring (see :mod:`common.transport`)."""
+    shared-memory ring (see :mod:`common.publishers`)."""
     return f"{key}/{WHOLE_FRAME}"
 
 

@@ -16,7 +16,8 @@ import zenoh
 
 from common.config import Scenario, ScenarioError, load_scenario
 from common.keys import Keys, check_prefix, default_prefix
-from common.transport import ZenohConfigError, check_endpoints, open_session, setup_logging
+from common.node import setup_logging
+from common.session import ZenohConfigError, check_endpoints, open_session
 
 # Set by the supervisor for its children: the PID they stop without (see ServiceContext).
 ENV_SUPERVISOR_PID = "UMAY_SUPERVISOR_PID"

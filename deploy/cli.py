@@ -14,7 +14,8 @@ from collections.abc import Callable
 
 import zenoh
 
-from common.transport import setup_logging, zenoh_reason
+from common.node import setup_logging
+from common.session import zenoh_reason
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from deploy.paths import OutputPathError
 

@@ -32,7 +32,7 @@ def launch_umay_up(log_dir, clock: str, *extra: str, wrapper: tuple[str, ...] = 
     import uuid
 
     from common.keys import Keys
-    from common.transport import free_tcp_endpoint
+    from common.session import free_tcp_endpoint
 
     endpoint = free_tcp_endpoint()
     keys = Keys(f"test/{uuid.uuid4().hex[:12]}")

@@ -24,7 +24,7 @@ from typing import Any
 
 from common.config import ClockMode, Scenario
 from common.keys import SERVICES, Keys
-from common.transport import ENV_SHM, free_tcp_endpoint, open_session
+from common.session import ENV_SHM, free_tcp_endpoint, open_session
 from deploy.bench import BenchError
 from deploy.bench.processes import (
     STAMPS_POLL_S,

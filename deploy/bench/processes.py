@@ -10,7 +10,7 @@ from pathlib import Path
 import zenoh
 
 from common.keys import Keys
-from common.transport import alive_services, query_stamps, query_status
+from common.queries import alive_services, query_stamps, query_status
 from deploy.bench import BenchError
 from deploy.bench.report import KeyCounts, ServiceCounters, ServiceUsage
 from deploy.bench.stages import PIPELINE
@@ -18,7 +18,7 @@ from deploy.bench.trace import Trace
 from deploy.launch.supervisor import Supervisor
 
 # How often a long run collects the services' stamps while it runs: well within the
-# ``common.transport.STAMPS_KEPT`` messages per key they keep (2 min at 30 Hz).
+# ``common.publishers.STAMPS_KEPT`` messages per key they keep (2 min at 30 Hz).
 STAMPS_POLL_S = 30.0
 CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
 

@@ -14,13 +14,8 @@ from typing import Any
 from common.config import Scenario
 from common.keys import Keys
 from common.messages import DepthFrame, Header, ImageData, JointState, RgbFrame, SimTiming
-from common.transport import (
-    ENV_SHM,
-    TypedPublisher,
-    free_tcp_endpoint,
-    open_session,
-    typed_publisher,
-)
+from common.publishers import TypedPublisher, typed_publisher
+from common.session import ENV_SHM, free_tcp_endpoint, open_session
 from deploy.bench import BenchError
 from deploy.bench.inprocess import SourceFrame
 from deploy.bench.processes import (

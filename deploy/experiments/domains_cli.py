@@ -235,7 +235,7 @@ def record_failures(failures, tasks, out_dir: Path) -> dict[str, str]:
     ``out_dir``."""
     import tempfile
 
-    from common.transport import free_tcp_endpoint
+    from common.session import free_tcp_endpoint
     from deploy.launch.run import run_once
 
     out: dict[str, str] = {}

@@ -65,7 +65,7 @@ def run_inprocess(task: RunTask) -> RunResult:
 def run_distributed(task: RunTask) -> RunResult:
     """The four-process lockstep pipeline under its own key prefix and port (a worker runs
     beside others on the same host), logs in a temporary folder."""
-    from common.transport import free_tcp_endpoint
+    from common.session import free_tcp_endpoint
     from deploy.launch.run import run_once
 
     prefix = f"umay/domains-{uuid.uuid4().hex[:8]}/{task.key}"

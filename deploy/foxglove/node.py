@@ -39,7 +39,8 @@ from foxglove.websocket import Capability
 from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decode
 from common.config import Scenario
 from common.keys import DEPTH, JOINT_STATE, RGB, Keys
-from common.transport import Node, query_status
+from common.node import Node
+from common.queries import query_status
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from deploy.foxglove import convert, topics, transforms
 from deploy.foxglove.channels import FoxgloveChannels
@@ -203,7 +204,7 @@ def serve(args: argparse.Namespace) -> int:
     from common.config import ScenarioError, load_scenario
     from common.keys import default_prefix
     from common.runtime import parse_overrides
-    from common.transport import open_session
+    from common.session import open_session
 
     problem = check_view_options(args)
     if problem is not None:

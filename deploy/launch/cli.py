@@ -19,7 +19,7 @@ import zenoh
 from common.config import ClockMode, JacobianMode, Scenario, ScenarioError
 from common.keys import SERVICES, Keys, default_prefix
 from common.runtime import endpoint_argument, endpoints_argument, prefix_argument
-from common.transport import DEFAULT_ENDPOINT, open_session, open_zenoh, zenoh_reason
+from common.session import DEFAULT_ENDPOINT, open_session, open_zenoh, zenoh_reason
 from deploy.arguments import positive_seconds
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_CONVERGED, EXIT_NOT_CONVERGED
 from deploy.paths import check_output_dir, check_output_file

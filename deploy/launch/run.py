@@ -24,7 +24,7 @@ from common.config import Scenario, load_scenario
 from common.keys import Keys
 from common.messages import EndEffectorTwist, SimTruth
 from common.runtime import parse_overrides
-from common.transport import DEFAULT_ENDPOINT, free_tcp_endpoint, open_session
+from common.session import DEFAULT_ENDPOINT, free_tcp_endpoint, open_session
 from deploy.experiments.evaluate import RunResult, pose
 from deploy.experiments.reachability import check_scenario
 from deploy.launch.run_end import EndLimits, HoldState, RunEnd, judge_twist, run_result

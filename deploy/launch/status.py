@@ -10,7 +10,7 @@ from rich.table import Table
 
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
-from common.transport import alive_services, query_status
+from common.queries import alive_services, query_status
 
 
 @dataclass(frozen=True)

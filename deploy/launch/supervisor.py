@@ -31,8 +31,9 @@ from common.codec import MessageError
 from common.config import RestartPolicy, SupervisorConfig
 from common.frame_ring import remove_segments_of
 from common.keys import SERVICES, Keys
+from common.queries import status_from_reply
 from common.runtime import ENV_SUPERVISOR_PID
-from common.transport import ENV_CONFIG, ENV_CONNECT, status_from_reply
+from common.session import ENV_CONFIG, ENV_CONNECT
 
 log = logging.getLogger("umay.supervisor")
 

@@ -14,7 +14,9 @@ from pathlib import Path
 
 from common.config import Scenario
 from common.keys import Keys
-from common.transport import Node, alive_services, open_session
+from common.node import Node
+from common.queries import alive_services
+from common.session import open_session
 from deploy.exit_codes import EXIT_ALREADY_RUNNING
 from deploy.launch.supervisor import Supervisor
 

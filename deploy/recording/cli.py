@@ -16,7 +16,7 @@ import zenoh
 from common.config import ScenarioError
 from common.keys import Keys, default_prefix
 from common.runtime import endpoints_argument, prefix_argument
-from common.transport import open_session, zenoh_reason
+from common.session import open_session, zenoh_reason
 from deploy.arguments import positive_seconds
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_NOT_CONVERGED
 from deploy.paths import check_output_dir, check_output_file

@@ -8,7 +8,7 @@ schema (encoding ``jsonschema``), receive time as ``log_time`` and the header's
 Foxglove Studio, the ``mcap`` CLI and :mod:`deploy.recording.replay` can all read it.
 
 Camera frames are always stored whole: a frame the sim sent by reference (a descriptor of a
-slot in its shared-memory ring, see :mod:`common.transport`) is turned back into the ordinary
+slot in its shared-memory ring, see :mod:`common.publishers`) is turned back into the ordinary
 layout as it arrives, from the ring when this host maps it, else by asking the sim for the
 whole frame, so a recording, and its replay, never depend on a ring that is long gone. A frame
 that could be had neither way (overwritten, the sim gone) is counted in
@@ -36,7 +36,7 @@ from common import codec
 from common.config import DEFAULT_SCENARIO
 from common.frame_ring import RingReader
 from common.keys import Keys
-from common.transport import fetch_whole_frame
+from common.publishers import fetch_whole_frame
 from deploy.recording.channels import (
     FRAME_MESSAGE_ENCODING,
     MESSAGE_ENCODING,

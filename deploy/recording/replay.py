@@ -52,8 +52,9 @@ from pydantic import BaseModel
 from common.codec import unpack
 from common.config import DEFAULT_SCENARIO, ScenarioError, load_scenario
 from common.keys import Keys
+from common.queries import alive_services
 from common.runtime import parse_overrides
-from common.transport import alive_services, free_tcp_endpoint, open_session
+from common.session import free_tcp_endpoint, open_session
 from deploy.launch.supervisor import Supervisor
 from deploy.paths import check_output_dir
 from deploy.recording.channels import split_data_key

@@ -21,9 +21,9 @@ import numpy as np
 from common import kinematics as kin
 from common.config import ClockMode
 from common.messages import EndEffectorTwist, JointState, JointVelocityCommand
+from common.node import Node
 from common.pairing import FramePairer
 from common.runtime import ServiceContext
-from common.transport import Node
 from services.actuation.inverse import Clamps, deadman_expired
 from services.actuation.limiter import LimiterState, actuation_step
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from common.messages import EndEffectorTwist, Features, JointState
+from common.node import Node
 from common.pairing import FramePairer
 from common.runtime import ServiceContext
-from common.transport import Node
 from services.controller.ibvs import IbvsController, describe_hold, is_stuck
 from services.controller.step import control_step, twist_message
 

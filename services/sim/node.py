@@ -37,8 +37,11 @@ from common.messages import (
     RgbFrame,
     SimTiming,
 )
+from common.node import Node
+from common.publishers import TypedPublisher
+from common.queries import alive_services
 from common.runtime import ServiceContext
-from common.transport import ENV_SHM, Node, TypedPublisher, alive_services
+from common.session import ENV_SHM
 from services.sim.motors import motor_velocities
 from services.sim.schedule import DepthSchedule, substeps_per_frame
 from services.sim.truth import truth_message

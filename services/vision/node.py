@@ -22,8 +22,8 @@ from collections import OrderedDict
 
 from common.codec import FRAME_MAX_BYTES
 from common.messages import DepthFrame, RgbFrame
+from common.node import Node
 from common.runtime import ServiceContext
-from common.transport import Node
 from services.vision.step import depth_for, depth_image, vision_step
 from services.vision.tracking import TrackerState
 

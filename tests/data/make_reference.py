@@ -30,7 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from common.transport import free_tcp_endpoint  # noqa: E402
+from common.session import free_tcp_endpoint  # noqa: E402
 from deploy.recording.read import format_info, read_info  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "reference.mcap"

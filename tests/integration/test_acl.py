@@ -17,7 +17,7 @@ import zenoh
 from common.codec import encode
 from common.keys import Keys, whole_frame_key
 from common.messages import Header, JointState, JointVelocityCommand
-from common.transport import free_tcp_endpoint
+from common.session import free_tcp_endpoint
 from tests.router_deployment import (
     SMALL_IMAGE,
     client_session,

@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 from common import kinematics as kin
 from common.codec import DEFAULT_MAX_BYTES, decode
 from common.messages import EndEffectorTwist, Features, JointState
-from common.transport import open_session
+from common.session import open_session
 from deploy.foxglove import topics
 from deploy.foxglove.client import FoxgloveClient, decoder, protobuf_class
 from deploy.foxglove.transforms import rotation_from_quaternion, time_ns

@@ -28,7 +28,9 @@ from common.codec import (
 from common.frame_ring import RING_SLOTS, RingReader, RingWriter
 from common.keys import Keys
 from common.messages import DepthFrame, Header, ImageData, RgbFrame
-from common.transport import ENV_SHM, Node, free_tcp_endpoint, open_session, typed_publisher
+from common.node import Node
+from common.publishers import typed_publisher
+from common.session import ENV_SHM, free_tcp_endpoint, open_session
 from deploy.recording.read import iter_messages
 from deploy.recording.record import Recorder
 

@@ -47,7 +47,7 @@ from common.messages import (
     MarkerFeatures,
     RgbFrame,
 )
-from common.transport import free_tcp_endpoint, open_session
+from common.session import free_tcp_endpoint, open_session
 from deploy.launch.run import run_once
 from deploy.launch.status import collect
 

@@ -21,7 +21,8 @@ import pytest
 from common.codec import encode
 from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, Header, JointState, MarkerFeatures
-from common.transport import ENV_SHM, free_tcp_endpoint, open_session, query_status
+from common.queries import query_status
+from common.session import ENV_SHM, free_tcp_endpoint, open_session
 from deploy.launch.status import collect
 from tests.conftest import launch_umay_up
 

@@ -19,7 +19,7 @@ from common.config import DEFAULT_SCENARIO, load_scenario
 from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, JointState, JointVelocityCommand
 from common.runtime import parse_overrides
-from common.transport import free_tcp_endpoint, open_session
+from common.session import free_tcp_endpoint, open_session
 from deploy.experiments.compare.rows import rows_from_json
 from deploy.launch.run import run_once
 from deploy.launch.status import collect

@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 from common.codec import FRAME_MAX_BYTES, decode, encode, is_by_reference
 from common.keys import Keys
 from common.messages import Header, JointState
-from common.transport import free_tcp_endpoint, open_session
+from common.session import free_tcp_endpoint, open_session
 from deploy.recording.channels import model_for_key
 from deploy.recording.read import iter_messages, read_info
 from deploy.recording.record import Recorder

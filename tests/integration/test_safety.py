@@ -19,7 +19,7 @@ import numpy as np
 from common.codec import DEFAULT_MAX_BYTES, decode
 from common.keys import SERVICES
 from common.messages import AppliedCommand, JointState, JointVelocityCommand, SimTiming
-from common.transport import open_session
+from common.session import open_session
 from deploy.launch.status import collect
 from tests.conftest import launch_umay_up
 

@@ -8,7 +8,10 @@ import uuid
 
 from common.keys import Keys
 from common.messages import Header, JointVelocityCommand, ServiceStatus
-from common.transport import STAMPS_KEPT, Node, free_tcp_endpoint, open_session, query_stamps
+from common.node import Node
+from common.publishers import STAMPS_KEPT
+from common.queries import query_stamps
+from common.session import free_tcp_endpoint, open_session
 
 
 def command(frame_seq: int, send_s: float, recv_s: float) -> JointVelocityCommand:

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from common.keys import SERVICES, Keys
-from common.transport import free_tcp_endpoint, open_session
+from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
 from deploy.launch.supervisor import Supervisor
 from tests.conftest import launch_umay_up

@@ -19,7 +19,8 @@ from common.codec import encode
 from common.config import SupervisorConfig
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
-from common.transport import Node, free_tcp_endpoint, open_session
+from common.node import Node
+from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
 from deploy.launch.supervisor import Supervisor
 from tests.conftest import launch_umay_up, processes_mentioning

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from common.keys import Keys
-from common.transport import check_endpoints
+from common.session import check_endpoints
 
 
 def test_endpoints_are_checked_by_zenohs_parser() -> None:

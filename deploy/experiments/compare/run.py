@@ -24,7 +24,7 @@ class _Endpoints:
         self._lock = threading.Lock()
 
     def take(self) -> str:
-        from common.transport import free_tcp_endpoint
+        from common.session import free_tcp_endpoint
 
         with self._lock:
             while True:

@@ -1,0 +1,331 @@
+"""A small node base for the services: typed publishers and subscribers, one event inbox,
+status, liveliness and published stamps.
+
+A node declares typed publishers and subscribers; subscriber callbacks (Zenoh threads) only
+decode and validate, then hand the message to the node's single event loop through
+:meth:`Node.next_event`, so service state is touched by one thread only (as in dora-rs nodes).
+A payload that fails validation is counted, its reason kept and logged at a limited rate; it
+never reaches the service and never kills it.
+
+Frames by reference: :mod:`common.publishers`.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import zenoh
+from pydantic import BaseModel
+
+from common.codec import (
+    DEFAULT_MAX_BYTES,
+    FrameUnreachable,
+    MessageError,
+    decode,
+    encode,
+    image_field,
+)
+from common.frame_ring import RingReader
+from common.keys import Keys
+from common.messages import Header, PublishedStamps, ServiceStatus
+from common.metrics import DurationMeter, TopicMeter
+from common.publishers import (
+    TypedPublisher,
+    fetch_whole_frame,
+    typed_publisher,
+)
+
+M = TypeVar("M", bound=BaseModel)
+log = logging.getLogger("umay")
+
+
+class Node:
+    """One service: a Zenoh session, typed pub/sub, a status queryable, a liveliness token.
+
+    ``status_fields`` returns the service-specific part of the status answer.
+    """
+
+    def __init__(
+        self,
+        service: str,
+        keys: Keys,
+        session: zenoh.Session,
+        status_fields: Callable[[], dict[str, Any]] = dict,
+        degraded_reason: Callable[[], str] = str,
+    ) -> None:
+        self.service = service
+        self.keys = keys
+        self.session = session
+        self.state = "starting"
+        self._status_fields = status_fields
+        self._degraded_reason = degraded_reason
+        self.processing = DurationMeter()
+        self._started = time.monotonic()
+        self._seq = 0
+        self._cond = threading.Condition()
+        # (key, message, wall-clock receive time): the time goes into the headers of what
+        # handling the message publishes (Header.recv_time_s), for per-hop latency.
+        self._inbox: deque[tuple[str, BaseModel, float]] = deque()
+        self.event_recv_time_s = 0.0  # receive time of the event next_event returned last
+        self._handling_recv_time_s = 0.0  # ... while spin() handles it, else 0
+        self._latest_only: set[str] = set()
+        self._publishers: dict[str, TypedPublisher[Any]] = {}
+        self._subscribers: list[Any] = []
+        self.received: dict[str, TopicMeter] = {}
+        self.rejected = 0
+        self.last_rejection = ""
+        self._last_reject_log = 0.0
+        self._closed = False
+        # When the event loop last left next_event (None: it has not called it yet) and
+        # whether it is inside it now: the status's loop_busy_s, read by the supervisor.
+        self._loop_left_s: float | None = None
+        self._loop_waiting = False
+        self._queryable = session.declare_queryable(keys.status(service), self._answer_status)
+        self._stamps_queryable = session.declare_queryable(
+            keys.stamps(service), self._answer_stamps
+        )
+        self._token: Any = None
+
+    def ready(self) -> None:
+        """Subscriptions are in place: announce liveliness and report ``running``."""
+        self.state = "running"
+        self._token = self.session.liveliness().declare_token(self.keys.alive(self.service))
+
+    # --- publishing -------------------------------------------------------------------
+    def publisher(self, key: str, block: bool = True, frames: bool = False) -> TypedPublisher[Any]:
+        """``block``: back-pressure instead of dropping when the network is congested.
+        ``frames``: camera frames, sent by reference through a shared-memory ring
+        (:class:`RingPublisher`) unless shared memory is off."""
+        pub = typed_publisher(self.session, key, block, frames)
+        self._publishers[key] = pub
+        return pub
+
+    def header(self, sim_time_s: float, frame_seq: int, recv_time_s: float | None = None) -> Header:
+        """A fresh header: per-node sequence number, wall-clock send time, and the receive time
+        of the event being handled by :meth:`spin` (0 outside one) unless ``recv_time_s``."""
+        recv = self._handling_recv_time_s if recv_time_s is None else recv_time_s
+        h = Header(
+            seq=self._seq,
+            sim_time_s=sim_time_s,
+            send_time_s=time.time(),
+            frame_seq=frame_seq,
+            recv_time_s=recv,
+        )
+        self._seq += 1
+        return h
+
+    # --- subscribing ------------------------------------------------------------------
+    def subscribe(
+        self,
+        key: str,
+        model: type[M],
+        max_bytes: int = DEFAULT_MAX_BYTES,
+        latest_only: bool = False,
+        rings: RingReader | None = None,
+    ) -> None:
+        """Deliver validated ``model`` messages on ``key`` to :meth:`next_event`.
+
+        ``latest_only``: an undelivered older message on the same key is replaced (and counted
+        as dropped), so a slow consumer always works on the newest data.
+        ``rings``: what maps the publisher's ring for camera frames sent by reference
+        (default: the process's :func:`~common.frame_ring.shared_reader`); a frame it cannot
+        map is asked whole from the publisher (:func:`fetch_whole_frame`).
+        """
+        meter = self.received[key] = TopicMeter()
+        if latest_only:
+            self._latest_only.add(key)
+        field = image_field(model)
+        newest_seq = -1  # header.seq of the newest message delivered on this key
+
+        def deliver(message: BaseModel, received: float, by_ref: bool, fetched: bool) -> None:
+            nonlocal newest_seq
+            seq = message.header.seq if isinstance(getattr(message, "header", None), Header) else -1
+            with self._cond:
+                if fetched and seq < newest_seq:  # a newer frame came first: this one is late
+                    meter.dropped += 1
+                    return
+                newest_seq = max(newest_seq, seq)
+                meter.tick()
+                if field is not None:
+                    meter.by_ref += by_ref
+                    meter.by_copy += not by_ref
+                    meter.fetched += fetched
+                if key in self._latest_only:
+                    for i, (k, _, _) in enumerate(self._inbox):
+                        if k == key:
+                            del self._inbox[i]
+                            meter.dropped += 1
+                            break
+                self._inbox.append((key, message, received))
+                self._cond.notify()
+
+        def on_whole_frame(payload: bytes) -> None:
+            received = time.time()
+            try:
+                message = decode(payload, model, max_bytes)
+            except MessageError as exc:
+                self._reject(key, f"whole frame: {exc}")
+                return
+            deliver(message, received, by_ref=False, fetched=True)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            received = time.time()  # before the copy and decode: those count as processing
+            try:
+                message = decode(sample.payload.to_bytes(), model, max_bytes, rings)
+            except FrameUnreachable as exc:  # by reference, but not to a ring this host maps
+                seq = exc.ref.seq
+                fetch_whole_frame(
+                    self.session,
+                    key,
+                    exc.ref,
+                    on_whole_frame,
+                    lambda reason: self._reject(key, f"whole frame {seq}: {reason}"),
+                )
+                return
+            except MessageError as exc:
+                self._reject(key, str(exc))
+                return
+            by_ref = field is not None and getattr(message, field).ring_ref is not None
+            deliver(message, received, by_ref, fetched=False)
+
+        self._subscribers.append(self.session.declare_subscriber(key, on_sample))
+
+    def next_event(self, timeout_s: float | None) -> tuple[str, Any] | None:
+        """The next ``(key, message)``, or None after ``timeout_s`` or when closed."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        with self._cond:
+            self._loop_waiting = True
+            try:
+                while not self._inbox and not self._closed:
+                    remaining = None if deadline is None else deadline - time.monotonic()
+                    if remaining is not None and remaining <= 0:
+                        return None
+                    self._cond.wait(remaining)
+                if not self._inbox:
+                    return None
+                key, message, self.event_recv_time_s = self._inbox.popleft()
+                return key, message
+            finally:
+                self._loop_waiting = False
+                self._loop_left_s = time.monotonic()
+
+    def reject(self, key: str, reason: str) -> None:
+        """Count a message on ``key`` the service could not use (a frame whose ring slot was
+        overwritten while it was in use): as a payload that failed validation."""
+        self._reject(key, reason)
+
+    def _reject(self, key: str, reason: str) -> None:
+        with self._cond:
+            self.rejected += 1
+            self.last_rejection = f"{key}: {reason}"
+        now = time.monotonic()
+        if now - self._last_reject_log > 1.0:  # rate-limited: a flood must not flood the log
+            self._last_reject_log = now
+            log.warning(
+                "%s rejected a message (%d so far): %s", self.service, self.rejected, reason
+            )
+
+    # --- status -----------------------------------------------------------------------
+    def status(self) -> ServiceStatus:
+        now = time.monotonic()
+        reason = self._degraded_reason() if self.state == "running" else ""
+        p50, p99 = self.processing.percentiles()
+        return ServiceStatus(
+            service=self.service,
+            pid=os.getpid(),
+            host=socket.gethostname(),
+            uptime_s=now - self._started,
+            state="degraded" if reason else self.state,  # type: ignore[arg-type]
+            degraded_reason=reason,
+            received={k: m.stats(now) for k, m in self.received.items()},
+            published={k: p.meter.stats(now) for k, p in self._publishers.items()},
+            rejected=self.rejected,
+            last_rejection=self.last_rejection,
+            processing_ms_p50=p50,
+            processing_ms_p99=p99,
+            loop_busy_s=self.loop_busy_s(now),
+            fields=self._status_fields(),
+        )
+
+    def loop_busy_s(self, now_s: float) -> float | None:
+        """Seconds since the event loop left :meth:`next_event` (0 while it is inside)."""
+        left = self._loop_left_s
+        if left is None:
+            return None
+        return 0.0 if self._loop_waiting else max(0.0, now_s - left)
+
+    def _answer_status(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(self.keys.status(self.service), encode(self.status()))
+        except Exception:  # a status reply must never take the service down
+            log.exception("%s: status reply failed", self.service)
+
+    def published_stamps(self) -> PublishedStamps:
+        return PublishedStamps(
+            service=self.service,
+            stamps={self.keys.relative(k): list(p.stamps) for k, p in self._publishers.items()},
+        )
+
+    def _answer_stamps(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(self.keys.stamps(self.service), encode(self.published_stamps()))
+        except Exception:  # as for status: a diagnostic must never take the service down
+            log.exception("%s: stamps reply failed", self.service)
+
+    def spin(
+        self,
+        stop: threading.Event,
+        on_event: Callable[[str, Any], None],
+        timeout_s: float = 0.1,
+        on_idle: Callable[[], None] | None = None,
+    ) -> None:
+        """The node's one event loop: announce readiness, handle events until ``stop``, close.
+
+        ``on_idle`` runs after every wake-up (an event or ``timeout_s`` without one).
+        """
+        self.ready()
+        try:
+            while not stop.is_set():
+                event = self.next_event(timeout_s)
+                if event is not None:
+                    started = time.perf_counter()
+                    self._handling_recv_time_s = self.event_recv_time_s
+                    try:
+                        on_event(*event)
+                    finally:
+                        self._handling_recv_time_s = 0.0
+                    self.processing.add(1000.0 * (time.perf_counter() - started))
+                if on_idle is not None:
+                    on_idle()
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        self.state = "stopping"
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        for s in self._subscribers:
+            s.undeclare()
+        for p in self._publishers.values():
+            if p.frames is not None:
+                p.frames.close()  # the ring's segment is unlinked
+        self._queryable.undeclare()
+        self._stamps_queryable.undeclare()
+        if self._token is not None:
+            self._token.undeclare()
+        self.session.close()
+
+
+def setup_logging(service: str) -> None:
+    logging.basicConfig(
+        level=os.environ.get("UMAY_LOG_LEVEL", "INFO"),
+        format=f"%(asctime)s {service} %(levelname)s %(message)s",
+    )
