@@ -16,9 +16,14 @@ from deploy.docs.bench_tables import (
     bench_runs,
     bench_services,
 )
-from deploy.docs.domains_tables import domains_bands, domains_summary, domains_verdict
+from deploy.docs.domains_tables import (
+    domains_bands,
+    domains_executors,
+    domains_summary,
+    domains_verdict,
+)
 from deploy.docs.results_tables import results_compact, results_strategies
-from deploy.docs.sources import BENCH_DIR, DOMAINS_JSON, RESULTS_JSON, Inputs
+from deploy.docs.sources import BENCH_DIR, DOMAINS_JSON, EXECUTORS_DIR, RESULTS_JSON, Inputs
 
 
 @dataclass(frozen=True)
@@ -42,4 +47,5 @@ BLOCKS: dict[str, Block] = {
     "domains-summary": Block(domains_summary, DOMAINS_JSON),
     "domains-bands": Block(domains_bands, DOMAINS_JSON),
     "domains-verdict": Block(domains_verdict, DOMAINS_JSON),
+    "domains-executors": Block(domains_executors, f"{EXECUTORS_DIR}/*/domains.json"),
 }

@@ -15,6 +15,8 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 RESULTS_JSON = "docs/results/results.json"
 BENCH_DIR = "docs/bench"
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
+# The same small study through each executor (one folder each, ``umay domains --out``).
+EXECUTORS_DIR = "docs/domains/executors"
 
 # The benchmark runs the headline figures come from (docs/bench/<name>.json).
 LOCKSTEP_RUN = "lockstep_640x480"
@@ -44,6 +46,7 @@ class Inputs:
     results: Sequence[CompareRow] = ()
     bench: Sequence[BenchRun] = ()  # sorted by name
     domains: Any = None  # the domain study (deploy.experiments.domains_report.Study), if run
+    executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
 
     def run(self, name: str) -> BenchRun:
         for r in self.bench:
@@ -65,6 +68,11 @@ def load_inputs(root: Path) -> Inputs:
             from deploy.experiments.domains_report import load_study_json
 
             domains = load_study_json(root / DOMAINS_JSON)
+        executors = []
+        for path in sorted((root / EXECUTORS_DIR).glob("*/domains.json")):
+            from deploy.experiments.domains_report import load_study_json
+
+            executors.append((path.parent.name, load_study_json(path)))
     except (OSError, ValueError) as exc:
         raise DocsError(f"cannot read the sources: {exc}") from exc
-    return Inputs(results=results, bench=bench, domains=domains)
+    return Inputs(results=results, bench=bench, domains=domains, executors=executors)

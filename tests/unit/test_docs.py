@@ -335,3 +335,22 @@ def test_domain_blocks_say_how_to_run_the_study_until_it_is_run() -> None:
     assert "(docs/domains/figures/domain_mpj.png)" in verdict
     bands = BLOCKS["domains-bands"].render(Inputs(domains=study), "docs")
     assert "| start pose out of reach | 1 |" in bands
+
+
+def test_the_executor_comparison_reports_the_overhead_and_whether_the_records_agree() -> None:
+    from deploy.docs.blocks import BLOCKS
+    from tests.unit.test_domains import small_study
+
+    assert "Not measured yet: `umay domains" in BLOCKS["domains-executors"].render(Inputs(), "")
+    jobs = small_study().model_copy(update={"executor": "--jobs 2", "wall_time_s": 10.0})
+    dask = jobs.model_copy(update={"executor": "Dask local:2", "wall_time_s": 10.3})
+    other = jobs.runs[0].model_copy(update={"frames": jobs.runs[0].frames + 1})
+    changed = jobs.model_copy(update={"runs": [other, *jobs.runs[1:]], "executor": "x"})
+    inputs = Inputs(executors=[("jobs2", jobs), ("dask_local2", dask), ("changed", changed)])
+    table = BLOCKS["domains-executors"].render(inputs, "docs")
+    n = len(jobs.runs)
+    assert f"| `jobs2` | --jobs 2 | {n} | 10.0 | {10.0 / n:.3f} | +0.0% | yes |" in table
+    assert f"| `dask_local2` | Dask local:2 | {n} | 10.3 | {10.3 / n:.3f} | +3.0% | yes |" in table
+    assert "| `changed` | x |" in table and table.split("`changed`")[1].split("\n")[0].endswith(
+        "no |"
+    )
