@@ -16,6 +16,7 @@ from deploy.docs.bench_tables import (
     bench_runs,
     bench_services,
 )
+from deploy.docs.campaign_tables import campaign_summary
 from deploy.docs.domains_tables import (
     domains_bands,
     domains_executors,
@@ -23,7 +24,14 @@ from deploy.docs.domains_tables import (
     domains_verdict,
 )
 from deploy.docs.results_tables import results_compact, results_strategies
-from deploy.docs.sources import BENCH_DIR, DOMAINS_JSON, EXECUTORS_DIR, RESULTS_JSON, Inputs
+from deploy.docs.sources import (
+    BENCH_DIR,
+    CAMPAIGN_JSON,
+    DOMAINS_JSON,
+    EXECUTORS_DIR,
+    RESULTS_JSON,
+    Inputs,
+)
 
 
 @dataclass(frozen=True)
@@ -44,6 +52,7 @@ BLOCKS: dict[str, Block] = {
     "bench-distribution": Block(bench_distribution, f"{BENCH_DIR}/*.json"),
     "bench-services": Block(bench_services, f"{BENCH_DIR}/*.json"),
     "bench-dropped": Block(bench_dropped, f"{BENCH_DIR}/*.json"),
+    "campaign-summary": Block(campaign_summary, CAMPAIGN_JSON),
     "domains-summary": Block(domains_summary, DOMAINS_JSON),
     "domains-bands": Block(domains_bands, DOMAINS_JSON),
     "domains-verdict": Block(domains_verdict, DOMAINS_JSON),

@@ -354,3 +354,18 @@ def test_the_executor_comparison_reports_the_overhead_and_whether_the_records_ag
     assert "| `changed` | x |" in table and table.split("`changed`")[1].split("\n")[0].endswith(
         "no |"
     )
+
+
+def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
+    from deploy.docs.blocks import BLOCKS
+
+    assert "Not run yet: `umay campaign" in BLOCKS["campaign-summary"].render(Inputs(), "")
+    runs = [
+        {"start": "s1", "mode": "dynamic", "cause": "converged"},
+        {"start": "s2", "mode": "dynamic", "cause": "joint limit"},
+        {"start": "s3", "mode": "dynamic", "cause": "converged"},
+        {"start": "s4", "mode": "dynamic", "cause": "refused at start"},
+    ]
+    table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs), "docs")
+    assert "| dynamic | 3 | 66.7% (2/3) | joint limit 1 |" in table
+    assert "4 starts, 1 refused at start (25.0%" in table
