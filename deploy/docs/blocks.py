@@ -25,6 +25,7 @@ from deploy.docs.domains_tables import (
 )
 from deploy.docs.results_tables import results_compact, results_strategies
 from deploy.docs.sources import (
+    ACCURACY_JSON,
     BENCH_DIR,
     CAMPAIGN_JSON,
     DOMAINS_JSON,
@@ -32,6 +33,7 @@ from deploy.docs.sources import (
     RESULTS_JSON,
     Inputs,
 )
+from deploy.docs.vision_tables import vision_accuracy
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,7 @@ BLOCKS: dict[str, Block] = {
     "bench-services": Block(bench_services, f"{BENCH_DIR}/*.json"),
     "bench-dropped": Block(bench_dropped, f"{BENCH_DIR}/*.json"),
     "campaign-summary": Block(campaign_summary, CAMPAIGN_JSON),
+    "vision-accuracy": Block(vision_accuracy, ACCURACY_JSON),
     "domains-summary": Block(domains_summary, DOMAINS_JSON),
     "domains-bands": Block(domains_bands, DOMAINS_JSON),
     "domains-verdict": Block(domains_verdict, DOMAINS_JSON),

@@ -15,6 +15,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 RESULTS_JSON = "docs/results/results.json"
 BENCH_DIR = "docs/bench"
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
+ACCURACY_JSON = "docs/vision/accuracy.json"  # umay accuracy on the suite's target placements
 CAMPAIGN_JSON = "docs/campaign/causes.json"  # the random-start campaign: one cause per run
 # The same small study through each executor (one folder each, ``umay domains --out``).
 EXECUTORS_DIR = "docs/domains/executors"
@@ -49,6 +50,7 @@ class Inputs:
     domains: Any = None  # the domain study (deploy.experiments.domains_report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
+    accuracy: Sequence[Mapping[str, Any]] = ()  # vision's accuracy, one record per condition
 
     def run(self, name: str) -> BenchRun:
         for r in self.bench:
@@ -78,8 +80,16 @@ def load_inputs(root: Path) -> Inputs:
         campaign = []
         if (root / CAMPAIGN_JSON).is_file():
             campaign = json.loads((root / CAMPAIGN_JSON).read_text())
+        accuracy = []
+        if (root / ACCURACY_JSON).is_file():
+            accuracy = json.loads((root / ACCURACY_JSON).read_text())
     except (OSError, ValueError) as exc:
         raise DocsError(f"cannot read the sources: {exc}") from exc
     return Inputs(
-        results=results, bench=bench, domains=domains, executors=executors, campaign=campaign
+        results=results,
+        bench=bench,
+        domains=domains,
+        executors=executors,
+        campaign=campaign,
+        accuracy=accuracy,
     )

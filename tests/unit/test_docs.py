@@ -369,3 +369,28 @@ def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
     table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs), "docs")
     assert "| dynamic | 3 | 66.7% (2/3) | joint limit 1 |" in table
     assert "4 starts, 1 refused at start (25.0%" in table
+
+
+def test_the_accuracy_block_renders_each_condition_from_its_json() -> None:
+    from deploy.docs.blocks import BLOCKS
+
+    assert "Not measured yet: `umay accuracy" in BLOCKS["vision-accuracy"].render(Inputs(), "")
+    record = {
+        "condition": "Kinect model, HSV",
+        "frames": 300,
+        "seen_both_fraction": 1.0,
+        "found_both_fraction": 0.98,
+        "corner_rms_px": 0.1144,
+        "corner_max_px": 0.9,
+        "depth_rms_m": 0.000364,
+        "depth_max_m": 0.0066,
+        "within_2_sigma_z": 0.999,
+        "within_2_reported_sigma": 0.948,
+    }
+    lost = dict(record, condition="dark, RGB", corner_rms_px=None, depth_rms_m=None)
+    table = BLOCKS["vision-accuracy"].render(Inputs(accuracy=[record, lost]), "docs")
+    assert (
+        "| Kinect model, HSV | 300 | 100.0 % | 98.0 % | 0.114 / 0.90 | 0.364 / 6.60 | 99.9 % "
+        "| 94.8 % |" in table
+    )
+    assert "| dark, RGB | 300 | 100.0 % | 98.0 % | – | – |" in table
