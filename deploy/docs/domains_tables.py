@@ -59,22 +59,24 @@ def domains_verdict(inputs: Inputs, here: str) -> str:
 
 
 EXECUTORS_COMMAND = (
-    "umay domains --cells 0:40 --draws 1 --modes dynamic --out docs/domains/executors/jobs2; "
-    "the same with `--cluster local:2` and `--out docs/domains/executors/dask_local2`"
+    "umay domains --cells 0:117 --draws 1 --modes dynamic --out docs/domains/executors/jobs2; "
+    "the same with --cluster local:2 --out docs/domains/executors/dask_local2"
 )
 
 
 def domains_executors(inputs: Inputs, here: str) -> str:
     """The same small study through each executor: wall time per run, the overhead against the
-    first folder's, and whether the records are the same."""
+    local process pool's (the folders named ``jobs*`` first), and whether the records are the
+    same."""
     from deploy.experiments.domains import study_differences
 
     if not inputs.executors:
         return f"*Not measured yet: `{EXECUTORS_COMMAND}`, then `umay docs`.*"
-    _, first = inputs.executors[0]
+    ordered = sorted(inputs.executors, key=lambda e: (not e[0].startswith("jobs"), e[0]))
+    _, first = ordered[0]
     base_s = first.wall_time_s / max(1, len(first.runs))
     body = []
-    for name, study in inputs.executors:
+    for name, study in ordered:
         per_run_s = study.wall_time_s / max(1, len(study.runs))
         same = not study_differences(first.runs, study.runs)
         body.append(
