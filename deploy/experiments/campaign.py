@@ -23,6 +23,7 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -45,6 +46,7 @@ from deploy.experiments.reachability import (
     view_angle_deg,
 )
 
+D = TypeVar("D", bound=BaseModel)  # a definition with a base_scenario field
 DEFAULT_DISTRIBUTION = Path(__file__).resolve().parents[1] / "campaigns" / "random_starts.toml"
 IK_STEPS = 20  # the start is reached from the goal in this many small IK moves
 # A run that failed with a joint this near its limit failed on it: the actuation slows a joint
@@ -71,17 +73,27 @@ class Distribution(BaseModel):
     )
 
 
-def load_distribution(path: Path) -> tuple[Distribution, Path]:
-    """The distribution and the absolute path of its base scenario; raises CompareError."""
+def load_definition(
+    path: Path, model: type[D], option: str, changes: dict[str, object] | None = None
+) -> tuple[D, Path]:
+    """A TOML definition of random starts (a campaign's distribution, a domain study) validated
+    as ``model``, with ``changes`` (fields from the command line, None: kept), and the absolute
+    path of its ``base_scenario``; raises CompareError naming ``option``."""
     try:
         data = tomllib.loads(path.read_text())
-        dist = Distribution.model_validate(data)
+        data.update({k: v for k, v in (changes or {}).items() if v is not None})
+        definition = model.model_validate(data)
     except (OSError, tomllib.TOMLDecodeError, ValidationError) as exc:
-        raise CompareError(f"--distribution: {path}: {exc}") from exc
-    base = (path.parent / dist.base_scenario).resolve()
+        raise CompareError(f"{option}: {path}: {exc}") from exc
+    base = (path.parent / definition.base_scenario).resolve()
     if not base.is_file():
-        raise CompareError(f"--distribution: {path}: base_scenario {base}: no such file")
-    return dist, base
+        raise CompareError(f"{option}: {path}: base_scenario {base}: no such file")
+    return definition, base
+
+
+def load_distribution(path: Path) -> tuple[Distribution, Path]:
+    """The distribution and the absolute path of its base scenario; raises CompareError."""
+    return load_definition(path, Distribution, "--distribution")
 
 
 @dataclass(frozen=True)

@@ -18,13 +18,12 @@ from __future__ import annotations
 
 import itertools
 import math
-import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common import kinematics as kin
 from common.config import Scenario, ScenarioError, load_scenario
@@ -37,6 +36,7 @@ from deploy.experiments.campaign import (
     REDRAW_START_OUT_OF_REACH,
     REDRAW_TARGET_OUTSIDE,
     failure_cause,
+    load_definition,
     walk_to_start,
     with_q0,
     with_target,
@@ -116,16 +116,7 @@ class StudyDefinition(BaseModel):
 def load_study(path: Path, **changes: object) -> tuple[StudyDefinition, Path]:
     """The study (``changes``: fields replaced, e.g. ``seed`` or ``draws`` from the command
     line) and the absolute path of its base scenario; raises CompareError."""
-    try:
-        data = tomllib.loads(path.read_text())
-        data.update({k: v for k, v in changes.items() if v is not None})
-        study = StudyDefinition.model_validate(data)
-    except (OSError, tomllib.TOMLDecodeError, ValidationError) as exc:
-        raise CompareError(f"--study: {path}: {exc}") from exc
-    base = (path.parent / study.base_scenario).resolve()
-    if not base.is_file():
-        raise CompareError(f"--study: {path}: base_scenario {base}: no such file")
-    return study, base
+    return load_definition(path, StudyDefinition, "--study", changes)
 
 
 @dataclass(frozen=True)
