@@ -58,3 +58,8 @@ def kill_once(task: RunTask) -> RunResult:
     os.write(fd, f"{task.key} {os.getpid()}\n".encode())
     os.close(fd)
     os._exit(1)
+
+
+def no_run(task: RunTask) -> RunResult:
+    """A pipeline that must not be called (a resumed study with every run kept)."""
+    raise AssertionError(f"{task.key} was run again")

@@ -149,10 +149,17 @@ def cmd_domains(args: argparse.Namespace) -> int:
         starts = [drawn[i] for i in sorted(drawn)]
         tasks = dom.plan_tasks(study, base_path, starts, modes, args.set)
         done: dict[str, dom.DomainRecord] = {}
+        published = out_dir / "domains.json"
         if args.resume and jsonl.is_file():
             for line in jsonl.read_text().splitlines():
                 rec = dom.DomainRecord.model_validate_json(line)
                 done[rec.key] = rec
+        elif args.resume and published.is_file():
+            # A published study keeps domains.json, not the log it was built from.
+            from deploy.experiments.domains_report import load_study_json
+
+            done = {rec.key: rec for rec in load_study_json(published).runs}
+            jsonl.write_text("".join(rec.model_dump_json() + "\n" for rec in done.values()))
         else:
             jsonl.write_text("")
         todo = [t for t in tasks if t.key not in done]

@@ -104,3 +104,16 @@ def test_the_lockstep_pipeline_gives_the_same_records_on_either_executor(tmp_pat
     assert len(local["runs"]) == 2
     assert study_differences(records(local), records(dask)) == []
     assert all(r["cause"] for r in local["runs"])
+
+
+def test_a_published_study_resumes_from_its_domains_json(tmp_path: Path) -> None:
+    """A published study keeps domains.json, not runs.jsonl: --resume runs nothing again (a
+    pipeline that fails every run would show in the records), e.g. to record its failures."""
+    study = tiny_study(tmp_path, draws=1)
+    first = domains(tmp_path / "out", study, "--pipeline", FAKE, "--modes", "dynamic")
+    (tmp_path / "out" / "runs.jsonl").unlink()
+    again = domains(
+        tmp_path / "out", study, "--pipeline", "tests.domains_fakes:no_run", "--modes", "dynamic",
+        "--resume",
+    )  # fmt: skip
+    assert study_differences(records(first), records(again)) == []
