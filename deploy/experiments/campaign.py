@@ -450,11 +450,17 @@ def starts_json(starts: Sequence[Start]) -> str:
 
 
 def run_campaign(
-    cplan: CampaignPlan, n_jobs: int, out_dir: Path, stop, on_start, on_done
+    cplan: CampaignPlan,
+    n_jobs: int,
+    out_dir: Path,
+    stop,
+    on_start,
+    on_done,
+    pipeline: str = "distributed",
 ) -> list[CompareRow]:
     from deploy.experiments.compare.run import run_all
 
-    return run_all(cplan.plan.jobs, n_jobs, out_dir, stop, on_start, on_done)
+    return run_all(cplan.plan.jobs, n_jobs, out_dir, stop, on_start, on_done, pipeline)
 
 
 def write_campaign(

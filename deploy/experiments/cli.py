@@ -49,6 +49,14 @@ def add_compare_parser(sub: argparse._SubParsersAction) -> None:
         help=f"strategies (default: all: {' '.join(ALL_MODES)})",
     )
     p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
+    p.add_argument(
+        "--pipeline",
+        choices=("distributed", "inprocess"),
+        default="distributed",
+        help="distributed (default: the four service processes a run) or inprocess (the same "
+        "lockstep loop in one worker process a run, the same results; the figures scenario's "
+        "runs still distributed, for their recordings)",
+    )
     p.add_argument("--out", default="out/compare", metavar="DIR", help="output folder")
     p.add_argument(
         "--figures-scenario",
@@ -159,7 +167,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
             bar.update(task, advance=1, description=", ".join(sorted(running)) or "done")
 
         try:
-            rows = run_all(the_plan.jobs, args.jobs, out_dir, stop, on_start, on_done)
+            rows = run_all(
+                the_plan.jobs, args.jobs, out_dir, stop, on_start, on_done, args.pipeline
+            )
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
@@ -205,6 +215,14 @@ def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--modes", nargs="+", default=None, metavar="MODE", help="strategies")
     p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
+    p.add_argument(
+        "--pipeline",
+        choices=("distributed", "inprocess"),
+        default="distributed",
+        help="distributed (default: the four service processes a run) or inprocess (the same "
+        "lockstep loop in one worker process a run, the same results; the figures scenario's "
+        "runs still distributed, for their recordings)",
+    )
     p.add_argument("--out", default="out/campaign", metavar="DIR", help="output folder")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_campaign)
@@ -263,7 +281,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         )
 
     try:
-        rows = run_campaign(cplan, args.jobs, out_dir, stop, lambda _job: None, on_done)
+        rows = run_campaign(
+            cplan, args.jobs, out_dir, stop, lambda _job: None, on_done, args.pipeline
+        )
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

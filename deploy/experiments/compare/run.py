@@ -1,17 +1,26 @@
-"""Running a comparison: a thread per running job (each waiting on its own four processes), the
-figures, the outputs."""
+"""Running a comparison: a thread per running job (each waiting on its own four processes), or
+with ``pipeline="inprocess"`` a pool of worker processes each running the lockstep loop in
+itself (:mod:`services.pipeline`: the same result to the last bit, tests/integration/
+test_pipeline_vs_distributed.py); the figures, the outputs."""
 
 from __future__ import annotations
 
 import threading
 import uuid
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from concurrent.futures import (
+    FIRST_COMPLETED,
+    Future,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    wait,
+)
 from pathlib import Path
 
 from deploy.experiments.compare.plan import Job, Plan
 from deploy.experiments.compare.rows import CompareRow, make_row, rows_csv, rows_json
 from deploy.experiments.compare.summary import summary_markdown
+from deploy.experiments.evaluate import RunResult
 
 
 # --- running -----------------------------------------------------------------------------------
@@ -72,6 +81,9 @@ def figure_recording(out_dir: Path, mode: str) -> Path:
     return out_dir / "figures" / mode / "run.mcap"
 
 
+PIPELINES = ("distributed", "inprocess")
+
+
 def run_all(
     jobs: Sequence[Job],
     n_jobs: int,
@@ -79,10 +91,83 @@ def run_all(
     stop: threading.Event,
     on_start: Callable[[Job], None] = lambda _job: None,
     on_done: Callable[[Job, CompareRow], None] = lambda _job, _row: None,
+    pipeline: str = "distributed",
 ) -> list[CompareRow]:
     """Run ``jobs``, ``n_jobs`` at a time; the rows in plan order. When ``stop`` is set (or
-    Ctrl-C arrives), running jobs stop their services and the rest never start; the rows of
-    the runs that finished are returned."""
+    Ctrl-C arrives), running jobs stop and the rest never start; the rows of the runs that
+    finished are returned. ``pipeline="inprocess"`` runs the jobs that are not recorded in
+    worker processes of their own; the recorded ones (the figures scenario's) still go through
+    the four processes, whose messages the recording is made of."""
+    if pipeline not in PIPELINES:
+        raise ValueError(f"pipeline: {pipeline!r} is not one of {PIPELINES}")
+    if pipeline == "distributed":
+        return _run_threaded(jobs, n_jobs, out_dir, stop, on_start, on_done)
+    indexed = list(enumerate(jobs))
+    local = [(i, j) for i, j in indexed if not j.record]
+    recorded = [(i, j) for i, j in indexed if j.record]
+    rows = dict(_run_inprocess(local, n_jobs, stop, on_start, on_done))
+    if not stop.is_set() and recorded:
+        done = _run_threaded([j for _, j in recorded], n_jobs, out_dir, stop, on_start, on_done)
+        rows.update(zip((i for i, _ in recorded), done, strict=False))
+    return [rows[i] for i in sorted(rows)]
+
+
+def run_job_inprocess(scenario_path: str, overrides: tuple[str, ...]) -> RunResult:
+    """One run in this (worker) process: the scenario file with its overrides."""
+    from common.config import load_scenario
+    from common.runtime import parse_overrides
+    from deploy.launch.run_inprocess import run_scenario_inprocess
+
+    return run_scenario_inprocess(load_scenario(scenario_path, parse_overrides(list(overrides))))
+
+
+def _run_inprocess(
+    jobs: Sequence[tuple[int, Job]],
+    n_jobs: int,
+    stop: threading.Event,
+    on_start: Callable[[Job], None],
+    on_done: Callable[[Job, CompareRow], None],
+) -> list[tuple[int, CompareRow]]:
+    """``jobs`` (plan index, job) in a pool of ``n_jobs`` worker processes."""
+    import multiprocessing
+
+    rows: list[tuple[int, CompareRow]] = []
+    pending = list(jobs)
+    running: dict[Future, tuple[int, Job]] = {}
+    context = multiprocessing.get_context("spawn")  # no GL context or Zenoh state inherited
+    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=context) as pool:
+        try:
+            while pending or running:
+                while pending and len(running) < n_jobs and not stop.is_set():
+                    i, job = pending.pop(0)
+                    on_start(job)
+                    future = pool.submit(run_job_inprocess, str(job.scenario_path), job.overrides)
+                    running[future] = (i, job)
+                if not running:
+                    break
+                done, _ = wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
+                for future in done:
+                    i, job = running.pop(future)
+                    row = make_row(job, future.result())
+                    rows.append((i, row))
+                    on_done(job, row)
+        except BaseException:
+            stop.set()
+            for future in running:
+                future.cancel()
+            raise
+    return rows
+
+
+def _run_threaded(
+    jobs: Sequence[Job],
+    n_jobs: int,
+    out_dir: Path,
+    stop: threading.Event,
+    on_start: Callable[[Job], None] = lambda _job: None,
+    on_done: Callable[[Job, CompareRow], None] = lambda _job, _row: None,
+) -> list[CompareRow]:
+    """The four-process pipelines, ``n_jobs`` at a time (see :func:`run_all`)."""
     token = uuid.uuid4().hex[:8]  # another comparison on this machine uses other prefixes
     endpoints = _Endpoints()
     rows: dict[int, CompareRow] = {}
