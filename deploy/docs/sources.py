@@ -67,16 +67,15 @@ def load_inputs(root: Path) -> Inputs:
             BenchRun(p.stem, json.loads(p.read_text()))
             for p in sorted((root / BENCH_DIR).glob("*.json"))
         ]
+        from deploy.experiments.domains_report import load_study_json
+
         domains = None
         if (root / DOMAINS_JSON).is_file():
-            from deploy.experiments.domains_report import load_study_json
-
             domains = load_study_json(root / DOMAINS_JSON)
-        executors = []
-        for path in sorted((root / EXECUTORS_DIR).glob("*/domains.json")):
-            from deploy.experiments.domains_report import load_study_json
-
-            executors.append((path.parent.name, load_study_json(path)))
+        executors = [
+            (path.parent.name, load_study_json(path))
+            for path in sorted((root / EXECUTORS_DIR).glob("*/domains.json"))
+        ]
         campaign = []
         if (root / CAMPAIGN_JSON).is_file():
             campaign = json.loads((root / CAMPAIGN_JSON).read_text())

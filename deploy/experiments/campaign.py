@@ -96,6 +96,21 @@ def load_distribution(path: Path) -> tuple[Distribution, Path]:
     return load_definition(path, Distribution, "--distribution")
 
 
+def start_overrides(
+    name: str, q0_rad: Sequence[float], target_position_m: Sequence[float], target_yaw_rad: float
+) -> tuple[str, ...]:
+    """The scenario overrides that make a base scenario a drawn start: its name, the arm's
+    start posture and the target's placement (``repr``: the floats exactly)."""
+    q0 = ", ".join(repr(v) for v in q0_rad)
+    pos = ", ".join(repr(v) for v in target_position_m)
+    return (
+        f"name='{name}'",
+        f"robot.q0=[{q0}]",
+        f"target.position=[{pos}]",
+        f"target.yaw={target_yaw_rad!r}",
+    )
+
+
 @dataclass(frozen=True)
 class Start:
     """One drawn start: the target and the hand's offset from its goal, the joint angles that
@@ -115,14 +130,7 @@ class Start:
     def overrides(self) -> tuple[str, ...]:
         """The scenario overrides that make the base scenario this start."""
         assert self.q0_rad is not None
-        q0 = ", ".join(repr(v) for v in self.q0_rad)
-        pos = ", ".join(repr(v) for v in self.target_position_m)
-        return (
-            f"name='{self.name}'",
-            f"robot.q0=[{q0}]",
-            f"target.position=[{pos}]",
-            f"target.yaw={self.target_yaw_rad!r}",
-        )
+        return start_overrides(self.name, self.q0_rad, self.target_position_m, self.target_yaw_rad)
 
 
 def with_target(base: Scenario, position: Sequence[float], yaw_rad: float) -> Scenario:

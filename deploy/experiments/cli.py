@@ -30,6 +30,18 @@ REFERENCE_REL_TOL = 1e-4
 
 
 # --- command line --------------------------------------------------------------------------
+def _pipeline_option(p: argparse.ArgumentParser) -> None:
+    """``--pipeline`` of compare and campaign (:func:`deploy.experiments.compare.run.run_all`)."""
+    p.add_argument(
+        "--pipeline",
+        choices=("distributed", "inprocess"),
+        default="distributed",
+        help="distributed (default: the four service processes a run) or inprocess (the same "
+        "lockstep loop in one worker process a run, the same results; the figures scenario's "
+        "runs still distributed, for their recordings)",
+    )
+
+
 def add_compare_parser(sub: argparse._SubParsersAction) -> None:
     """The ``compare`` subcommand, for :func:`deploy.cli.build_parser`."""
     p = sub.add_parser(
@@ -49,14 +61,7 @@ def add_compare_parser(sub: argparse._SubParsersAction) -> None:
         help=f"strategies (default: all: {' '.join(ALL_MODES)})",
     )
     p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
-    p.add_argument(
-        "--pipeline",
-        choices=("distributed", "inprocess"),
-        default="distributed",
-        help="distributed (default: the four service processes a run) or inprocess (the same "
-        "lockstep loop in one worker process a run, the same results; the figures scenario's "
-        "runs still distributed, for their recordings)",
-    )
+    _pipeline_option(p)
     p.add_argument("--out", default="out/compare", metavar="DIR", help="output folder")
     p.add_argument(
         "--figures-scenario",
@@ -215,14 +220,7 @@ def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--modes", nargs="+", default=None, metavar="MODE", help="strategies")
     p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
-    p.add_argument(
-        "--pipeline",
-        choices=("distributed", "inprocess"),
-        default="distributed",
-        help="distributed (default: the four service processes a run) or inprocess (the same "
-        "lockstep loop in one worker process a run, the same results; the figures scenario's "
-        "runs still distributed, for their recordings)",
-    )
+    _pipeline_option(p)
     p.add_argument("--out", default="out/campaign", metavar="DIR", help="output folder")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_campaign)

@@ -37,6 +37,7 @@ from deploy.experiments.campaign import (
     REDRAW_TARGET_OUTSIDE,
     failure_cause,
     load_definition,
+    start_overrides,
     walk_to_start,
     with_q0,
     with_target,
@@ -156,14 +157,7 @@ class DomainStart(BaseModel):
     def overrides(self) -> tuple[str, ...]:
         """The scenario overrides that make the study's base scenario this start."""
         assert self.q0_rad is not None
-        q0 = ", ".join(repr(v) for v in self.q0_rad)
-        pos = ", ".join(repr(v) for v in self.target_position_m)
-        return (
-            f"name='{self.name}'",
-            f"robot.q0=[{q0}]",
-            f"target.position=[{pos}]",
-            f"target.yaw={self.target_yaw_rad!r}",
-        )
+        return start_overrides(self.name, self.q0_rad, self.target_position_m, self.target_yaw_rad)
 
 
 def image_turn_deg(turn_deg: float) -> float:

@@ -100,15 +100,29 @@ def run_all(
     the four processes, whose messages the recording is made of."""
     if pipeline not in PIPELINES:
         raise ValueError(f"pipeline: {pipeline!r} is not one of {PIPELINES}")
-    if pipeline == "distributed":
-        return _run_threaded(jobs, n_jobs, out_dir, stop, on_start, on_done)
     indexed = list(enumerate(jobs))
-    local = [(i, j) for i, j in indexed if not j.record]
-    recorded = [(i, j) for i, j in indexed if j.record]
-    rows = dict(_run_inprocess(local, n_jobs, stop, on_start, on_done))
-    if not stop.is_set() and recorded:
-        done = _run_threaded([j for _, j in recorded], n_jobs, out_dir, stop, on_start, on_done)
-        rows.update(zip((i for i, _ in recorded), done, strict=False))
+    local = [(i, j) for i, j in indexed if pipeline == "inprocess" and not j.record]
+    services = [(i, j) for i, j in indexed if not (pipeline == "inprocess" and not j.record)]
+    rows: dict[int, CompareRow] = {}
+    if local:
+        import multiprocessing
+
+        context = multiprocessing.get_context("spawn")  # no GL context or Zenoh state inherited
+        with ProcessPoolExecutor(max_workers=n_jobs, mp_context=context) as pool:
+
+            def in_worker(_i: int, job: Job) -> Future:
+                return pool.submit(run_job_inprocess, str(job.scenario_path), job.overrides)
+
+            rows |= _schedule(local, n_jobs, stop, in_worker, on_start, on_done)
+    if services and not stop.is_set():
+        token = uuid.uuid4().hex[:8]  # another comparison on this machine uses other prefixes
+        endpoints = _Endpoints()
+        with ThreadPoolExecutor(max_workers=n_jobs, thread_name_prefix="compare") as pool:
+
+            def in_thread(i: int, job: Job) -> Future:
+                return pool.submit(run_job, job, i, token, out_dir, endpoints, stop)
+
+            rows |= _schedule(services, n_jobs, stop, in_thread, on_start, on_done)
     return [rows[i] for i in sorted(rows)]
 
 
@@ -121,78 +135,42 @@ def run_job_inprocess(scenario_path: str, overrides: tuple[str, ...]) -> RunResu
     return run_scenario_inprocess(load_scenario(scenario_path, parse_overrides(list(overrides))))
 
 
-def _run_inprocess(
+def _schedule(
     jobs: Sequence[tuple[int, Job]],
     n_jobs: int,
     stop: threading.Event,
+    submit: Callable[[int, Job], Future],
     on_start: Callable[[Job], None],
     on_done: Callable[[Job, CompareRow], None],
-) -> list[tuple[int, CompareRow]]:
-    """``jobs`` (plan index, job) in a pool of ``n_jobs`` worker processes."""
-    import multiprocessing
-
-    rows: list[tuple[int, CompareRow]] = []
+) -> dict[int, CompareRow]:
+    """``jobs`` (plan index, job), ``n_jobs`` submitted at a time; a future gives the run's
+    row (a pipeline's) or its result (a worker's). On ``stop`` or an exception nothing more
+    starts; the running jobs stop their services (the pool waits for them)."""
+    rows: dict[int, CompareRow] = {}
     pending = list(jobs)
     running: dict[Future, tuple[int, Job]] = {}
-    context = multiprocessing.get_context("spawn")  # no GL context or Zenoh state inherited
-    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=context) as pool:
-        try:
-            while pending or running:
-                while pending and len(running) < n_jobs and not stop.is_set():
-                    i, job = pending.pop(0)
-                    on_start(job)
-                    future = pool.submit(run_job_inprocess, str(job.scenario_path), job.overrides)
-                    running[future] = (i, job)
-                if not running:
-                    break
-                done, _ = wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
-                for future in done:
-                    i, job = running.pop(future)
-                    row = make_row(job, future.result())
-                    rows.append((i, row))
+    try:
+        while pending or running:
+            while pending and len(running) < n_jobs and not stop.is_set():
+                i, job = pending.pop(0)
+                on_start(job)
+                running[submit(i, job)] = (i, job)
+            if not running:
+                break
+            done, _ = wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
+            for future in done:
+                i, job = running.pop(future)
+                value = future.result()
+                row = value if isinstance(value, CompareRow) else make_row(job, value)
+                if not (stop.is_set() and row.detail == "interrupted"):
+                    rows[i] = row
                     on_done(job, row)
-        except BaseException:
-            stop.set()
-            for future in running:
-                future.cancel()
-            raise
+    except BaseException:
+        stop.set()
+        for future in running:
+            future.cancel()
+        raise
     return rows
-
-
-def _run_threaded(
-    jobs: Sequence[Job],
-    n_jobs: int,
-    out_dir: Path,
-    stop: threading.Event,
-    on_start: Callable[[Job], None] = lambda _job: None,
-    on_done: Callable[[Job, CompareRow], None] = lambda _job, _row: None,
-) -> list[CompareRow]:
-    """The four-process pipelines, ``n_jobs`` at a time (see :func:`run_all`)."""
-    token = uuid.uuid4().hex[:8]  # another comparison on this machine uses other prefixes
-    endpoints = _Endpoints()
-    rows: dict[int, CompareRow] = {}
-    pending = list(enumerate(jobs))
-    running: dict[Future, int] = {}
-    with ThreadPoolExecutor(max_workers=n_jobs, thread_name_prefix="compare") as pool:
-        try:
-            while pending or running:
-                while pending and len(running) < n_jobs and not stop.is_set():
-                    i, job = pending.pop(0)
-                    on_start(job)
-                    running[pool.submit(run_job, job, i, token, out_dir, endpoints, stop)] = i
-                if not running:
-                    break
-                done, _ = wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
-                for future in done:
-                    i = running.pop(future)
-                    row = future.result()
-                    if not (stop.is_set() and row.detail == "interrupted"):
-                        rows[i] = row
-                        on_done(jobs[i], row)
-        except BaseException:
-            stop.set()  # the running jobs stop their services; the pool waits for them
-            raise
-    return [rows[i] for i in sorted(rows)]
 
 
 def make_figures(plan_: Plan, out_dir: Path) -> list[Path]:
