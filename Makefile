@@ -15,14 +15,16 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/umay run --result out/result.json
 
+# Two pytest workers (pytest-xdist), as many as CI's cores; every test has its own key prefix,
+# port and temporary directory, so they never cross.
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist worksteal
 
 # The fast target: tests/unit only (pure and in-process; no service, no Zenoh session).
 test-unit: $(STAMP)
-	$(BIN)/python -m pytest tests/unit
+	$(BIN)/python -m pytest -n 2 --dist worksteal tests/unit
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

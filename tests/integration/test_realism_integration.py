@@ -31,8 +31,9 @@ from tests.unit.test_compare import MODES
 
 def test_kinect_noise_and_depth_at_1hz_every_strategy_converges(tmp_path: Path) -> None:
     """The thesis's sensor conditions (depth at 1 Hz) with the Kinect model on: every strategy,
-    on the default scenario, through ``umay compare`` (two pipelines at once, each under its
-    own prefix) to keep CI short."""
+    on the default scenario, through ``umay compare --pipeline inprocess`` to keep CI short
+    (the in-process pipeline is the distributed lockstep run to the bit:
+    test_pipeline_vs_distributed.py)."""
     folder = tmp_path / "scenarios"
     folder.mkdir()
     shutil.copy(DEFAULT_SCENARIO, folder / "default.toml")
@@ -40,6 +41,7 @@ def test_kinect_noise_and_depth_at_1hz_every_strategy_converges(tmp_path: Path) 
     overrides = ["camera.kinect.enabled=true", "camera.depth_hz=1.0", "controller.converged_px=0.5"]
     proc = subprocess.run(
         [*UMAY, "compare", "--scenarios", str(folder), "--jobs", "2", "--out", str(out)]
+        + ["--pipeline", "inprocess"]
         + [a for item in overrides for a in ("--set", item)],
         capture_output=True,
         text=True,
