@@ -60,7 +60,12 @@ def add_domains_parser(sub: argparse._SubParsersAction) -> None:
         "--record-failures",
         action="store_true",
         help="afterwards, re-run each strategy's first failure of each cause with the "
-        "distributed pipeline and record it (MCAP, for umay plot / umay view)",
+        "distributed pipeline and record it (MCAP without the camera frames, for umay plot)",
+    )
+    p.add_argument(
+        "--record-frames",
+        action="store_true",
+        help="with --record-failures: keep the camera frames in the recordings (megabytes each)",
     )
     p.add_argument("--out", default="out/domains", metavar="DIR", help="output folder")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
@@ -224,7 +229,9 @@ def finish(
     figures = write_heatmaps(result, out_dir) if runs else []
     recordings: dict[str, str] = {}
     if args.record_failures and not interrupted:
-        recordings = record_failures(representative_failures(result), tasks, out_dir)
+        recordings = record_failures(
+            representative_failures(result), tasks, out_dir, frames=args.record_frames
+        )
     relative = [str(p.relative_to(out_dir)) for p in figures]
     (out_dir / "report.md").write_text(report_markdown(result, relative, recordings))
     per_run = wall_s / len(runs) if runs else 0.0
@@ -236,10 +243,10 @@ def finish(
     return EXIT_INTERRUPTED if interrupted else EXIT_OK
 
 
-def record_failures(failures, tasks, out_dir: Path) -> dict[str, str]:
-    """Each failure re-run in the distributed lockstep pipeline and recorded (MCAP): lockstep
-    runs repeat, so the recording shows the failure the study counted; paths relative to
-    ``out_dir``."""
+def record_failures(failures, tasks, out_dir: Path, frames: bool = False) -> dict[str, str]:
+    """Each failure re-run in the distributed lockstep pipeline and recorded (MCAP; the camera
+    frames only if ``frames``): lockstep runs repeat, so the recording shows the failure the
+    study counted; paths relative to ``out_dir``."""
     import tempfile
 
     from common.session import free_tcp_endpoint
@@ -254,7 +261,7 @@ def record_failures(failures, tasks, out_dir: Path) -> dict[str, str]:
             run_once(
                 task.scenario_path, task.scenario(), list(task.overrides),
                 prefix=f"umay/domains-record/{rec.key}", log_dir=Path(logs),
-                listen=free_tcp_endpoint(), quiet=True, record=path,
+                listen=free_tcp_endpoint(), quiet=True, record=path, record_frames=frames,
             )  # fmt: skip
         out[rec.key] = str(path.relative_to(out_dir))
     return out

@@ -113,6 +113,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             listen=listen,
             quiet=args.quiet,
             record=record,
+            record_frames=not args.record_without_frames,
         )
     if args.quiet:
         print(format_result(result))
@@ -297,6 +298,11 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no live progress line")
     p.add_argument("--plot", default=None, metavar="DIR", help="write the run's figures here")
     p.add_argument("--record", default=None, metavar="OUT.mcap", help="record the run to MCAP")
+    p.add_argument(
+        "--record-without-frames",
+        action="store_true",
+        help="with --record: leave the camera frames out (enough for umay plot; far smaller)",
+    )
     p.add_argument(
         "--inprocess", action="store_true", help="lockstep in this process: no services, no Zenoh"
     )

@@ -127,10 +127,12 @@ def run_once(
     quiet: bool = False,
     record: Path | None = None,
     stop: threading.Event | None = None,
+    record_frames: bool = True,
 ) -> RunResult:
     """Launch the four services, servo until converged or timeout, stop them, judge the run.
 
-    ``record``: write every data message of the run to this MCAP file (see deploy.recording.record).
+    ``record``: write every data message of the run to this MCAP file (see deploy.recording.record),
+    the camera frames left out unless ``record_frames``.
     ``stop``: set from another thread to end the run early (reason "error", detail
     "interrupted"); the services are stopped as after any run.
     """
@@ -148,7 +150,9 @@ def run_once(
         from deploy.recording.record import Recorder, run_metadata
 
         metadata = run_metadata(scenario_path, overrides, prefix)
-        recorder = Recorder(record, session, keys, metadata=metadata)
+        recorder = Recorder(
+            record, session, keys, metadata=metadata, without_frames=not record_frames
+        )
     subs = [
         session.declare_subscriber(keys.truth, monitor.on_truth),
         session.declare_subscriber(keys.twist, monitor.on_twist),

@@ -12,7 +12,10 @@ slot in its shared-memory ring, see :mod:`common.publishers`) is turned back int
 layout as it arrives, from the ring when this host maps it, else by asking the sim for the
 whole frame, so a recording, and its replay, never depend on a ring that is long gone. A frame
 that could be had neither way (overwritten, the sim gone) is counted in
-:attr:`Recorder.lost`, with the reason.
+:attr:`Recorder.lost`, with the reason. A recording ``without_frames`` leaves the camera frames
+out altogether (counted in :attr:`Recorder.frames_left_out`, and said in the metadata): what
+``umay plot`` and the live view's scene need is a few hundred kilobytes where the frames are
+megabytes a second, small enough to keep beside a study's figures.
 
 Metadata record ``umay`` holds what a replay needs: the scenario TOML text
 (``scenario_toml``), the ``--set`` overrides as a JSON list (``overrides_json``) and the key
@@ -86,10 +89,14 @@ class Recorder:
         metadata: dict[str, str] | None = None,
         chunk_size: int = 1 << 20,
         rings: RingReader | None = None,
+        without_frames: bool = False,
     ) -> None:
         """``rings``: what maps the sim's ring for frames sent by reference (default: the
-        process's :func:`~common.frame_ring.shared_reader`)."""
+        process's :func:`~common.frame_ring.shared_reader`); ``without_frames``: leave the
+        camera frames out."""
         self.path = Path(path)
+        self.without_frames = without_frames
+        self.frames_left_out = 0
         self._rings = rings
         self.keys = keys
         self.key_expr = key_expr or f"{keys.prefix}/**"
@@ -106,8 +113,11 @@ class Recorder:
         self._stream: IO[bytes] = self.path.open("wb")
         self._writer = Writer(self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile=PROFILE, library="umay deploy.recording")
-        if metadata:
-            self._writer.add_metadata(METADATA_NAME, {k: str(v) for k, v in metadata.items()})
+        if metadata or without_frames:
+            described = {k: str(v) for k, v in (metadata or {}).items()}
+            if without_frames:
+                described["frames"] = "left out"
+            self._writer.add_metadata(METADATA_NAME, described)
         self._subscriber = session.declare_subscriber(self.key_expr, self._on_sample)
 
     def __enter__(self) -> Recorder:
@@ -150,8 +160,13 @@ class Recorder:
             with self._lock:
                 self.skipped += 1
             return
+        is_frame = codec.image_field(model) is not None
+        if is_frame and self.without_frames:
+            with self._lock:
+                self.frames_left_out += 1
+            return
         payload = sample.payload.to_bytes()
-        if codec.image_field(model) is not None and codec.is_by_reference(payload):
+        if is_frame and codec.is_by_reference(payload):
             try:
                 payload = codec.whole_frame(payload, model, self._rings)
             except codec.FrameUnreachable as exc:  # not on this host: ask the sim

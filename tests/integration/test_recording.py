@@ -283,6 +283,28 @@ def test_umay_plot_on_a_real_recording_writes_the_four_figures(
     assert all((tmp_path / "plots" / n).stat().st_size > 10_000 for n in names)
 
 
+def test_a_recording_without_frames_is_small_and_plots(tmp_path: Path) -> None:
+    """``--record-without-frames``: every data key but the camera frames, the metadata says
+    so, and ``umay plot`` draws its four figures from it."""
+    out, prefix = tmp_path / "small.mcap", unique_prefix()
+    sets = [a for item in SMALL_RUN for a in ("--set", item)]
+    proc = umay(
+        "run", "--quiet", "--record", str(out), "--record-without-frames", *sets,
+        "--prefix", prefix, "--listen", free_tcp_endpoint(), "--log-dir", str(tmp_path / "logs"),
+    )  # fmt: skip
+    assert proc.returncode == 1, proc.stderr  # the short timeout, as in the fixture's run
+    keys = Keys(prefix)
+    info = read_info(out)
+    topics = sorted(c.topic for c in info.channels)
+    assert topics == sorted(
+        [keys.joint_state, keys.truth, keys.features, keys.twist, keys.joint_command]
+    )
+    assert info.metadata["umay"]["frames"] == "left out"
+    plotted = umay("plot", str(out), "--out", str(tmp_path / "plots"))
+    assert plotted.returncode == 0, plotted.stderr
+    assert len(list((tmp_path / "plots").glob("*.png"))) == 4
+
+
 def test_umay_plot_refuses_a_file_that_is_not_mcap(tmp_path: Path) -> None:
     not_mcap = tmp_path / "hostname"
     not_mcap.write_text("box\n")
