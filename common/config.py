@@ -240,8 +240,15 @@ class VisionConfig(_Strict):
 class ControllerConfig(_Strict):
     mode: JacobianMode = JacobianMode.DYNAMIC
     gain: float = Field(1.0, gt=0.0, le=20.0, description="λ of e' = -λe (1/s)")
-    converged_px: float = Field(0.25, gt=0.0, description="pixel RMS below which it converged")
-    converged_frames: int = Field(5, ge=1, description="consecutive frames below the threshold")
+    converged_px: float = Field(
+        0.25,
+        gt=0.0,
+        description="pixel RMS of the error averaged over converged_frames frames below which "
+        "it converged",
+    )
+    converged_frames: int = Field(
+        5, ge=1, description="frames servoed on a still goal the error is averaged over"
+    )
     max_linear_m_s: float = Field(0.15, gt=0.0, description="twist clamp, linear (m/s)")
     max_angular_rad_s: float = Field(1.0, gt=0.0, description="twist clamp, angular (rad/s)")
     track_target_motion: bool = Field(

@@ -34,16 +34,21 @@ def limit_joint_positions(
     lower_rad: FloatArray = kin.JOINT_LOWER_RAD,
     upper_rad: FloatArray = kin.JOINT_UPPER_RAD,
     slow_zone_rad: float = np.deg2rad(10.0),
+    vmax_rad_s: FloatArray = kin.JOINT_VELOCITY_LIMIT_RAD_S,
 ) -> tuple[FloatArray, list[int]]:
-    """Motion towards a joint limit slows linearly inside ``slow_zone_rad`` and stops at the
-    limit; motion away from it is untouched. Returns the rates and the joints slowed."""
+    """Inside ``slow_zone_rad`` of a joint limit, the speed towards it is bounded by the
+    joint's speed limit times the fraction of the zone left, down to zero at the limit (the
+    joint approaches its limit exponentially and never crosses it); motion away from it, and
+    motion slower than the bound, are untouched. A bound, not a scale: scaling every speed by
+    the fraction left made a goal posture inside the zone crawl for its last millimetres.
+    Returns the rates and the joints slowed."""
     qdot = np.array(qdot_rad_s, dtype=float)
     q = np.asarray(q_rad, dtype=float)
     to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)
     to_lower = np.clip((q - lower_rad) / slow_zone_rad, 0.0, 1.0)
-    factor = np.where(qdot > 0, to_upper, to_lower)
-    slowed = [int(i) for i in np.flatnonzero((factor < 1.0) & (qdot != 0.0))]
-    return qdot * factor, slowed
+    bound = np.asarray(vmax_rad_s, dtype=float) * np.where(qdot > 0, to_upper, to_lower)
+    slowed = [int(i) for i in np.flatnonzero(np.abs(qdot) > bound)]
+    return np.clip(qdot, -bound, bound), slowed
 
 
 def limit_speed(
@@ -85,10 +90,14 @@ def limit_joint_velocities(
     vmax_rad_s: FloatArray = kin.JOINT_VELOCITY_LIMIT_RAD_S,
     slow_zone_rad: float = np.deg2rad(10.0),
 ) -> tuple[FloatArray, list[int], list[int]]:
-    """The hard limits, which always hold: position limits, then speed limits. Returns the
-    rates, the joints slowed near a position limit and the joints that were over speed."""
-    qdot, slowed = limit_joint_positions(qdot_rad_s, q_rad, lower_rad, upper_rad, slow_zone_rad)
-    qdot, over = limit_speed(qdot, vmax_rad_s)
+    """The hard limits, which always hold: speed limits (the whole vector scaled), then
+    position limits (each joint's speed towards its limit bounded; below the speed limit, so
+    they only act inside a slow-down zone). Returns the rates, the joints slowed near a
+    position limit and the joints that were over speed."""
+    qdot, over = limit_speed(qdot_rad_s, vmax_rad_s)
+    qdot, slowed = limit_joint_positions(
+        qdot, q_rad, lower_rad, upper_rad, slow_zone_rad, vmax_rad_s
+    )
     return qdot, slowed, over
 
 

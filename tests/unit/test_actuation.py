@@ -53,6 +53,21 @@ def test_position_limit_stops_motion_towards_it_only() -> None:
     assert slowed == []
 
 
+def test_near_a_limit_speed_towards_it_is_bounded_not_scaled() -> None:
+    """5° inside the 10° zone of joint 2's upper limit: at most half its speed limit towards
+    it, a slow motion towards it untouched (a goal inside the zone is not crawled to), any
+    speed away from it untouched."""
+    q = np.zeros(6)
+    q[1] = kin.JOINT_UPPER_RAD[1] - np.deg2rad(5.0)
+    half = 0.5 * kin.JOINT_VELOCITY_LIMIT_RAD_S[1]
+    out, slowed, _ = limit_joint_velocities(np.array([0.0, 1.4, 0, 0, 0, 0]), q)
+    assert out[1] == pytest.approx(half) and slowed == [1]
+    out, slowed, _ = limit_joint_velocities(np.array([0.0, 0.01, 0, 0, 0, 0]), q)
+    assert out[1] == 0.01 and slowed == []
+    out, slowed, _ = limit_joint_velocities(np.array([0.0, -1.4, 0, 0, 0, 0]), q)
+    assert out[1] == -1.4 and slowed == []
+
+
 def test_nan_twist_never_reaches_the_motors() -> None:
     cmd = twist_to_joint_velocities(np.full(6, np.nan), np.full(6, 0.5), 0.02, 0.002)
     np.testing.assert_array_equal(cmd.velocity_rad_s, np.zeros(6))

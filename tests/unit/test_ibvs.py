@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -23,6 +25,7 @@ from services.controller.ibvs import (
     interaction_matrix,
     pairing_costs_px2,
     point_feature_jacobian,
+    settled_error_px_rms,
 )
 from tests.twists import base_ee_twist_to_camera
 
@@ -252,6 +255,24 @@ def test_no_convergence_on_a_predicted_target_until_it_is_seen_again() -> None:
         t += dt
         out = ctrl.step(hand, observe(square_points(predicted)), K, np.zeros(3), t)
     assert not ctrl.predicted and out.converged
+
+
+def test_convergence_is_judged_on_the_error_averaged_over_the_window() -> None:
+    """Corners jittering ±0.4 px about the goal, frame after frame (pixel edges): every
+    frame's own error is above 0.25 px, yet the hand is on its goal and the run converges
+    after converged_frames frames; jitter about a point 0.4 px away does not (its average is
+    0.4 px)."""
+    goal = observe(square_points(np.array([0.0, 0.05, 0.55])))
+    ctrl = IbvsController(ControllerConfig(gain=1.0, converged_frames=4), np.eye(4))
+    for i in range(4):
+        sign = 1.0 if i % 2 == 0 else -1.0
+        hand = replace(goal, corners_px=goal.corners_px + sign * 0.4)
+        out = ctrl.step(hand, goal, K, np.zeros(3), i / 30)
+        assert out.error_px_rms == pytest.approx(0.4)
+        assert out.converged == (i == 3)
+    assert settled_error_px_rms([np.full(8, 0.4 + d) for d in (0.4, -0.4, 0.4, -0.4)]) == (
+        pytest.approx(0.4)
+    )
 
 
 def test_corner_pairing_takes_the_least_turn_and_holds_it_near_45_degrees() -> None:
