@@ -80,6 +80,32 @@ def test_a_partly_hidden_target_is_fitted_from_its_visible_edges() -> None:
     np.testing.assert_allclose(np.sort(m.depth_m), np.sort(target.points_m[:, 2]), atol=1e-3)
 
 
+def test_a_partly_hidden_target_is_fitted_from_a_coarser_depth_image_with_dropout() -> None:
+    """Depth at half the colour resolution, with no depth (a Kinect's dropout, widened by its
+    lateral noise) for 3-4 depth pixels either side of the hand's edge: that band spans twice
+    as many colour pixels, and all of it must still be taken as the hand's (else the hand's
+    edge is fitted as the target's, and the fit fails)."""
+    k_small = CameraIntrinsics.from_fov(SHAPE[1] // 2, SHAPE[0] // 2, 57.0)
+
+    def small(depth: np.ndarray) -> DepthImage:  # each small pixel's centre (2u + ½, 2v + ½)
+        return DepthImage(np.ascontiguousarray(depth[1::2, 1::2]), k_small, 0.0)
+
+    hand, target = scene()
+    rgb, depth = render([hand, target])
+    _, state = observe(rgb, K, small(depth), CFG, SIZE_M, TrackerState())
+    assert "target" in state.memory
+    box = box_over(target.corners_px, 0.4)
+    cover(rgb, depth, box, 0.40)
+    coarse = small(depth)
+    edge = box[2] // 2  # the hand's left edge, in depth pixels
+    coarse.depth_m[:, edge - 3 : edge + 4] = 0.0
+    measured, _ = observe(rgb, K, coarse, CFG, SIZE_M, state, 1 / 30)
+    m = measured["target"]
+    assert m.state == "partial" and m.fitted and m.usable and m.occluded, m.reason
+    err = np.abs(match_order(m.corners_px, target.corners_px) - order_corners(target.corners_px))
+    assert err.max() < 0.5, f"fitted corners off by {err.max():.2f} px"
+
+
 def test_a_target_slid_partly_out_of_the_picture_is_fitted_and_not_occluded() -> None:
     """Nothing is in front of it: the fit comes from the edges inside the image, and the
     blob's own occlusion check (run after the fit, whose occluder map is empty) says clear."""
