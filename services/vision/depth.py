@@ -72,7 +72,8 @@ def bounding_box(
 def _marker_depth_pixels(
     depth_m: np.ndarray, mask: np.ndarray, corners_px: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """(uv (N, 2) px, Z (N,) m) of the valid depth pixels well inside the marker.
+    """(uv (N, 2) px, Z (N,) m) of the valid depth pixels well inside the marker
+    (``corners_px`` in depth pixels; ``mask`` at the colour resolution, registered here).
 
     Only the mask inside the corners' quadrilateral counts (other blobs stay out), eroded
     (radius 10 % of the side, at least 2 px) so that the outline and the pixels next to
@@ -88,7 +89,7 @@ def _marker_depth_pixels(
     vertices = np.round((corners_px - (c0, r0)) * (1 << shift_bits)).astype(np.int32)
     cv2.fillConvexPoly(quad, vertices, 255, cv2.LINE_8, shift_bits)
     inner = cv2.erode(
-        cv2.bitwise_and(quad, mask[r0:r1, c0:c1]),
+        cv2.bitwise_and(quad, registered_mask(mask, depth_m.shape, (r0, r1, c0, c1))),
         cv2.getStructuringElement(cv2.MORPH_RECT, (2 * radius_px + 1, 2 * radius_px + 1)),
         borderType=cv2.BORDER_CONSTANT,
         borderValue=0,
@@ -185,13 +186,29 @@ class CornerDepths:
     plane: PlaneFit | None
 
 
-def registered_mask(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+def registered_mask(
+    mask: np.ndarray, shape: tuple[int, ...], bounds: tuple[int, int, int, int] | None = None
+) -> np.ndarray:
     """A colour-resolution 0/255 mask at the depth image's resolution (pixels at least half
-    covered), for a depth image registered to the colour one at a lower resolution."""
+    covered), for a depth image registered to the colour one at a lower resolution; with
+    ``bounds`` (row0, row1, col0, col1 of the depth image) only that crop of it.
+
+    A crop is resampled on its own when the colour image is a whole multiple of the depth one
+    (each depth pixel then averages its own block of colour pixels: the same values as the
+    whole image's resampling), rather than resampling the whole mask for a marker's box."""
+    r0, r1, c0, c1 = bounds if bounds is not None else (0, shape[0], 0, shape[1])
     if mask.shape[:2] == shape[:2]:
-        return mask
-    small = cv2.resize(mask, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
-    return np.where(small >= 128, 255, 0).astype(np.uint8)
+        return mask[r0:r1, c0:c1]
+    sy, sx = mask.shape[0] // shape[0], mask.shape[1] // shape[1]
+    if bounds is not None and (sy * shape[0], sx * shape[1]) == mask.shape[:2] and sy and sx:
+        small = cv2.resize(
+            mask[r0 * sy : r1 * sy, c0 * sx : c1 * sx],
+            (c1 - c0, r1 - r0),
+            interpolation=cv2.INTER_AREA,
+        )
+    else:
+        small = cv2.resize(mask, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)[r0:r1, c0:c1]
+    return cv2.threshold(small, 127, 255, cv2.THRESH_BINARY)[1]  # ≥ 128: at least half
 
 
 def to_depth_pixels(corners_px: FloatArray, k: CameraIntrinsics, k_depth: CameraIntrinsics):
@@ -222,7 +239,7 @@ def corner_depths(
     corners = np.asarray(corners_px, dtype=float).reshape(4, 2)
     k_depth = k_depth or k
     depth_corners = corners if k_depth == k else to_depth_pixels(corners, k, k_depth)
-    uv, z = _marker_depth_pixels(depth_m, registered_mask(mask, depth_m.shape), depth_corners)
+    uv, z = _marker_depth_pixels(depth_m, mask, depth_corners)
     if len(z) < DEPTH_MIN_PIXELS:
         return None
     corner_xy = pixel_to_normalized(corners, k)

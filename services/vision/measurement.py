@@ -103,7 +103,7 @@ def _measure(
     depth_corners = corners if k_depth == k else to_depth_pixels(corners, k, k_depth)
     bounds = bounding_box(depth_corners, ring_px + 3, depth_m.shape)
     r0, r1, c0, c1 = bounds
-    crop_mask = registered_mask(mask, depth_m.shape)[r0:r1, c0:c1]
+    crop_mask = registered_mask(mask, depth_m.shape, bounds)
     surface = marker_surface(depth.plane, depth.depths_m, k_depth, bounds)
     if is_occluded(depth_m[r0:r1, c0:c1], crop_mask, surface, ring_px):
         return not_visible("occluded", occluded=True)

@@ -189,6 +189,17 @@ class _PartialFit:
         return MarkerMeasurement(marker, self.plane)
 
 
+def dropout_reach_px(ring_px: int, k: CameraIntrinsics, k_depth: CameraIntrinsics) -> int:
+    """How far (colour pixels) an invalid depth pixel may lie from a closer surface and still
+    be taken as that occluder's dropout, when the depth image is looked at through the colour
+    pixels (:func:`_depth_under`): ``ring_px`` depth pixels. The band a depth camera leaves
+    invalid along an edge is so many of its own pixels wide, so on a coarser depth image it
+    spans more colour pixels: a reach kept at ``ring_px`` colour pixels would leave most of
+    that band along the hand unexplained, and the hand's edge among the marker's own."""
+    scale = k.width_px / k_depth.width_px
+    return ring_px if scale <= 1.0 else round(ring_px * scale)
+
+
 def _fit_partial(
     quad: MarkerQuad,
     memory: MarkerMemory | None,
@@ -204,13 +215,14 @@ def _fit_partial(
         return None
     points = back_project(memory.corners_px, memory.depth_m, k)
     square = SquareOnPlane.from_corners(points, marker_size_m)
-    bounds = mask_bounds(quad.mask, 2 * cfg.occlusion_ring_px + 2)
+    reach_px = dropout_reach_px(cfg.occlusion_ring_px, k, depth.intrinsics)
+    bounds = mask_bounds(quad.mask, 2 * reach_px + 2)
     if bounds is None:
         return None
     r0, r1, c0, c1 = bounds
     depth_crop = _depth_under(depth, k, bounds)
     occluder = occluder_map(
-        depth_crop, marker_surface(memory.plane, memory.depth_m, k, bounds), cfg.occlusion_ring_px
+        depth_crop, marker_surface(memory.plane, memory.depth_m, k, bounds), reach_px
     )
     mask = quad.mask[r0:r1, c0:c1]
     edges = true_edge_points(mask, occluder, (c0, r0))

@@ -10,7 +10,7 @@ import pytest
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import VisionConfig
 from services.vision import partial
-from services.vision.depth import fit_inverse_depth_plane
+from services.vision.depth import fit_inverse_depth_plane, registered_mask
 from services.vision.measurement import measure_markers
 from services.vision.occlusion import hidden_behind, occluder_fraction
 from services.vision.quad import order_corners
@@ -78,6 +78,32 @@ def test_a_partly_hidden_target_is_fitted_from_its_visible_edges() -> None:
     err = np.abs(match_order(m.corners_px, target.corners_px) - order_corners(target.corners_px))
     assert err.max() < 0.3, f"fitted corners off by {err.max():.2f} px"
     np.testing.assert_allclose(np.sort(m.depth_m), np.sort(target.points_m[:, 2]), atol=1e-3)
+
+
+def test_a_partly_hidden_target_is_fitted_from_a_coarser_depth_image_with_dropout() -> None:
+    """Depth at half the colour resolution, with no depth (a Kinect's dropout, widened by its
+    lateral noise) for 3-4 depth pixels either side of the hand's edge: that band spans twice
+    as many colour pixels, and all of it must still be taken as the hand's (else the hand's
+    edge is fitted as the target's, and the fit fails)."""
+    k_small = CameraIntrinsics.from_fov(SHAPE[1] // 2, SHAPE[0] // 2, 57.0)
+
+    def small(depth: np.ndarray) -> DepthImage:  # each small pixel's centre (2u + ½, 2v + ½)
+        return DepthImage(np.ascontiguousarray(depth[1::2, 1::2]), k_small, 0.0)
+
+    hand, target = scene()
+    rgb, depth = render([hand, target])
+    _, state = observe(rgb, K, small(depth), CFG, SIZE_M, TrackerState())
+    assert "target" in state.memory
+    box = box_over(target.corners_px, 0.4)
+    cover(rgb, depth, box, 0.40)
+    coarse = small(depth)
+    edge = box[2] // 2  # the hand's left edge, in depth pixels
+    coarse.depth_m[:, edge - 3 : edge + 4] = 0.0
+    measured, _ = observe(rgb, K, coarse, CFG, SIZE_M, state, 1 / 30)
+    m = measured["target"]
+    assert m.state == "partial" and m.fitted and m.usable and m.occluded, m.reason
+    err = np.abs(match_order(m.corners_px, target.corners_px) - order_corners(target.corners_px))
+    assert err.max() < 0.5, f"fitted corners off by {err.max():.2f} px"
 
 
 def test_a_target_slid_partly_out_of_the_picture_is_fitted_and_not_occluded() -> None:
@@ -232,6 +258,26 @@ def test_depth_at_a_lower_resolution_is_registered_to_colour() -> None:
             int(np.argmin(np.linalg.norm(marker.corners_px - c, axis=1))) for c in m.corners_px
         ]
         np.testing.assert_allclose(m.depth_m, marker.points_m[order, 2], atol=1e-3)
+
+
+@pytest.mark.parametrize("depth_shape", [(240, 320), (160, 213), (120, 160)])
+def test_a_registered_crop_is_that_crop_of_the_registered_mask(
+    depth_shape: tuple[int, int],
+) -> None:
+    """Vision registers only a marker's box of its mask to the depth image: the same pixels as
+    the whole mask registered, whether the sizes are whole multiples (resampled by blocks)
+    or not (the whole mask resampled)."""
+    rng = np.random.default_rng(3)
+    blobs = (rng.random((48, 64)) < 0.5).astype(np.uint8) * 255
+    mask = np.kron(blobs, np.ones((10, 10), np.uint8))  # 480×640, blocks off the depth grid
+    mask[rng.random(mask.shape) < 0.05] ^= 255
+    whole = registered_mask(mask, depth_shape)
+    assert 0 < np.count_nonzero(whole) < whole.size and set(np.unique(whole)) == {0, 255}
+    for _ in range(20):
+        r0, c0 = rng.integers(0, depth_shape[0] - 2), rng.integers(0, depth_shape[1] - 2)
+        r1, c1 = rng.integers(r0 + 1, depth_shape[0] + 1), rng.integers(c0 + 1, depth_shape[1] + 1)
+        crop = registered_mask(mask, depth_shape, (r0, r1, c0, c1))
+        assert np.array_equal(crop, whole[r0:r1, c0:c1])
 
 
 def test_occlusion_is_seen_past_the_invalid_band_along_an_occluder() -> None:
