@@ -9,10 +9,11 @@ motion of the hand's own image away from where it is can.
 The law uses only the camera (the hand marker's corners and depths) and the encoders (forward
 kinematics and the assumed camera pose give the elbow's image): it asks the hand marker's four
 image points to slide, unchanged in shape, by a clearance of a few marker diagonals along one
-image direction, through the same interaction-matrix machinery as the servo
-(``(v, ω) = λ · L⁺ · (s − s_goal)``, L at the current points and depths), so the twist goes to
-actuation like any other and meets its whole safety chain (deadman, joint limits, speed and
-acceleration limits). Directions, in order:
+image direction, through the same interaction-matrix machinery as the servo but with a
+translation only (``v = λ · L_v⁺ · e``, L at the current points and depths, ``ω = 0``; ``e``
+the offset from the goal plus a pull away from the image border for corners near it), so the
+twist goes to actuation like any other and meets its whole safety chain (deadman, joint
+limits, speed and acceleration limits). Directions, in order:
 
 1. and 2. across the forearm's image, the side where the hand rises first: the hand and the
    forearm behind it both leave the image area they covered;
@@ -54,6 +55,9 @@ REACHED_PX = 3.0  # an attempt is over when every corner is this close to its go
 BORDER_HYSTERESIS_PX = 4.0  # nearer the border than at its start by this much: the attempt ends
 MIN_SHARE = 0.3  # a direction allowing less than this share of the clearance is skipped
 DOWN_LIMIT = 0.7  # directions more downward than this (cosine with the image's down) are left out
+# A corner inside the image's margin band is pulled back in as if its goal were this many times
+# its depth into the band further in (acquisition_error).
+BORDER_GAIN = 3.0
 
 
 @dataclass(frozen=True)
@@ -225,6 +229,29 @@ def advance(
     )
 
 
+def border_push(corners_px: FloatArray, k: CameraIntrinsics) -> FloatArray:
+    """How far each corner lies inside the image's margin band (px, 4×2, pointing towards the
+    border; zero for a corner the band does not hold): the extra error that pulls such corners
+    back in (:func:`acquisition_error`)."""
+    c = np.asarray(corners_px, dtype=float)
+    margin = image_margin_px(k)
+    inside = np.clip(c, [margin, margin], [k.width_px - 1 - margin, k.height_px - 1 - margin])
+    return c - inside
+
+
+def acquisition_error(
+    corners_px: FloatArray, goal_px: FloatArray, k: CameraIntrinsics
+) -> FloatArray:
+    """The error the acquisition servoes to zero (normalized, 8): the corners' offset from
+    their goal, plus :data:`BORDER_GAIN` times how far they are inside the margin band. The
+    slide is not a straight image line (the law may turn the square on the way), and a hand
+    that starts near the border could otherwise curve out of the image, where vision loses it
+    (a goal inside the image alone does not prevent that)."""
+    c = np.asarray(corners_px, dtype=float)
+    target = np.asarray(goal_px, dtype=float) - BORDER_GAIN * border_push(c, k)
+    return (pixel_to_normalized(c, k) - pixel_to_normalized(target, k)).reshape(-1)
+
+
 def acquisition_twist_cam(
     corners_px: FloatArray,
     depth_m: FloatArray,
@@ -233,12 +260,15 @@ def acquisition_twist_cam(
     gain: float,
 ) -> FloatArray:
     """The hand twist (camera frame, at the camera origin) that slides the hand marker's image
-    towards ``goal_px``: ``(v, ω) = λ · L⁺ · (s − s_goal)`` on normalized points, with L at the
+    towards ``goal_px`` and keeps it off the border: a translation only, ``v = λ · L_v⁺ · e``
+    with ``e`` :func:`acquisition_error` and ``L_v`` the translational columns of L at the
     current points and measured depths (the eye-to-hand sign, as in
-    :mod:`services.controller.ibvs`)."""
+    :mod:`services.controller.ibvs`), ``ω = 0``. A slide needs no turn, and a turn swings
+    the square's corners, the outer ones towards the border: with all six degrees of freedom
+    the law answered a corner near the border by spinning the square about the optical axis."""
     from services.controller.ibvs import interaction_matrix
 
     s = pixel_to_normalized(np.asarray(corners_px, dtype=float), k)
-    s_goal = pixel_to_normalized(np.asarray(goal_px, dtype=float), k)
-    error = (s - s_goal).reshape(-1)
-    return gain * np.linalg.pinv(interaction_matrix(s, np.asarray(depth_m, dtype=float))) @ error
+    error = acquisition_error(corners_px, goal_px, k)
+    l_v = interaction_matrix(s, np.asarray(depth_m, dtype=float))[:, :3]
+    return np.concatenate([gain * np.linalg.pinv(l_v) @ error, np.zeros(3)])

@@ -58,6 +58,35 @@ def test_the_law_slides_the_hand_image_to_its_goal_without_turning_it() -> None:
     assert np.ptp(points[:, 2]) < 1e-3  # still facing the camera as before
 
 
+def test_a_hand_near_the_border_is_pulled_back_in_by_a_slide_never_a_turn() -> None:
+    """A hand marker inside the image's margin band, its goal to the side: the twist has no
+    turn (a turn would swing the outer corners further out), the square's image slides along
+    its goal and away from the border at once."""
+    margin = acq.image_margin_px(K)
+    points = square_points(np.array([0.0, -0.157, 0.5]))  # its top edge near the image's top
+    corners = project(points, K)
+    assert 0 < corners[:, 1].min() < margin  # in the band
+    push = acq.border_push(corners, K)
+    assert np.all(push[:, 1] <= 0) and push[:, 1].min() < 0 and np.all(push[:, 0] == 0)
+    goal = acq.goal_corners(corners, np.array([-1.0, 0.0]), 120.0, K)
+    assert goal is not None
+    twist = acq.acquisition_twist_cam(corners, points[:, 2], goal, K, gain=1.0)
+    np.testing.assert_array_equal(twist[3:], 0.0)
+    first = project(moved(points, twist, DT_S), K)
+    assert np.all(first[:, 1] > corners[:, 1])  # down, away from the top border
+    assert np.all(first[:, 0] < corners[:, 0])  # and towards its goal
+    for _ in range(300):
+        obs = observe(points)
+        points = moved(
+            points, acq.acquisition_twist_cam(obs.corners_px, obs.depth_m, goal, K, 1.0), DT_S
+        )
+    end = project(points, K)
+    # Slid to its goal along the border, held further from it than it started (the goal,
+    # moved sideways only, is itself in the band: the pull and the goal balance there).
+    assert end[:, 0].mean() == pytest.approx(goal[:, 0].mean(), abs=0.5)
+    assert end[:, 1].min() > corners[:, 1].min() + 5.0
+
+
 def start_covering(config: ControllerConfig) -> tuple[IbvsController, Marker]:
     hand = observe(square_points(np.array([0.0, 0.05, 0.45])))
     return IbvsController(config, np.eye(4)), hand
