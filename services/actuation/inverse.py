@@ -39,9 +39,11 @@ def limit_joint_positions(
     """Inside ``slow_zone_rad`` of a joint limit, the speed towards it is bounded by the
     joint's speed limit times the fraction of the zone left, down to zero at the limit (the
     joint approaches its limit exponentially and never crosses it); motion away from it, and
-    motion slower than the bound, are untouched. A bound, not a scale: scaling every speed by
-    the fraction left made a goal posture inside the zone crawl for its last millimetres.
-    Returns the rates and the joints slowed."""
+    motion slower than the bound, are untouched. Only the joint over its bound is slowed: the
+    others keep moving and the closed loop steers round the limit (slowing the whole vector
+    kept the hand's direction but left it blocked where it could have got past). A bound, not a
+    scale: scaling every speed by the fraction left made a goal posture inside the zone crawl
+    for its last millimetres. Returns the rates and the joints slowed."""
     qdot = np.array(qdot_rad_s, dtype=float)
     q = np.asarray(q_rad, dtype=float)
     to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)

@@ -66,6 +66,10 @@ def test_near_a_limit_speed_towards_it_is_bounded_not_scaled() -> None:
     assert out[1] == 0.01 and slowed == []
     out, slowed, _ = limit_joint_velocities(np.array([0.0, -1.4, 0, 0, 0, 0]), q)
     assert out[1] == -1.4 and slowed == []
+    wanted = np.array([0.3, 1.2, -0.4, 0.1, 0.0, 0.2])  # joint 2 over its bound: it alone
+    out, slowed, _ = limit_joint_velocities(wanted, q)
+    assert slowed == [1] and out[1] == pytest.approx(half)
+    np.testing.assert_array_equal(np.delete(out, 1), np.delete(wanted, 1))
 
 
 def test_nan_twist_never_reaches_the_motors() -> None:
