@@ -75,6 +75,9 @@ SEQS = struct.Struct("<QQ")  # a slot's seq_begin, seq_end
 SEQ = struct.Struct("<Q")
 ITEMSIZE = {"uint8": 1, "float32": 4}
 MAX_READER_SEGMENTS = 4  # mappings a reader keeps (a new segment per size change)
+# Every page mapped at once (Linux), by writer and readers: otherwise each of a ring's first
+# RING_SLOTS frames pays a page fault per 4 KiB page, drawn or read, on the frame's way.
+MAP_FLAGS = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
 
 
 class RingError(Exception):
@@ -310,7 +313,7 @@ class RingWriter:
                     f"no room for a ring of {self.slots} frames ({size / 2**20:.1f} MiB) in "
                     f"{self.directory}: {exc.strerror}"
                 ) from exc
-            new_map = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+            new_map = mmap.mmap(fd, size, MAP_FLAGS, mmap.PROT_READ | mmap.PROT_WRITE)
         except BaseException:
             with contextlib.suppress(OSError):
                 os.unlink(path)
@@ -429,7 +432,7 @@ class RingReader:
             size = os.fstat(fd).st_size
             if size < SEGMENT_HEADER.size:
                 raise RingUnreachable(f"{path}: {size} bytes, not a frame ring")
-            mapped = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ)
+            mapped = mmap.mmap(fd, size, MAP_FLAGS, mmap.PROT_READ)
         finally:
             os.close(fd)
         magic, token, slots, capacity, stride = SEGMENT_HEADER.unpack_from(mapped, 0)
