@@ -4,9 +4,8 @@ and (for evaluation only) ground truth; applies joint velocity commands.
 The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the first colour frame
 at or after each tick of ``camera.depth_hz`` (registered, possibly at a lower resolution; the
 schedule is services/sim/schedule.py, the motors' limit services/sim/motors.py). Per
-frame the depth image goes out first if one was taken, then the colour frame, which names the
-newest depth image (``depth_frame_seq``), then the joint state. The images are drawn straight
-into the slots of the frame rings (:meth:`TypedPublisher.reserve`) where there are rings.
+frame the joint state goes out first, then the depth image if one was taken, then the colour
+frame, which names the newest depth image (``depth_frame_seq``).
 
 Clock modes:
 - lockstep: render frame k, publish it, wait for the command derived from frame k, apply it for
@@ -147,21 +146,32 @@ class SimService:
         rgb, depth_m = self.world.render(with_depth, out)
         self.render_ms = 1000.0 * (time.perf_counter() - started)
         capture_time_s = time.time()
-        # The images first, without copying their pixels (ImageData.view_of: render() gives
-        # the ring's slots or fresh arrays every frame, never changed afterwards): the
-        # publishers commit a slot drawn in place, copy anything else into the ring (or into
-        # the whole payload, without a ring). The depth image goes before the colour frame
-        # that names it, so that vision has it when the colour frame comes.
-        messages: list[tuple[TypedPublisher, object]] = []
+        header = self.node.header(t, seq)
+        # Joint state first, so a consumer has it when the frame's features arrive; then the
+        # images, without copying their pixels (ImageData.view_of: render() gives the ring's
+        # slots or fresh arrays every frame, never changed afterwards): the publishers commit
+        # a slot drawn in place, copy anything else into the ring (or into the whole payload,
+        # without a ring).
+        messages: list[tuple[TypedPublisher, object]] = [
+            (
+                self.pub_joints,
+                JointState(header=header, position_rad=q.tolist(), velocity_rad_s=qdot.tolist()),
+            )
+        ]
         if depth_m is not None:
             self.depth_schedule = self.depth_schedule.taken(t, seq)
-            depth_message = DepthFrame(
-                header=self.node.header(t, seq),
-                intrinsics=self.world.depth_intrinsics,
-                depth_m=ImageData.view_of(depth_m),
+            messages.append(
+                (
+                    self.pub_depth,
+                    DepthFrame(
+                        header=self.node.header(t, seq),
+                        intrinsics=self.world.depth_intrinsics,
+                        depth_m=ImageData.view_of(depth_m),
+                    ),
+                )
             )
-            self.pub_depth.put(depth_message)
-            messages.append((self.pub_depth, depth_message))
+        for publisher, message in messages:
+            publisher.put(message)
         rgb_header = self.node.header(t, seq)
         rgb_message = RgbFrame(
             header=rgb_header,
@@ -171,13 +181,6 @@ class SimService:
         )
         self.pub_rgb.put(rgb_message)
         messages.append((self.pub_rgb, rgb_message))
-        # Then the joint state, off the frame's way to vision: the controller and actuation
-        # pair it with the frame's features and twist, which come milliseconds later, and
-        # their waking up for it would compete for the CPU with vision receiving the frame.
-        header = self.node.header(t, seq)
-        joints = JointState(header=header, position_rad=q.tolist(), velocity_rad_s=qdot.tolist())
-        self.pub_joints.put(joints)
-        messages.append((self.pub_joints, joints))
         # Ground truth (evaluation only) after the frame, off the loop's critical path.
         truth = truth_message(self.world.truth(), header, q)
         self.pub_truth.put(truth)
