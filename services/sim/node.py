@@ -5,7 +5,8 @@ The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the fir
 at or after each tick of ``camera.depth_hz`` (registered, possibly at a lower resolution; the
 schedule is services/sim/schedule.py, the motors' limit services/sim/motors.py). Per
 frame the joint state goes out first, then the depth image if one was taken, then the colour
-frame, which names the newest depth image (``depth_frame_seq``).
+frame, which names the newest depth image (``depth_frame_seq``). The images are drawn straight
+into the next slots of the frame rings (:meth:`TypedPublisher.reserve`) where there are rings.
 
 Clock modes:
 - lockstep: render frame k, publish it, wait for the command derived from frame k, apply it for
