@@ -1,11 +1,13 @@
 """Camera frames by reference: a ring of preallocated slots in POSIX shared memory.
 
-One writer (the sim, one ring per camera stream) copies each frame's pixels into the next
+One writer (the sim, one ring per camera stream) puts each frame's pixels into the next
 slot of a segment in ``/dev/shm`` and sends only a small :class:`FrameRef` (segment, slot,
 sequence number, shape, dtype, byte offset) where the pixels would have gone; any number of
-readers on the same host map the segment once, read-only, and get a memoryview of the slot:
-the pixels are copied once in all (into the slot), instead of through Zenoh's pool and out
-again.
+readers on the same host map the segment once, read-only, and get a memoryview of the slot.
+The writer either copies a finished frame in (:meth:`RingWriter.write`) or draws it straight
+into the slot: :meth:`RingWriter.reserve` gives a writable numpy view of the next slot and
+:meth:`RingWriter.commit` publishes what was drawn there, so the pixels are never copied at
+all, instead of twice through Zenoh's pool and once out again.
 
 Each slot starts with two sequence numbers, written seqlock style: the writer stores the
 frame's sequence number in ``seq_begin``, then the pixels, then the same number in
@@ -13,7 +15,10 @@ frame's sequence number in ``seq_begin``, then the pixels, then the same number 
 (the write it names is complete, and no later write has finished) and ``seq_begin`` still
 equals it (no later write has started); :meth:`RingReader.intact` asks the second question
 again after the reader is done with the pixels, so a view that the writer overwrote while it
-was in use is detected, and the result computed from it is thrown away. That order is enough
+was in use is detected, and the result computed from it is thrown away. A reserved slot has
+its new ``seq_begin`` from :meth:`RingWriter.reserve` on, and its ``seq_end`` only from
+:meth:`RingWriter.commit`: while it is being drawn, neither its old frame nor the new one reads
+as intact. That order is enough
 on CPUs that keep stores in program order (x86-64, the hosts this runs on); a weakly ordered
 CPU (ARM) would need fences that Python does not offer.
 
@@ -56,6 +61,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 SHM_DIR = Path("/dev/shm")
 SEGMENT_PREFIX = "umay-frames-"
 RING_SLOTS = 16
@@ -68,6 +75,9 @@ SEQS = struct.Struct("<QQ")  # a slot's seq_begin, seq_end
 SEQ = struct.Struct("<Q")
 ITEMSIZE = {"uint8": 1, "float32": 4}
 MAX_READER_SEGMENTS = 4  # mappings a reader keeps (a new segment per size change)
+# Every page mapped at once (Linux), by writer and readers: otherwise each of a ring's first
+# RING_SLOTS frames pays a page fault per 4 KiB page, drawn or read, on the frame's way.
+MAP_FLAGS = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
 
 
 class RingError(Exception):
@@ -153,6 +163,15 @@ class FrameRef:
         return cls(host, segment, slot, seq, offset, tuple(shape), dtype)
 
 
+@dataclass(frozen=True)
+class SlotLease:
+    """A slot reserved for a frame (:meth:`RingWriter.reserve`): ``pixels`` is a writable
+    view of it, to be filled before :meth:`RingWriter.commit` publishes it as ``ref``."""
+
+    ref: FrameRef
+    pixels: np.ndarray
+
+
 def _slot_offsets(slots: int, capacity_bytes: int) -> tuple[int, int]:
     """(stride, size) of a segment of ``slots`` slots of ``capacity_bytes`` pixels each."""
     stride = ALIGN + _aligned(capacity_bytes)
@@ -169,9 +188,9 @@ class RingWriter:
     frame no longer fits its slots (the old one is unlinked; readers that still map it keep
     their views, which no write touches any more).
 
-    :meth:`write` runs on the publishing thread; :meth:`copy_frame` may run on another (a
-    Zenoh query callback) at the same time: the seqlock tells it whether what it copied is
-    the frame it asked for."""
+    :meth:`write`, :meth:`reserve` and :meth:`commit` run on the publishing thread;
+    :meth:`copy_frame` may run on another (a Zenoh query callback) at the same time: the
+    seqlock tells it whether what it copied is the frame it asked for."""
 
     def __init__(
         self, slots: int = RING_SLOTS, directory: Path = SHM_DIR, host: str | None = None
@@ -191,27 +210,73 @@ class RingWriter:
         self._unlink_at_exit: weakref.finalize | None = None
         self._lock = threading.Lock()  # the segment's replacement against copy_frame
 
+    def reserve(self, shape: tuple[int, ...] | list[int], dtype: str) -> SlotLease:
+        """The next slot, to draw a frame of ``shape`` and ``dtype`` into, then
+        :meth:`commit`. Its ``seq_begin`` is written now: the frame it held is no longer
+        intact for any reader. Raises :class:`RingUnavailable` when no segment for it can be
+        made. A lease that is never committed leaves its slot torn (never read as a frame)."""
+        ref = self._begin(tuple(int(d) for d in shape), dtype)
+        view = self._view
+        assert view is not None
+        # A slice of its own, so that the segment can be let go while the lease lives on.
+        pixels = np.frombuffer(view[ref.offset : ref.offset + ref.nbytes], dtype)
+        return SlotLease(ref, pixels.reshape(ref.shape))
+
+    def commit(self, lease: SlotLease) -> FrameRef:
+        """Publish what was drawn into ``lease``'s slot: ``seq_end`` is written and the
+        reference returned. :class:`SlotOverwritten` when the slot was reserved again since
+        (the ring wrapped) or the segment replaced (a larger frame): nothing is written then.
+        Committing a committed lease again changes nothing."""
+        return self._commit(lease.ref)
+
+    def _commit(self, ref: FrameRef) -> FrameRef:
+        view = self._view
+        if view is None or ref.segment != self.segment:
+            raise SlotOverwritten(f"frame {ref.seq}: segment {ref.segment} was replaced")
+        base = ref.offset - ALIGN
+        begin = SEQ.unpack_from(view, base)[0]
+        if begin != ref.seq:
+            raise SlotOverwritten(
+                f"frame {ref.seq}: slot {ref.slot} was reserved again (frame {begin})"
+            )
+        SEQ.pack_into(view, base + SEQ.size, ref.seq)  # seq_end last: the frame is complete
+        self._refs[ref.slot] = ref  # for copy_frame
+        return ref
+
     def write(self, pixels: Any, shape: tuple[int, ...] | list[int], dtype: str) -> FrameRef:
-        """Copy ``pixels`` (C-contiguous bytes of ``shape`` and ``dtype``) into the next slot.
-        Raises :class:`RingUnavailable` when no segment for them can be made."""
+        """Copy ``pixels`` (C-contiguous bytes of ``shape`` and ``dtype``) into the next slot:
+        :meth:`reserve`, copy, :meth:`commit`. Raises :class:`RingUnavailable` when no
+        segment for them can be made."""
         data = memoryview(pixels).cast("B")
         shape = tuple(int(d) for d in shape)
         if len(data) != math.prod(shape) * ITEMSIZE[dtype]:
             raise ValueError(f"{len(data)} bytes are not a {dtype} image of shape {shape}")
-        if self._view is None or len(data) > self.capacity_bytes:
-            self._replace_segment(len(data))
+        ref = self._begin(shape, dtype)
+        view = self._view
+        assert view is not None
+        view[ref.offset : ref.offset + len(data)] = data
+        return self._commit(ref)
+
+    def intact(self, ref: FrameRef) -> bool:
+        """Whether the current segment's slot still holds the committed frame ``ref``."""
+        view = self._view
+        if view is None or ref.segment != self.segment:
+            return False
+        return SEQS.unpack_from(view, ref.offset - ALIGN) == (ref.seq, ref.seq)
+
+    def _begin(self, shape: tuple[int, ...], dtype: str) -> FrameRef:
+        """The next slot's reference for a frame of ``shape``, its ``seq_begin`` written."""
+        nbytes = math.prod(shape) * ITEMSIZE[dtype]
+        if self._view is None or nbytes > self.capacity_bytes:
+            self._replace_segment(nbytes)
         view = self._view
         assert view is not None
         self._seq += 1
         seq, slot = self._seq, self._seq % self.slots
         base = ALIGN + slot * self._stride
-        offset = base + ALIGN
+        self._refs.pop(slot, None)
         SEQ.pack_into(view, base, seq)  # seq_begin first: readers of the old frame now fail
-        view[offset : offset + len(data)] = data
-        SEQ.pack_into(view, base + SEQ.size, seq)  # seq_end last: the frame is complete
-        ref = FrameRef(self.host, self.segment, slot, seq, offset, shape, dtype)
-        self._refs[slot] = ref  # for copy_frame
-        return ref
+        return FrameRef(self.host, self.segment, slot, seq, base + ALIGN, shape, dtype)
 
     def copy_frame(self, segment: str, seq: int) -> tuple[bytes, FrameRef] | None:
         """A copy of the pixels of frame ``seq`` and its reference, if the ring still holds
@@ -248,7 +313,7 @@ class RingWriter:
                     f"no room for a ring of {self.slots} frames ({size / 2**20:.1f} MiB) in "
                     f"{self.directory}: {exc.strerror}"
                 ) from exc
-            new_map = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+            new_map = mmap.mmap(fd, size, MAP_FLAGS, mmap.PROT_READ | mmap.PROT_WRITE)
         except BaseException:
             with contextlib.suppress(OSError):
                 os.unlink(path)
@@ -275,7 +340,10 @@ class RingWriter:
         if self._map is not None:
             if self._unlink_at_exit is not None:
                 self._unlink_at_exit()  # once: a finalizer does nothing the second time
-            self._map.close()
+            # Leases' pixels (and messages made of them) may still view it: then it is
+            # unmapped when the last of them goes.
+            with contextlib.suppress(BufferError):
+                self._map.close()
             self._map = None
 
     def close(self) -> None:
@@ -364,7 +432,7 @@ class RingReader:
             size = os.fstat(fd).st_size
             if size < SEGMENT_HEADER.size:
                 raise RingUnreachable(f"{path}: {size} bytes, not a frame ring")
-            mapped = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ)
+            mapped = mmap.mmap(fd, size, MAP_FLAGS, mmap.PROT_READ)
         finally:
             os.close(fd)
         magic, token, slots, capacity, stride = SEGMENT_HEADER.unpack_from(mapped, 0)

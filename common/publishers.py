@@ -1,19 +1,26 @@
 """Typed publishers, and camera frames by reference.
 
-Camera frames go **by reference** between processes of one host: the publisher copies the
-pixels into a shared-memory ring (:mod:`common.frame_ring`) and puts on the frame's key the
-same message with the pixels replaced by a small reference (:mod:`common.codec`'s layout
-version 2); a subscriber's decoding resolves it into the usual ``RgbFrame``/``DepthFrame``
-whose image is a view of the ring's slot. This is an optimisation of the key's contract, not a
-second protocol: the key, the message and every subscriber's code stay the same. A subscriber
-that cannot map the ring (another host, a ``/dev/shm`` of its own, the segment gone) gets the
-whole frame from the publisher, which answers ``<frame key>/whole?segment=S;seq=N`` from its
-ring (:class:`RingPublisher`, :func:`fetch_whole_frame`): one request per frame, asked without
-blocking the callback, so such a subscriber gets every frame a little later, and a publisher
-with no remote subscriber never sends a whole frame at all. Publishing the whole frame as well,
-on another key, for remote subscribers was the alternative; it would have made every tool
-(recorder, replay, ``umay status``) know two keys for one stream. ``$UMAY_ZENOH_SHM=0`` turns
-frames by reference off with Zenoh's shared memory: frames then go whole, by copy.
+Camera frames go **by reference** between processes of one host: the pixels are in a
+shared-memory ring (:mod:`common.frame_ring`), drawn there in place by a producer that asked
+for the slot first (:meth:`TypedPublisher.reserve`) or else copied in, and the publisher puts
+on the frame's key the same message with the pixels replaced by a small reference
+(:mod:`common.codec`'s layout version 2); a subscriber's decoding resolves it into the usual
+``RgbFrame``/``DepthFrame`` whose image is a view of the ring's slot. This is an optimisation
+of the key's contract, not a second protocol: the key, the message and every subscriber's code
+stay the same. A subscriber that cannot map the ring (another host, a ``/dev/shm`` of its own,
+the segment gone) gets the whole frame from the publisher, which answers
+``<frame key>/whole?segment=S;seq=N`` from its ring (:class:`RingPublisher`,
+:func:`fetch_whole_frame`): one request per frame, asked without blocking the callback, so
+such a subscriber gets every frame a little later, and a publisher with no remote subscriber
+never sends a whole frame at all. Publishing the whole frame as well, on another key, for
+remote subscribers was the alternative; it would have made every tool (recorder, replay,
+``umay status``) know two keys for one stream. ``$UMAY_ZENOH_SHM=0`` turns frames by
+reference off with Zenoh's shared memory: frames then go whole, by copy.
+
+A producer that draws into reserved slots keeps its messages as usual: the image of a message
+is a view of the slot, and putting it again (a lockstep resend) sends the same reference again,
+as long as the slot still holds that frame; the publisher never copies from a slot that has
+been written since, nor commits a reservation twice.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
+import numpy as np
 import zenoh
 from pydantic import BaseModel
 
@@ -33,9 +41,16 @@ from common.codec import (
     frame_parts,
     image_field,
 )
-from common.frame_ring import RING_SLOTS, FrameRef, RingUnavailable, RingWriter
+from common.frame_ring import (
+    RING_SLOTS,
+    FrameRef,
+    RingError,
+    RingUnavailable,
+    RingWriter,
+    SlotLease,
+)
 from common.keys import whole_frame_key
-from common.messages import Header, Stamp
+from common.messages import Header, ImageData, Stamp
 from common.metrics import TopicMeter
 from common.session import shm_enabled
 
@@ -53,32 +68,81 @@ class RingPublisher:
     only their reference; the publisher answers ``<key>/whole`` with the whole frame of a
     reference for subscribers that cannot map the ring. Where the host cannot give a ring (no
     ``/dev/shm``, too small, read-only, as in some containers) every frame goes whole, by
-    copy, and :attr:`unavailable` says why."""
+    copy, and :attr:`unavailable` says why.
+
+    :meth:`reserve` lends the next slot to draw the next frame into; a message whose image is
+    that slot's view is then committed without a copy (:attr:`in_place`), any other copied
+    into the slot (:attr:`copied`)."""
 
     def __init__(self, session: zenoh.Session, key: str, slots: int = RING_SLOTS) -> None:
         self.key = key
         self.ring = RingWriter(slots)
         self.served = 0  # whole frames sent to subscribers that could not map the ring
+        self.in_place = 0  # frames committed where they were drawn (no copy)
+        self.copied = 0  # frames copied into a slot
         self.unavailable = ""  # why there is no ring ("": there is one, or not yet)
         # slot → (ring seq, frame_parts head) of the frame the slot holds, for the answers
         self._heads: dict[int, tuple[int, bytes]] = {}
+        self._lease: SlotLease | None = None  # reserved, not yet committed
+        # slot → the committed lease, to know a message put again (its image is the lease's)
+        self._committed: dict[int, SlotLease] = {}
         self._queryable = session.declare_queryable(whole_frame_key(key), self._answer)
+
+    def reserve(self, shape: tuple[int, ...], dtype: str) -> np.ndarray | None:
+        """A writable view of the slot the next frame will go into, to draw it there (None
+        without a ring). A reservation not put is given up at the next one."""
+        if self.unavailable:
+            return None
+        try:
+            self._lease = self.ring.reserve(shape, dtype)
+        except RingUnavailable as exc:
+            self._no_ring(exc)
+            return None
+        self._committed.pop(self._lease.ref.slot, None)
+        return self._lease.pixels
 
     def payload(self, message: BaseModel) -> tuple[bytes, bool]:
         """What to put for ``message`` and whether it is by reference: its reference, or the
         whole frame without a ring."""
         head, pixels = frame_parts(message)
         if not self.unavailable:
-            image = getattr(message, image_field(type(message)) or "")
             try:
-                ref = self.ring.write(pixels, image.shape, image.dtype)
+                ref = self._into_ring(pixels, getattr(message, image_field(type(message)) or ""))
             except RingUnavailable as exc:
-                self.unavailable = str(exc)
-                log.warning("%s: camera frames go whole, by copy (%s)", self.key, exc)
+                self._no_ring(exc)
             else:
                 self._heads[ref.slot] = (ref.seq, head)
                 return by_reference(head, ref), True
         return b"".join((head, pixels)), False
+
+    def _into_ring(self, pixels: memoryview, image: ImageData) -> FrameRef:
+        """The reference of ``pixels`` in the ring: committed in place when they are the
+        reserved slot's view, the same again when they are a committed slot's (a message put
+        again), else copied into the reserved slot or the next one."""
+        owner = pixels.obj  # the array a view of a slot was made from (ImageData.view_of)
+        lease, self._lease = self._lease, None
+        for sent in self._committed.values():
+            if sent.pixels is owner:
+                if not self.ring.intact(sent.ref):  # never resend pixels written since
+                    raise RingError(f"{self.key}: frame {sent.ref.seq} was overwritten")
+                return sent.ref
+        shape, dtype = tuple(image.shape), image.dtype
+        if lease is None or lease.ref.shape != shape or lease.ref.dtype != dtype:
+            self.copied += 1
+            return self.ring.write(pixels, shape, dtype)
+        if lease.pixels is owner:
+            self.in_place += 1
+        else:
+            memoryview(lease.pixels).cast("B")[:] = pixels
+            self.copied += 1
+        ref = self.ring.commit(lease)
+        self._committed[ref.slot] = lease
+        return ref
+
+    def _no_ring(self, exc: RingUnavailable) -> None:
+        self.unavailable = str(exc)
+        self._lease = None
+        log.warning("%s: camera frames go whole, by copy (%s)", self.key, exc)
 
     def _answer(self, query: zenoh.Query) -> None:
         """The whole frame ``segment``/``seq`` of the query's parameters (Zenoh's thread)."""
@@ -140,7 +204,16 @@ class TypedPublisher(Generic[M]):
     # The header stamps of the last messages put, for the service's stamps queryable.
     stamps: deque[Stamp] = field(default_factory=lambda: deque(maxlen=STAMPS_KEPT))
 
+    def reserve(self, shape: tuple[int, ...], dtype: str) -> np.ndarray | None:
+        """Where to draw the next camera frame's image so that it goes by reference without a
+        copy: a writable view of the ring's next slot (:meth:`RingPublisher.reserve`), or
+        None (no ring: draw it anywhere). The message put next has that view as its image
+        (``ImageData.view_of``)."""
+        return None if self.frames is None else self.frames.reserve(shape, dtype)
+
     def put(self, message: M) -> None:
+        """Encode and put ``message``; a camera frame put again whose ring slot has been
+        written since raises :class:`~common.frame_ring.RingError` (its pixels are gone)."""
         is_frame = image_field(type(message)) is not None
         if self.frames is not None and is_frame:
             payload, by_ref = self.frames.payload(message)

@@ -139,6 +139,16 @@ class _Target:
     shape: tuple[int, int]  # rows, columns
 
 
+def _or_empty(array: np.ndarray | None, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+    """``array`` to read pixels into, or a fresh one; ValueError when it does not fit them
+    (``read_into`` would write past it)."""
+    if array is None:
+        return np.empty(shape, dtype)
+    if array.shape != shape or array.dtype != dtype or not array.flags.c_contiguous:
+        raise ValueError(f"cannot read a {np.dtype(dtype)} {shape} image into {array.shape}")
+    return array
+
+
 class GlRenderer:
     """Draws :class:`~services.sim.shapes.VisualShape` lists from a camera pose.
 
@@ -261,11 +271,17 @@ class GlRenderer:
                 vao.render()
         return target
 
-    def read_colour_depth(self, target: _Target) -> tuple[np.ndarray, np.ndarray]:
-        """RGB uint8 (H, W, 3) and depth float32 metres (H, W; 0 where nothing is drawn), as
-        fresh arrays (the caller may keep them)."""
-        rgb = np.empty((*target.shape, 3), np.uint8)
-        depth_m = np.empty(target.shape, np.float32)
+    def read_colour_depth(
+        self,
+        target: _Target,
+        out: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """RGB uint8 (H, W, 3) and depth float32 metres (H, W; 0 where nothing is drawn), read
+        into ``out``'s arrays where given (C-contiguous, of that shape and dtype: a camera
+        frame's ring slot, say, so that the pixels are never copied again), else into fresh
+        arrays (the caller may keep them)."""
+        rgb = _or_empty(out[0], (*target.shape, 3), np.uint8)
+        depth_m = _or_empty(out[1], target.shape, np.float32)
         target.frame.read_into(rgb, components=3, attachment=0)
         target.frame.read_into(depth_m, components=1, attachment=1, dtype="f4")
         return rgb, depth_m

@@ -5,7 +5,8 @@ The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the fir
 at or after each tick of ``camera.depth_hz`` (registered, possibly at a lower resolution; the
 schedule is services/sim/schedule.py, the motors' limit services/sim/motors.py). Per
 frame the joint state goes out first, then the depth image if one was taken, then the colour
-frame, which names the newest depth image (``depth_frame_seq``).
+frame, which names the newest depth image (``depth_frame_seq``). The images are drawn straight
+into the next slots of the frame rings (:meth:`TypedPublisher.reserve`) where there are rings.
 
 Clock modes:
 - lockstep: render frame k, publish it, wait for the command derived from frame k, apply it for
@@ -38,7 +39,7 @@ from common.messages import (
     SimTiming,
 )
 from common.node import Node
-from common.publishers import TypedPublisher
+from common.publishers import RingPublisher, TypedPublisher
 from common.queries import alive_services
 from common.runtime import ServiceContext
 from common.session import ENV_SHM
@@ -97,10 +98,12 @@ class SimService:
             # that could not map the ring
             "frames_by_ref": sum(p.meter.by_ref for p in self.frame_publishers),
             "frames_by_copy": sum(p.meter.by_copy for p in self.frame_publishers),
+            # of those by reference: drawn straight into their ring slot, and copied into it
+            # (TinyRenderer, the Kinect model's output); the rest are resends
+            "frames_in_place": sum(r.in_place for r in self.rings),
+            "frames_copied_to_ring": sum(r.copied for r in self.rings),
             "frames_copy_reason": self.frames_copy_reason(),
-            "whole_frames_served": sum(
-                p.frames.served for p in self.frame_publishers if p.frames is not None
-            ),
+            "whole_frames_served": sum(r.served for r in self.rings),
             "real_time_factor": round(
                 self.world.sim_time_s / max(time.monotonic() - self.started_s, 1e-9), 3
             ),
@@ -109,6 +112,11 @@ class SimService:
     @property
     def frame_publishers(self) -> tuple[TypedPublisher, TypedPublisher]:
         return (self.pub_rgb, self.pub_depth)
+
+    @property
+    def rings(self) -> list[RingPublisher]:
+        """The frame publishers' rings (none when frames by reference are off)."""
+        return [p.frames for p in self.frame_publishers if p.frames is not None]
 
     def frames_copy_reason(self) -> str:
         """Why camera frames go whole instead of by reference ("": they do not)."""
@@ -125,16 +133,26 @@ class SimService:
         self.world.update_scene()
         q, qdot = self.world.joint_state()
         with_depth = self.depth_schedule.due(t)
+        # Drawn straight into the frame rings' next slots where there are rings (no copy on
+        # the way to vision); into fresh arrays otherwise.
+        k, k_depth = self.world.intrinsics, self.world.depth_intrinsics
+        out = (
+            self.pub_rgb.reserve((k.height_px, k.width_px, 3), "uint8"),
+            self.pub_depth.reserve((k_depth.height_px, k_depth.width_px), "float32")
+            if with_depth
+            else None,
+        )
         render_start_s = time.time()
         started = time.perf_counter()
-        rgb, depth_m = self.world.render(with_depth)
+        rgb, depth_m = self.world.render(with_depth, out)
         self.render_ms = 1000.0 * (time.perf_counter() - started)
         capture_time_s = time.time()
         header = self.node.header(t, seq)
         # Joint state first, so a consumer has it when the frame's features arrive; then the
-        # images, without copying their pixels before the one copy into the frame ring's slot
-        # (or the whole payload, without a ring) (ImageData.view_of: render() gives fresh
-        # arrays every frame, never changed afterwards).
+        # images, without copying their pixels (ImageData.view_of: render() gives the ring's
+        # slots or fresh arrays every frame, never changed afterwards): the publishers commit
+        # a slot drawn in place, copy anything else into the ring (or into the whole payload,
+        # without a ring).
         messages: list[tuple[TypedPublisher, object]] = [
             (
                 self.pub_joints,

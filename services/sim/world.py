@@ -475,11 +475,15 @@ class World:
             self._projections[k] = opengl_projection_matrix(k, cam.near_m, cam.far_m)
         return self._projections[k]
 
-    def render_perfect(self, k: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+    def render_perfect(
+        self, k: CameraIntrinsics, out: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Perfect RGB uint8 (H, W, 3) and depth float32 metres (H, W) from the camera's pose,
-        with intrinsics ``k`` (the same field of view at another resolution, say)."""
+        with intrinsics ``k`` (the same field of view at another resolution, say). OpenGL
+        draws into ``out``'s arrays where given (see :meth:`render`); TinyRenderer ignores
+        them."""
         if self._gl is not None:
-            return self._gl.read_colour_depth(self._draw_gl(k))
+            return self._gl.read_colour_depth(self._draw_gl(k), out)
         _, _, rgba, depth, _ = self._tiny_image(k, pybullet.ER_NO_SEGMENTATION_MASK)
         # One contiguous copy without alpha: 25× faster than slicing + ascontiguousarray.
         rgb = cv2.cvtColor(
@@ -493,16 +497,23 @@ class World:
         )
         return rgb, depth_m
 
-    def render(self, with_depth: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    def render(
+        self,
+        with_depth: bool = True,
+        out: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """RGB uint8 (H, W, 3) at the colour resolution and, if ``with_depth``, depth float32
         metres at the depth resolution (registered: same viewpoint and field of view), through
         the Kinect sensor model when ``camera.kinect.enabled``. One render serves both when
-        the resolutions agree."""
-        rgb, depth_m = self.render_perfect(self.intrinsics)
+        the resolutions agree. ``out``: arrays (colour, depth) the images may be drawn into
+        (the slots of a frame ring): the images returned are these arrays where they were,
+        fresh ones otherwise."""
+        same = self.depth_intrinsics == self.intrinsics
+        rgb, depth_m = self.render_perfect(self.intrinsics, (out[0], out[1] if same else None))
         if not with_depth:
             depth_m = None
-        elif self.depth_intrinsics != self.intrinsics:
-            _, depth_m = self.render_perfect(self.depth_intrinsics)
+        elif not same:
+            _, depth_m = self.render_perfect(self.depth_intrinsics, (None, out[1]))
         if self.kinect.enabled:
             rgb = exposed_rgb(rgb, self.kinect, self._sensor_rng)
             if depth_m is not None:

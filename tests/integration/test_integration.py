@@ -98,9 +98,9 @@ def test_two_lockstep_runs_give_identical_results(tmp_path: Path) -> None:
 
 
 def test_camera_frames_go_by_reference_and_the_loop_converges(tmp_path: Path) -> None:
-    """One host: the sim sends every colour frame and depth image by reference (its
-    shared-memory ring), vision reads them all in place, none is overwritten while read, and
-    the lockstep loop converges."""
+    """One host: the sim draws every colour frame and depth image straight into its
+    shared-memory ring and sends them by reference, vision reads them all in place, none is
+    overwritten while read, and the lockstep loop converges."""
     proc, keys, endpoint = launch_umay_up(tmp_path / "logs", "lockstep")
     session = open_session(connect=[endpoint])
     try:
@@ -117,6 +117,10 @@ def test_camera_frames_go_by_reference_and_the_loop_converges(tmp_path: Path) ->
         sent = sim.published[keys.rgb].count + sim.published[keys.depth].count
         assert sim.fields["frames_by_ref"] == sent > 0 and sim.fields["frames_by_copy"] == 0
         assert sim.fields["frames_copy_reason"] == "" and sim.fields["whole_frames_served"] == 0
+        # Drawn by OpenGL straight into the ring's slots: not one frame copied into the ring.
+        assert sim.fields["renderer"] == "gl", sim.fields["renderer_detail"]
+        assert sim.fields["frames_copied_to_ring"] == 0
+        assert 0 < sim.fields["frames_in_place"] <= sim.fields["frames_by_ref"]
         for key in (keys.rgb, keys.depth):
             stats = vision.received[key]
             assert stats.by_ref == stats.count > 0 and stats.by_copy == stats.fetched == 0, key

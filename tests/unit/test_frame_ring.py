@@ -19,6 +19,7 @@ from common.frame_ring import (
     RingUnavailable,
     RingUnreachable,
     RingWriter,
+    SlotLease,
     SlotOverwritten,
     remove_segments_of,
 )
@@ -214,3 +215,69 @@ def test_a_ring_that_cannot_be_created_says_why(tmp_path: Path) -> None:
         RingWriter(1, tmp_path, HOST)
     with pytest.raises(ValueError, match="not a uint8 image"):
         RingWriter(SLOTS, tmp_path, HOST).write(b"abc", (2, 2), "uint8")
+
+
+def reserve_like(writer: RingWriter, a: np.ndarray) -> SlotLease:
+    return writer.reserve(a.shape, str(a.dtype))
+
+
+def test_a_frame_drawn_into_a_reserved_slot_is_read_only_once_committed(ring) -> None:
+    writer, reader = ring
+    previous = write(writer, image(1))  # the frame the reader holds
+    old_view = reader.view(previous)
+    for i in range(SLOTS - 1):  # the next reservation takes the held frame's slot
+        write(writer, image(10 + i))
+    lease = reserve_like(writer, image(2))
+    assert lease.ref.slot == previous.slot and lease.ref.seq == previous.seq + SLOTS
+    assert lease.pixels.flags.writeable and lease.pixels.shape == (48, 64, 3)
+    # Reserved: the old frame's readers find out at once, and the new one is not there yet.
+    assert not reader.intact(previous)
+    with pytest.raises(SlotOverwritten):
+        reader.view(lease.ref)
+    assert writer.copy_frame(writer.segment, lease.ref.seq) is None
+    assert writer.copy_frame(writer.segment, previous.seq) is None
+    lease.pixels[...] = image(2)  # drawn in place, half way...
+    with pytest.raises(SlotOverwritten):
+        reader.view(lease.ref)  # ...and still not a frame until committed
+    ref = writer.commit(lease)
+    assert ref == lease.ref and writer.intact(ref)
+    np.testing.assert_array_equal(as_array(reader.view(ref), ref), image(2))
+    np.testing.assert_array_equal(as_array(old_view, ref), image(2))  # the same memory
+    assert reader.intact(ref) and not reader.intact(previous)
+    found = writer.copy_frame(writer.segment, ref.seq)  # a remote reader's whole frame
+    assert found is not None and found == (image(2).tobytes(), ref)
+    assert writer.commit(lease) == ref and reader.intact(ref)  # once more: nothing changes
+
+
+def test_a_lease_whose_slot_was_reserved_again_is_never_committed(ring) -> None:
+    writer, reader = ring
+    lease = reserve_like(writer, image(1))
+    lease.pixels[...] = image(1)
+    later = [write(writer, image(10 + i)) for i in range(SLOTS)]  # the ring wraps past it
+    assert later[-1].slot == lease.ref.slot
+    with pytest.raises(SlotOverwritten, match=f"reserved again \\(frame {later[-1].seq}\\)"):
+        writer.commit(lease)
+    # The slot keeps the later frame, intact; the lease's frame never existed for readers.
+    np.testing.assert_array_equal(as_array(reader.view(later[-1]), later[-1]), image(13))
+    assert reader.intact(later[-1]) and not writer.intact(lease.ref)
+    with pytest.raises(SlotOverwritten):
+        reader.view(lease.ref)
+
+
+def test_a_lease_of_a_replaced_segment_is_never_committed(ring) -> None:
+    writer, reader = ring
+    lease = reserve_like(writer, image(1, (24, 32, 3)))
+    old_segment = writer.segment
+    large = write(writer, image(2))  # a larger frame: a new segment, the old one let go
+    assert large.segment != old_segment
+    assert not (writer.directory / old_segment).exists()
+    lease.pixels[...] = image(1, (24, 32, 3))  # still mapped while the lease lives: no fault
+    with pytest.raises(SlotOverwritten, match="was replaced"):
+        writer.commit(lease)
+    assert not writer.intact(lease.ref) and writer.intact(large)
+    np.testing.assert_array_equal(as_array(reader.view(large), large), image(2))
+    writer.close()  # with a lease still holding the old mapping, and one of its own
+    lease2 = reserve_like(writer, image(3))
+    writer.close()
+    lease2.pixels[...] = 0  # unlinked, still mapped until the lease goes
+    assert list(writer.directory.iterdir()) == []
