@@ -291,7 +291,7 @@ OCCLUSION_RADIUS_DIAGONALS = 2.0
 
 def hand_hides_target(hand: Marker, last_target: Marker) -> bool:
     """In eye-to-hand servoing the hand must end up in front of the target, hiding it."""
-    if not hand.visible:
+    if not hand.usable:
         return False
     diagonal = np.linalg.norm(last_target.corners_px[0] - last_target.corners_px[2])
     gap = np.linalg.norm(hand.corners_px.mean(axis=0) - last_target.corners_px.mean(axis=0))
@@ -359,22 +359,26 @@ class IbvsController:
                 target, remembered = expected, True
                 self.predicted = self.predicted or bool(np.any(shift))
         if self.acquisition is not None:
-            if seen.usable or not hand.visible or not self.config.acquire:
+            if seen.usable or not hand.usable or not self.config.acquire:
                 self.acquisition = None  # uncovered (or the hand lost): back to the rules
             else:
                 return self._acquire(hand, k, p_ee_base_m, t_s)
-        if not (hand.visible and target.usable):
+        # The hand is servoed on when seen whole, or fitted from its edges (its own forearm
+        # bordering its marker in the image): vision publishes a fit only when it runs along
+        # the marker's true edges to a fraction of a pixel, pins the pose down and shows most
+        # of the marker, so a fitted hand's corners are as good as a whole one's.
+        if not (hand.usable and target.usable):
             self.recent_errors_px = []
             self.frames_on_prediction = 0
-            which = "hand" if not hand.visible else "target"
-            state = hand.state if not hand.visible else target.state
+            which = "hand" if not hand.usable else "target"
+            state = hand.state if not hand.usable else target.state
             if self.hold_since_s is None:
                 self.hold_since_s = t_s
             reason = f"{which} {state}"
             # A target never seen at all is in the image (the pre-launch check makes sure):
             # something, most likely the arm, is in front of it.
             behind = may_be_behind_the_hand(seen) or self.last_target is None
-            if hand.visible and behind and self.config.acquire:
+            if hand.usable and behind and self.config.acquire:
                 if self.acquisition_failed:
                     reason = self.acquisition_failed
                 elif t_s - self.hold_since_s >= self.config.acquire_after_s:

@@ -72,20 +72,18 @@ class SquareOnPlane:
         return self.centre_m + h * (signs[:, :1] * self.axis_u + signs[:, 1:] * self.axis_v)
 
 
-def true_edge_points(
+def outline(
     mask: np.ndarray, occluder: np.ndarray, offset_px: tuple[int, int] = (0, 0)
-) -> FloatArray:
-    """Outline points (u, v) of the largest blob of ``mask`` that border no ``occluder`` pixel
-    (0/1 or 0/255 arrays of the same size; ``offset_px`` = (column, row) of the crop in the
-    image), nor the crop's border.
-
-    The outline pixels sit half a pixel inside the true edge, on average: the caller's line
-    fit is against the square's sides, which agree to well under a pixel either way."""
+) -> tuple[FloatArray, np.ndarray]:
+    """The outline of the largest blob of ``mask`` in order along it (N, 2; (u, v) in the
+    image, ``offset_px`` = (column, row) of the crop), and which of its points are the
+    marker's true edge (N,): bordering no ``occluder`` pixel (0/1 or 0/255 arrays of the
+    same size), nor the crop's border."""
     contours, _ = cv2.findContours(
         (mask > 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
     )
     if not contours:
-        return np.zeros((0, 2))
+        return np.zeros((0, 2)), np.zeros(0, bool)
     points = max(contours, key=cv2.contourArea).reshape(-1, 2)
     size = 2 * EDGE_CLEARANCE_PX + 1
     near_occluder = cv2.dilate((occluder > 0).astype(np.uint8), np.ones((size, size), np.uint8))
@@ -94,7 +92,19 @@ def true_edge_points(
     keep &= (
         (points[:, 0] > 0) & (points[:, 1] > 0) & (points[:, 0] < w - 1) & (points[:, 1] < h - 1)
     )
-    return points[keep].astype(float) + np.asarray(offset_px, dtype=float)
+    return points.astype(float) + np.asarray(offset_px, dtype=float), keep
+
+
+def true_edge_points(
+    mask: np.ndarray, occluder: np.ndarray, offset_px: tuple[int, int] = (0, 0)
+) -> FloatArray:
+    """Outline points (u, v) of the largest blob of ``mask`` that border no ``occluder`` pixel
+    nor the crop's border (see :func:`outline`).
+
+    The outline pixels sit half a pixel inside the true edge, on average: the caller's line
+    fit is against the square's sides, which agree to well under a pixel either way."""
+    points, keep = outline(mask, occluder, offset_px)
+    return points[keep]
 
 
 @dataclass(frozen=True)

@@ -13,13 +13,16 @@ depth images the corners still come from colour, and the depths from that memory
 A marker that is not visible is ``occluded`` when something is seen in front of where it must
 be by now (its last view carried along its estimated motion): in the depth image when there is
 a fresh one, else when the hand's marker is over it (in eye-to-hand servoing the hand is what
-comes between the camera and the target). A partly hidden target is fitted from its visible
-edges (:mod:`services.vision.partial`) when they pin its pose down.
+comes between the camera and the target). A partly hidden marker is fitted from its visible
+edges (:mod:`services.vision.partial`) when they pin its pose down: the target on its
+remembered plane, or, never seen whole yet, on the plane of its own depth in this frame
+(:mod:`services.vision.own_depth`); the hand always on its own depth's (it moves), and only
+when most of its marker shows (its own forearm bordering it), since it is what is servoed.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -28,7 +31,14 @@ from common.camera import CameraIntrinsics, back_project, pixel_to_normalized, p
 from common.config import VisionConfig
 from common.marker import Marker
 from common.motion import MarkerMotion
-from services.vision.depth import FloatArray, PlaneFit, marker_surface, to_depth_pixels
+from services.vision.cue import label_corners
+from services.vision.depth import (
+    FloatArray,
+    PlaneFit,
+    marker_surface,
+    plane_depth_image,
+    to_depth_pixels,
+)
 from services.vision.measurement import (
     MarkerMeasurement,
     MarkerQuad,
@@ -37,20 +47,27 @@ from services.vision.measurement import (
     not_visible,
 )
 from services.vision.occlusion import hidden_behind, occluder_map
+from services.vision.own_depth import blob_plane, on_plane, square_from_outline
 from services.vision.partial import (
     MAX_STRAY_FRACTION,
     SquareOnPlane,
     fit_square_to_blob,
+    outline,
     stray_fraction,
-    true_edge_points,
 )
+from services.vision.quad import order_corners, quad_area_px2
 from services.vision.segmentation import MARKERS, colour_mask, mask_bounds
 
 # How each marker's depth is carried between depth images (see the module docstring).
 HELD_DEPTH = {"hand": "corners", "target": "plane"}
 # Markers whose partly hidden views are fitted (services.vision.partial): the target, which the
-# hand necessarily covers at the end; the hand moves, so its remembered plane is not its own.
-FITTED = ("target",)
+# hand necessarily covers at the end (on its remembered plane, else on its own depth's), and
+# the hand, whose own forearm borders its marker (always on its own depth's plane: the hand
+# moves, so a remembered plane is not its own).
+FITTED = ("target", "hand")
+# The hand is servoed on: fitted only when its blob covers this much of the fitted square
+# (bordered by its arm, or a corner shaved), never from a few of its edges.
+HAND_MIN_SEEN_FRACTION = 0.85
 SIZE_TOLERANCE = 0.04  # relative: a side further off the marker's size is not the whole square
 NEAR_DIAGONALS = 2.0  # the hand is "over" the target within this many target diagonals
 
@@ -215,29 +232,73 @@ def _fit_partial(
         return None
     points = back_project(memory.corners_px, memory.depth_m, k)
     square = SquareOnPlane.from_corners(points, marker_size_m)
+    return _fit_on_plane(quad, memory.plane, [square], False, k, depth, cfg, marker_size_m)
+
+
+def _fit_own(
+    quad: MarkerQuad,
+    k: CameraIntrinsics,
+    depth: DepthImage,
+    cfg: VisionConfig,
+    marker_size_m: float,
+) -> _PartialFit | None:
+    """A partly hidden marker's corners from its visible edges on the plane of its own depth
+    in this frame (:mod:`services.vision.own_depth`), starting from its quadrilateral when
+    colour found one, else from its outline; None if the fit does not hold."""
+    if quad.area_px <= 0:
+        return None
+    plane = blob_plane(quad.mask, depth.depth_m, k, depth.intrinsics)
+    if plane is None:
+        return None
+    guesses = []
+    if quad.corners_px is not None:
+        points = on_plane(plane, quad.corners_px, k)
+        if points is not None:
+            guesses.append(SquareOnPlane.from_corners(points, marker_size_m))
+    return _fit_on_plane(quad, plane, guesses, True, k, depth, cfg, marker_size_m)
+
+
+def _fit_on_plane(
+    quad: MarkerQuad,
+    plane: PlaneFit,
+    guesses: list[SquareOnPlane],
+    from_outline: bool,
+    k: CameraIntrinsics,
+    depth: DepthImage,
+    cfg: VisionConfig,
+    marker_size_m: float,
+) -> _PartialFit | None:
+    """The square on ``plane`` fitted to the blob's true edges (those bordering nothing in
+    front of that plane), from the first of ``guesses`` that fits (and, ``from_outline``,
+    a guess from the blob's outline after them); None if none holds."""
     reach_px = dropout_reach_px(cfg.occlusion_ring_px, k, depth.intrinsics)
     bounds = mask_bounds(quad.mask, 2 * reach_px + 2)
     if bounds is None:
         return None
     r0, r1, c0, c1 = bounds
     depth_crop = _depth_under(depth, k, bounds)
-    occluder = occluder_map(
-        depth_crop, marker_surface(memory.plane, memory.depth_m, k, bounds), reach_px
-    )
+    occluder = occluder_map(depth_crop, plane_depth_image(plane, k, bounds), reach_px)
     mask = quad.mask[r0:r1, c0:c1]
-    edges = true_edge_points(mask, occluder, (c0, r0))
+    points, true_edge = outline(mask, occluder, (c0, r0))
+    edges = points[true_edge]
     moments = cv2.moments(mask, binaryImage=True)
     centre = np.array([moments["m10"], moments["m01"]]) / moments["m00"] + (c0, r0)
-    fit = fit_square_to_blob(square, edges, centre, k)
-    if fit is None or stray_fraction(mask, fit.corners_px, (c0, r0)) > MAX_STRAY_FRACTION:
+    if from_outline:
+        square = square_from_outline(plane, points, true_edge, k, marker_size_m)
+        guesses = guesses if square is None else [*guesses, square]
+    for square in guesses:
+        fit = fit_square_to_blob(square, edges, centre, k)
+        if fit is not None and stray_fraction(mask, fit.corners_px, (c0, r0)) <= MAX_STRAY_FRACTION:
+            break
+    else:
         return None
     xy = pixel_to_normalized(fit.corners_px, k)
     return _PartialFit(
         fit.corners_px,
-        memory.plane.depths_m(xy),
-        memory.plane.depth_sigmas_m(xy),
+        plane.depths_m(xy),
+        plane.depth_sigmas_m(xy),
         fit.square.corners_m(),
-        memory.plane,
+        plane,
         bool(np.any(occluder)),
     )
 
@@ -272,22 +333,76 @@ def _held(
     return MarkerMeasurement(marker, memory.plane)
 
 
-def _measure_fresh(
+def _labelled(
+    fit: _PartialFit,
+    reference_px: FloatArray | None,
+    rgb: np.ndarray,
+    cfg: VisionConfig,
+    orientation_cue: bool,
+) -> _PartialFit | None:
+    """A fit from the frame alone with its corners in the order a whole view would give
+    them: canonical, following ``reference_px`` (the quadrilateral colour found, else last
+    frame's corners), or labelled by the marker's cue; None when the cue cannot be told."""
+    corners = order_corners(fit.corners_px, reference_px)
+    if orientation_cue:
+        corners = label_corners(rgb, corners, reference_px, cfg)
+        if corners is None:
+            return None
+    order = [int(np.argmin(np.sum((fit.corners_px - c) ** 2, axis=1))) for c in corners]
+    return replace(
+        fit,
+        corners_px=fit.corners_px[order],
+        depth_m=fit.depth_m[order],
+        depth_sigma_m=fit.depth_sigma_m[order],
+        points_m=fit.points_m[order],
+    )
+
+
+def _fit(
     name: str,
     quad: MarkerQuad,
     memory: MarkerMemory | None,
+    previous_px: FloatArray | None,
     rgb: np.ndarray,
     k: CameraIntrinsics,
     depth: DepthImage,
     cfg: VisionConfig,
     marker_size_m: float,
+    orientation_cue: bool,
+) -> _PartialFit | None:
+    """A partly hidden marker (one of :data:`FITTED`) fitted from its visible edges: on the
+    target's remembered plane when it has one, else on the plane of its own depth in this
+    frame, which for the hand must show most of its marker (:data:`HAND_MIN_SEEN_FRACTION`)."""
+    if name == "target" and memory is not None and memory.plane is not None:
+        return _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
+    fit = _fit_own(quad, k, depth, cfg, marker_size_m)
+    if fit is None:
+        return None
+    if name == "hand" and quad.area_px < HAND_MIN_SEEN_FRACTION * quad_area_px2(fit.corners_px):
+        return None
+    reference = quad.corners_px if quad.corners_px is not None else previous_px
+    return _labelled(fit, reference, rgb, cfg, orientation_cue)
+
+
+def _measure_fresh(
+    name: str,
+    quad: MarkerQuad,
+    memory: MarkerMemory | None,
+    previous_px: FloatArray | None,
+    rgb: np.ndarray,
+    k: CameraIntrinsics,
+    depth: DepthImage,
+    cfg: VisionConfig,
+    marker_size_m: float,
+    orientation_cue: bool = False,
 ) -> MarkerMeasurement:
     """A marker in a colour frame taken with the depth image: measured in full, and fitted
     from its visible edges when only part of it shows (a marker in :data:`FITTED`)."""
     fit: _PartialFit | None = None
     fit_first = name in FITTED and quad.corners_px is None  # no quadrilateral: partly hidden
+    args = (name, quad, memory, previous_px, rgb, k, depth, cfg, marker_size_m, orientation_cue)
     if fit_first:
-        fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
+        fit = _fit(*args)
         if fit is not None and fit.occluder_seen:
             # Occluded whatever the blob's own depth says: its check (measure_quad) is skipped.
             return fit.measurement(quad.reason, occluded=True)
@@ -297,7 +412,7 @@ def _measure_fresh(
         m = not_visible(seen.reason, occluded=True)
     if name in FITTED and m.marker.state == "partial":
         if not fit_first:  # a quadrilateral, but something in front of it in depth
-            fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
+            fit = _fit(*args)
         if fit is not None:
             m = fit.measurement(m.marker.reason, m.marker.occluded)
     return m
@@ -326,7 +441,10 @@ def observe(
         memory = expected[name]
         if fresh:
             assert depth is not None
-            m = _measure_fresh(name, quad, memory, rgb, k, depth, cfg, marker_size_m)
+            previous = state.previous_corners.get(name)
+            m = _measure_fresh(
+                name, quad, memory, previous, rgb, k, depth, cfg, marker_size_m, orientation_cue
+            )
         elif quad.corners_px is None:
             m = not_visible(quad.reason)
         elif not usable:
