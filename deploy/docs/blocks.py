@@ -16,7 +16,7 @@ from deploy.docs.bench_tables import (
     bench_runs,
     bench_services,
 )
-from deploy.docs.campaign_tables import campaign_summary
+from deploy.docs.campaign_tables import campaign_goals, campaign_summary, campaign_taxonomy
 from deploy.docs.domains_tables import (
     domains_bands,
     domains_executors,
@@ -55,6 +55,8 @@ BLOCKS: dict[str, Block] = {
     "bench-services": Block(bench_services, f"{BENCH_DIR}/*.json"),
     "bench-dropped": Block(bench_dropped, f"{BENCH_DIR}/*.json"),
     "campaign-summary": Block(campaign_summary, CAMPAIGN_JSON),
+    "campaign-taxonomy": Block(campaign_taxonomy, CAMPAIGN_JSON),
+    "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_JSON}, {RESULTS_JSON}"),
     "vision-accuracy": Block(vision_accuracy, ACCURACY_JSON),
     "domains-summary": Block(domains_summary, DOMAINS_JSON),
     "domains-bands": Block(domains_bands, DOMAINS_JSON),

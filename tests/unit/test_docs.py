@@ -372,6 +372,35 @@ def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
     assert "4 starts, 1 refused at start (25.0%" in table
 
 
+def test_the_campaign_taxonomy_and_goals_count_every_cause_from_causes_json() -> None:
+    from deploy.docs.blocks import BLOCKS
+
+    def run(start: str, cause: str, detail: str = "", frames: int | None = None) -> dict:
+        return {"start": start, "mode": "pmj", "cause": cause, "detail": detail,
+                "frames": frames, "path_ratio": 1.1 if frames else None}  # fmt: skip
+
+    runs = [
+        run("s1", "converged", frames=80),
+        run("s2", "converged", frames=90),
+        run("s3", "stuck (hand partial)", "held 4.07 s waiting for: hand partial (…)"),
+        run("s4", "acquisition failed", "acquisition failed: target partial after 4 attempt(s)"),
+        run("s5", "refused at start", "target.position: out of reach"),
+    ]
+    taxonomy = BLOCKS["campaign-taxonomy"].render(Inputs(campaign=runs), "docs")
+    header, _, row = taxonomy.splitlines()[:3]
+    cells = dict(zip(header.split(" | "), row.split(" | "), strict=True))
+    assert cells["runs"] == "4" and cells["on goal"] == "2" and cells["success"] == "50.0%"
+    assert cells["median frames"] == "85" and cells["refused at start"] == "1"
+    assert cells["stuck"] == "1" and cells["acquisition failed"] == "1" and cells["timeout"] == "0"
+    goals = BLOCKS["campaign-goals"].render(Inputs(campaign=runs), "docs")
+    assert "pmj 50.0 %" in goals
+    assert '1 of 5 (20.0 %): 1 "target.position: out of reach"' in goals
+    assert "| 0 of 5 | 0 |" in goals  # every run named, every failure with its detail
+    assert "4.07–4.07 s simulated (1 runs)" in goals
+    runs[2]["detail"] = ""
+    assert "| 1 of 5 | 0 |" in BLOCKS["campaign-goals"].render(Inputs(campaign=runs), "docs")
+
+
 def test_the_accuracy_block_renders_each_condition_from_its_json() -> None:
     from deploy.docs.blocks import BLOCKS
 
