@@ -418,13 +418,14 @@ class IbvsController:
         twist_cam = m @ (self.config.gain * error - target_rate)
         twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
         twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
-        err_px = feature_error_px_rms(hand.corners_px, target.corners_px)
+        # s − s* (px, 2N): this frame's error, and its share of convergence's window
+        error_px = (np.asarray(hand.corners_px) - np.asarray(target.corners_px)).ravel()
+        err_px = float(np.sqrt(np.mean(error_px**2)))  # feature_error_px_rms
         # On a target believed to move the hand is tracking, not done; nor on a prediction of
         # where a hidden target went: it must be seen again first.
         still = not np.any(velocity)  # slower than motion.STILL_SPEED_M_S
         window = self.config.converged_frames
         if still and not self.predicted:
-            error_px = (np.asarray(hand.corners_px) - np.asarray(target.corners_px)).ravel()
             self.recent_errors_px = [*self.recent_errors_px, error_px][-window:]
         else:
             self.recent_errors_px = []
