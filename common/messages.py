@@ -288,6 +288,12 @@ class SimTruth(Message):
     target_corners_px: Corners2
     ee_position_m: Vec3
     joint_position_rad: Joints
+    arm_contact_n: float = Field(
+        0.0, ge=0.0, le=1e7, description="summed normal force of the arm's contacts (N)"
+    )
+    arm_contact_with: list[str] = Field(
+        default_factory=list, max_length=8, description="what the arm touches: object, table..."
+    )
 
 
 class AppliedCommand(Message):

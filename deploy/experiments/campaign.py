@@ -297,6 +297,7 @@ CAUSES = (
     "converged",
     "refused at start",
     "acquisition failed",
+    "collision",
     "stuck",
     "local minimum",
     "joint limit",
@@ -309,19 +310,22 @@ CAUSES = (
 
 def failure_cause(row: CompareRow, manipulability_threshold: float = 0.002) -> str:
     """One named cause per run. ``converged`` (on its goal) or *local minimum* (the image
-    error converged, the hand more than 5 mm from its goal); *acquisition failed*; *error*; a
-    run ended holding: *marker left the image* when the hand marker was at or past the image
-    border, else *stuck* with what it waited for (from the detail); a run still servoing at
-    its timeout: *joint limit* (a joint inside the actuation's slow-down zone at the end,
-    :data:`JOINT_LIMIT_MARGIN_DEG`), *singularity* (least manipulability below the
-    actuation's damping threshold), else *timeout*. The ground-truth fields judge; nothing
-    flows back."""
+    error converged, the hand more than 5 mm from its goal); *acquisition failed*; *error*;
+    *collision* with what the arm pressed on (``collision (object)``: it touched the scenery,
+    whatever followed, which a servo law cannot undo by itself); a run ended holding: *marker
+    left the image* when the hand marker was at or past the image border, else *stuck* with
+    what it waited for (from the detail); a run still servoing at its timeout: *joint limit*
+    (a joint inside the actuation's slow-down zone at the end, :data:`JOINT_LIMIT_MARGIN_DEG`),
+    *singularity* (least manipulability below the actuation's damping threshold), else
+    *timeout*. The ground-truth fields judge; nothing flows back."""
     if row.converged:
         return "converged" if row.on_goal else "local minimum"
     if row.reason == "acquisition_failed":
         return "acquisition failed"
     if row.reason == "error":
         return "error"
+    if row.first_contact_s is not None:
+        return f"collision ({row.contact_with or 'scenery'})"
     border = row.final_hand_border_px
     if border is not None and border < HAND_OUT_PX:
         return "marker left the image"

@@ -40,6 +40,10 @@ class RunResult(BaseModel):
     # and the hand marker's corner nearest the image border (negative: outside the image).
     final_joint_margin_deg: float | None = None
     final_hand_border_px: float | None = None
+    # The first frame the arm pressed on the scenery (ground truth: sim time, and what it
+    # touched, e.g. ``object``): a collision, which no servo law can undo by itself.
+    first_contact_s: float | None = None
+    contact_with: str | None = None
     detail: str = ""
 
 
@@ -59,6 +63,20 @@ def square_orientation_error_deg(
         turned = target_pose[:3, :3] @ kin.rot_z(k * np.pi / 2)
         best = min(best, kin.rotation_error_rad(hand_pose[:3, :3], turned))
     return float(np.degrees(best))
+
+
+# A contact pressing with less than this is the physics engine's resting noise, not a collision.
+CONTACT_MIN_N = 0.5
+
+
+def first_contact(truths: dict[int, SimTruth], last_frame: int) -> tuple[float | None, str | None]:
+    """When (sim s) and on what the arm first pressed on the scenery up to ``last_frame``
+    (ground truth); ``(None, None)`` when it never did."""
+    for k in sorted(truths):
+        truth = truths[k]
+        if k <= last_frame and truth.arm_contact_n >= CONTACT_MIN_N:
+            return truth.header.sim_time_s, "+".join(truth.arm_contact_with)
+    return None, None
 
 
 def path_length_m(truths: dict[int, SimTruth], last_frame: int) -> float:
@@ -169,11 +187,13 @@ def summarize(
         kin.goal_marker_pose(pose(truth.target_marker_pose), approach_height_m) if truth else None
     )
     extra: dict[str, float | None] = {}
+    contact_with = None
     if truth is not None and last_frame is not None:
         extra.update(motion_metrics(truths, last_frame))
         extra.update(tracking_metrics(truths, twists, last_frame, moving or [], approach_height_m))
         extra["marker_lost_s"] = held_time_s(twists, last_frame, period_s)
         extra["final_joint_margin_deg"] = joint_margin_deg(np.array(truth.joint_position_rad))
+        extra["first_contact_s"], contact_with = first_contact(truths, last_frame)
         if image_size_px is not None:
             extra["final_hand_border_px"] = border_margin_px(
                 np.array(truth.hand_corners_px), image_size_px
@@ -195,6 +215,7 @@ def summarize(
             square_orientation_error_deg(hand, target, oriented_markers) if truth else None
         ),
         path_length_m=path_length_m(truths, last_frame) if truth else None,
+        contact_with=contact_with,
         detail=detail,
         **extra,
     )

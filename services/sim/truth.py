@@ -19,4 +19,6 @@ def truth_message(truth: Truth, header: Header, q_rad: FloatArray) -> SimTruth:
         target_corners_px=truth.target_corners_px.tolist(),
         ee_position_m=truth.ee_position_m.tolist(),
         joint_position_rad=q_rad.tolist(),
+        arm_contact_n=truth.contact_n,
+        arm_contact_with=list(truth.contact_with),
     )

@@ -162,6 +162,11 @@ class Truth:
     hand_corners_px: FloatArray
     target_corners_px: FloatArray
     ee_position_m: FloatArray
+    # What the arm touches after the last physics step: the summed normal force (N) and the
+    # bodies ("object", "table", "floor"), for naming a collision; the robot's own links do
+    # not collide with each other.
+    contact_n: float = 0.0
+    contact_with: tuple[str, ...] = ()
 
 
 # OpenGL renderers of closed worlds, kept for the next world of this process: making and
@@ -531,13 +536,26 @@ class World:
             c_cam = (cam_inv @ np.column_stack([c, np.ones(4)]).T).T[:, :3]
             return project(c_cam, self.intrinsics)
 
+        contact_n, contact_with = self.arm_contacts()
         return Truth(
             hand_marker_pose=hand,
             target_marker_pose=self.target_pose,
             hand_corners_px=corners_px(hand),
             target_corners_px=corners_px(self.target_pose),
             ee_position_m=ee[:3, 3],
+            contact_n=contact_n,
+            contact_with=contact_with,
         )
+
+    def arm_contacts(self) -> tuple[float, tuple[str, ...]]:
+        """Ground truth for evaluation: the summed normal force (N) of the arm's contacts
+        after the last physics step, and the bodies it touches (sorted names)."""
+        names = {self.object_body: "object", self.table_body: "table", self.floor_body: "floor"}
+        force, touched = 0.0, set()
+        for c in self.client.getContactPoints(bodyA=self.robot):
+            force += float(c[9])
+            touched.add(names.get(c[2], "scenery"))
+        return force, tuple(sorted(touched))
 
     def marker_visibility(self, touch_px: float = 6.0) -> dict[str, MarkerView]:
         """Ground truth for evaluation: how much of each marker the camera sees, from a

@@ -95,6 +95,10 @@ def row(**fields) -> CompareRow:
         ),
         ({}, "timeout"),
         ({"reason": "error", "detail": "service exited"}, "error"),
+        (  # the arm pressed on the object: named so whatever it led to (here a joint limit)
+            {"first_contact_s": 1.6, "contact_with": "object", "final_joint_margin_deg": -10.0},
+            "collision (object)",
+        ),
     ],
 )
 def test_every_failure_gets_one_named_cause(fields: dict, cause: str) -> None:

@@ -56,6 +56,8 @@ CSV_COLUMNS: tuple[str, ...] = (
     "tracking_pixel_rms",
     "final_joint_margin_deg",
     "final_hand_border_px",
+    "first_contact_s",
+    "contact_with",
     "wall_time_s",
     "moving_target",
     "clock",

@@ -1,0 +1,58 @@
+"""The simulator names a collision of the arm with the scenery (ground truth, for judging a
+run), and the judge reports the first one."""
+
+from __future__ import annotations
+
+from common.config import load_scenario
+from common.messages import Header, SimTruth
+from common.runtime import parse_overrides
+from deploy.experiments.evaluate import CONTACT_MIN_N, first_contact
+from deploy.experiments.reachability import solve_goal
+from services.sim.world import World
+
+SMALL = ["camera.width_px=160", "camera.height_px=120", "sim.renderer='gl'"]
+
+
+def contacts_at_goal(approach_height_m: float) -> tuple[float, tuple[str, ...]]:
+    """The arm's contacts with the hand marker held ``approach_height_m`` above the target."""
+    scenario = load_scenario(
+        None, parse_overrides([*SMALL, f"target.approach_height_m={approach_height_m}"])
+    )
+    solved = solve_goal(scenario)
+    assert solved is not None
+    world = World(scenario)
+    try:
+        world.reset(solved[0])
+        world.step(1)
+        truth = world.truth()
+        assert (truth.contact_n, truth.contact_with) == world.arm_contacts()
+        return world.arm_contacts()
+    finally:
+        world.close()
+
+
+def test_a_hand_pushed_into_the_object_is_a_contact_and_one_above_it_is_not() -> None:
+    force_n, bodies = contacts_at_goal(0.0)  # the marker on the red one: the hand inside
+    assert force_n >= CONTACT_MIN_N and bodies == ("object",)
+    assert contacts_at_goal(0.05) == (0.0, ())
+
+
+def truth_at(seq: int, contact_n: float, bodies: list[str]) -> SimTruth:
+    return SimTruth(
+        header=Header(seq=seq, sim_time_s=seq / 15, send_time_s=0.0, frame_seq=seq),
+        hand_marker_pose=[0.0] * 16, target_marker_pose=[0.0] * 16,
+        hand_corners_px=[[0.0, 0.0]] * 4, target_corners_px=[[0.0, 0.0]] * 4,
+        ee_position_m=[0.0] * 3, joint_position_rad=[0.0] * 6,
+        arm_contact_n=contact_n, arm_contact_with=bodies,
+    )  # fmt: skip
+
+
+def test_the_first_contact_pressing_harder_than_resting_noise_is_reported() -> None:
+    truths = {
+        0: truth_at(0, 0.0, []),
+        1: truth_at(1, 0.1, ["table"]),  # below CONTACT_MIN_N: resting noise
+        2: truth_at(2, 40.0, ["object"]),
+        3: truth_at(3, 90.0, ["object", "table"]),
+    }
+    assert first_contact(truths, 3) == (2 / 15, "object")
+    assert first_contact(truths, 1) == (None, None)
