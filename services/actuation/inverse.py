@@ -28,6 +28,60 @@ def damped_pinv(jacobian: FloatArray, damping: float) -> FloatArray:
     return j.T @ np.linalg.inv(j @ j.T + damping**2 * np.eye(j.shape[0]))
 
 
+def position_bound_rad_s(
+    qdot_rad_s: FloatArray,
+    q_rad: FloatArray,
+    lower_rad: FloatArray = kin.JOINT_LOWER_RAD,
+    upper_rad: FloatArray = kin.JOINT_UPPER_RAD,
+    slow_zone_rad: float = np.deg2rad(10.0),
+    vmax_rad_s: FloatArray = kin.JOINT_VELOCITY_LIMIT_RAD_S,
+) -> FloatArray:
+    """Each joint's speed bound in the direction it is asked to move: its speed limit times
+    the fraction of the slow-down zone left before the limit that way (1 outside the zone, 0
+    at the limit)."""
+    q = np.asarray(q_rad, dtype=float)
+    to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)
+    to_lower = np.clip((q - lower_rad) / slow_zone_rad, 0.0, 1.0)
+    qdot = np.asarray(qdot_rad_s, dtype=float)
+    return np.asarray(vmax_rad_s, dtype=float) * np.where(qdot > 0, to_upper, to_lower)
+
+
+def redistribute_at_limits(
+    jacobian: FloatArray,
+    twist_base_ee: FloatArray,
+    qdot_rad_s: FloatArray,
+    q_rad: FloatArray,
+    damping: float,
+    slow_zone_rad: float = np.deg2rad(10.0),
+) -> tuple[FloatArray, list[int]]:
+    """Joints asked to move towards a limit faster than :func:`position_bound_rad_s` allows
+    are held at their bound (inside the slow-down zone only: the speed limit outside it scales
+    the whole vector, later), and the rest of the twist (``V − J_held q̇_held``) is given to
+    the other joints by least squares (``q̇_free = J_free⁺ (…)``), until no free joint is over
+    its bound: the saturation-in-the-null-space idea (Flacco, De Luca & Khatib, 2012) without
+    a null space to use (six joints, six task rows). Clipping the joint alone lost that share
+    of the twist, so the hand drifted off its line and a goal beside a limit was never
+    reached. Returns the rates and the joints held at their bound."""
+    jac = np.asarray(jacobian, dtype=float)
+    twist = np.asarray(twist_base_ee, dtype=float)
+    qdot = np.array(qdot_rad_s, dtype=float)
+    held = np.zeros(len(qdot), dtype=bool)
+    for _ in range(len(qdot)):
+        bound = position_bound_rad_s(qdot, q_rad, slow_zone_rad=slow_zone_rad)
+        in_zone = bound < kin.JOINT_VELOCITY_LIMIT_RAD_S  # the speed limit is not this one's
+        over = (np.abs(qdot) > bound) & in_zone & ~held
+        if not over.any():
+            break
+        qdot[over] = np.clip(qdot[over], -bound[over], bound[over])
+        held |= over
+        free = ~held
+        if not free.any():
+            break
+        rest = twist - jac[:, held] @ qdot[held]
+        qdot[free] = damped_pinv(jac[:, free], damping) @ rest
+    return qdot, [int(i) for i in np.flatnonzero(held)]
+
+
 def limit_joint_positions(
     qdot_rad_s: FloatArray,
     q_rad: FloatArray,
@@ -45,10 +99,7 @@ def limit_joint_positions(
     scale: scaling every speed by the fraction left made a goal posture inside the zone crawl
     for its last millimetres. Returns the rates and the joints slowed."""
     qdot = np.array(qdot_rad_s, dtype=float)
-    q = np.asarray(q_rad, dtype=float)
-    to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)
-    to_lower = np.clip((q - lower_rad) / slow_zone_rad, 0.0, 1.0)
-    bound = np.asarray(vmax_rad_s, dtype=float) * np.where(qdot > 0, to_upper, to_lower)
+    bound = position_bound_rad_s(qdot, q_rad, lower_rad, upper_rad, slow_zone_rad, vmax_rad_s)
     slowed = [int(i) for i in np.flatnonzero(np.abs(qdot) > bound)]
     return np.clip(qdot, -bound, bound), slowed
 
@@ -134,21 +185,25 @@ def twist_to_joint_velocities(
     max_accel_rad_s2: float = np.inf,
     dt_s: float = 0.0,
 ) -> JointCommand:
-    """``q̇ = J⁺_δ(q) · V_e`` (thesis eq. 5.36), then the safety limits in order of authority:
-    acceleration (soft: shapes the motion), then joint position and speed limits (hard: always
-    hold, even if that means a sharper change), then a last finite-value guard."""
+    """``q̇ = J⁺_δ(q) · V_e`` (thesis eq. 5.36) with the joints held back by a near limit
+    leaving their share of the twist to the others (:func:`redistribute_at_limits`), then the
+    safety limits in order of authority: acceleration (soft: shapes the motion), then joint
+    position and speed limits (hard: always hold, even if that means a sharper change), then
+    a last finite-value guard."""
     jac = kin.geometric_jacobian(q_rad)
     w = kin.manipulability(jac)
     delta = damping_for(w, damping_max, threshold)
     with np.errstate(invalid="ignore", over="ignore"):  # a non-finite result is handled next
         qdot = damped_pinv(jac, delta) @ np.asarray(twist_base_ee, dtype=float)
+        qdot, held = redistribute_at_limits(jac, twist_base_ee, qdot, q_rad, delta)
     if not np.all(np.isfinite(qdot)):  # never let NaN/Inf reach the motors
         return JointCommand(np.zeros(kin.N_JOINTS), Clamps(nonfinite=True), w, delta)
     accelerated = False
     if previous_rad_s is not None and np.isfinite(max_accel_rad_s2):
         qdot, accelerated = limit_acceleration(qdot, previous_rad_s, max_accel_rad_s2, dt_s)
     qdot, slowed, over = limit_joint_velocities(qdot, q_rad)
-    return JointCommand(qdot, Clamps(slowed, over, accelerated), w, delta)
+    position = sorted(set(held) | set(slowed))
+    return JointCommand(qdot, Clamps(position, over, accelerated), w, delta)
 
 
 def deadman_expired(now_s: float, last_twist_s: float | None, timeout_s: float) -> bool:

@@ -11,7 +11,10 @@ from services.actuation.inverse import (
     damping_for,
     deadman_expired,
     limit_acceleration,
+    limit_joint_positions,
     limit_joint_velocities,
+    position_bound_rad_s,
+    redistribute_at_limits,
     twist_to_joint_velocities,
 )
 
@@ -119,3 +122,28 @@ def test_nonfinite_inverse_is_flagged() -> None:
     cmd = twist_to_joint_velocities(np.full(6, np.inf), np.full(6, 0.5), 0.02, 0.002)
     assert cmd.clamps.nonfinite
     np.testing.assert_array_equal(cmd.velocity_rad_s, np.zeros(6))
+
+
+def test_a_joint_held_at_its_limit_leaves_its_share_of_the_twist_to_the_others() -> None:
+    """Joint 2 two degrees from its upper limit and asked to move towards it: held at its
+    bound, the other joints give the twist's rest, and the hand's twist is closer to the one
+    asked for than with joint 2 only clipped; a joint outside every zone is left alone."""
+    q = np.array([-0.5, kin.JOINT_UPPER_RAD[1] - np.radians(2.0), -1.2, 1.4, 0.2, -0.3])
+    jac = kin.geometric_jacobian(q)
+    rates = np.zeros(6)
+    rates[1] = 0.8  # towards the limit
+    rates[0] = -0.3
+    twist = jac @ rates
+    qdot = damped_pinv(jac, 0.0) @ twist
+    held_qdot, held = redistribute_at_limits(jac, twist, qdot, q, 0.0)
+    clipped, _ = limit_joint_positions(qdot, q)
+    bound = position_bound_rad_s(held_qdot, q)
+    assert held == [1] and held_qdot[1] == pytest.approx(bound[1])
+    assert np.linalg.norm(jac @ held_qdot - twist) < 0.5 * np.linalg.norm(jac @ clipped - twist)
+    free = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    free_q = np.zeros(6)
+    free_twist = kin.geometric_jacobian(free_q) @ np.full(6, 0.2)
+    same, none = redistribute_at_limits(
+        kin.geometric_jacobian(free_q), free_twist, free + 0.2, free_q, 0.0
+    )
+    assert none == [] and np.allclose(same, 0.2)
