@@ -249,6 +249,15 @@ class ControllerConfig(_Strict):
     converged_frames: int = Field(
         5, ge=1, description="frames servoed on a still goal the error is averaged over"
     )
+    plateau_px: float = Field(
+        1.0,
+        ge=0.0,
+        description="an averaged error below this that has stopped falling for plateau_s also "
+        "converged: the goal lies against a joint limit the law cannot pass (0: off)",
+    )
+    plateau_s: float = Field(
+        1.5, gt=0.0, description="sim time without a 5 % fall of the averaged error (s)"
+    )
     max_linear_m_s: float = Field(0.15, gt=0.0, description="twist clamp, linear (m/s)")
     max_angular_rad_s: float = Field(1.0, gt=0.0, description="twist clamp, angular (rad/s)")
     track_target_motion: bool = Field(

@@ -80,6 +80,24 @@ def feature_error_px_rms(s_px: FloatArray, s_star_px: FloatArray) -> float:
     return float(np.sqrt(np.mean((np.asarray(s_px) - np.asarray(s_star_px)) ** 2)))
 
 
+# The averaged error must fall by this share to count as progress (plateau_px / plateau_s).
+PLATEAU_PROGRESS = 0.05
+
+
+@dataclass(frozen=True)
+class Plateau:
+    """The least averaged error (px) since the error last fell by :data:`PLATEAU_PROGRESS`,
+    and the sim time (s) it fell to it."""
+
+    best_px: float
+    since_s: float
+
+    def after(self, settled_px: float, t_s: float) -> Plateau:
+        if settled_px < (1.0 - PLATEAU_PROGRESS) * self.best_px:
+            return Plateau(settled_px, t_s)
+        return self
+
+
 def settled_error_px_rms(recent_errors_px: Sequence[FloatArray]) -> float:
     """RMS over the 2N pixel coordinates of ``s - s*`` averaged over the last frames.
 
@@ -332,6 +350,7 @@ class IbvsController:
     acquisitions: int = 0  # attempts made since the last convergence
     acquisition_failed: str = ""  # what acquisition could not uncover (then it holds)
     frames_on_prediction: int = 0  # frames the hand has sat on an unconfirmed prediction
+    plateau: Plateau | None = None  # the averaged error under plateau_px, and since when
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
 
     def step(
@@ -368,7 +387,7 @@ class IbvsController:
         # the marker's true edges to a fraction of a pixel, pins the pose down and shows most
         # of the marker, so a fitted hand's corners are as good as a whole one's.
         if not (hand.usable and target.usable):
-            self.recent_errors_px = []
+            self.recent_errors_px, self.plateau = [], None
             self.frames_on_prediction = 0
             which = "hand" if not hand.usable else "target"
             state = hand.state if not hand.usable else target.state
@@ -429,10 +448,7 @@ class IbvsController:
             self.recent_errors_px = [*self.recent_errors_px, error_px][-window:]
         else:
             self.recent_errors_px = []
-        converged = (
-            len(self.recent_errors_px) >= window
-            and settled_error_px_rms(self.recent_errors_px) < self.config.converged_px
-        )
+        converged = self._settled(t_s)
         if converged:
             self.acquisitions, self.acquisition_failed = 0, ""
         # On a prediction the hand can sit forever: once it is there and the target is believed
@@ -446,6 +462,27 @@ class IbvsController:
             if started is not None:
                 return started
         return ControlOutput(twist, True, err_px, converged, remembered)
+
+    def _settled(self, t_s: float) -> bool:
+        """Converged: the error averaged over the window is under ``converged_px``, or under
+        ``plateau_px`` and has not fallen by :data:`PLATEAU_PROGRESS` for ``plateau_s``. A
+        goal beside a joint limit is approached by the joints left free, and the error can
+        settle a few tenths of a pixel above the threshold and stay there: the hand is on its
+        goal in the image, and waiting for the timeout gains nothing."""
+        cfg = self.config
+        if len(self.recent_errors_px) < cfg.converged_frames:
+            self.plateau = None
+            return False
+        settled_px = settled_error_px_rms(self.recent_errors_px)
+        if settled_px < cfg.converged_px:
+            return True
+        if settled_px >= cfg.plateau_px:
+            self.plateau = None
+            return False
+        if self.plateau is None:
+            self.plateau = Plateau(settled_px, t_s)
+        self.plateau = self.plateau.after(settled_px, t_s)
+        return t_s - self.plateau.since_s >= cfg.plateau_s
 
     def _start_acquisition(
         self,

@@ -275,6 +275,30 @@ def test_convergence_is_judged_on_the_error_averaged_over_the_window() -> None:
     )
 
 
+def test_an_error_settled_under_the_plateau_bound_converges_after_plateau_s() -> None:
+    """A hand held 0.4 px off its goal (a joint limit in the way) converges once the averaged
+    error has not fallen for plateau_s; one still closing in, or 1.2 px off, does not."""
+    goal = observe(square_points(np.array([0.0, 0.05, 0.55])))
+    cfg = ControllerConfig(converged_frames=4, plateau_px=1.0, plateau_s=1.0)
+
+    def first_converged(offsets_px: list[float]) -> int | None:
+        ctrl = IbvsController(cfg, np.eye(4))
+        for i, offset in enumerate(offsets_px):
+            hand = replace(goal, corners_px=goal.corners_px + offset)
+            if ctrl.step(hand, goal, K, np.zeros(3), i / 30).converged:
+                return i
+        return None
+
+    # The window fills at frame 3, its plateau starts there and lasts 1 s (30 frames).
+    assert first_converged([0.4] * 60) == 33
+    assert first_converged([0.9 * 0.99**i for i in range(60)]) is None  # still falling
+    assert first_converged([1.2] * 60) is None
+    off = ControllerConfig(converged_frames=4, plateau_px=0.0)
+    ctrl = IbvsController(off, np.eye(4))
+    hand = replace(goal, corners_px=goal.corners_px + 0.4)
+    assert not any(ctrl.step(hand, goal, K, np.zeros(3), i / 30).converged for i in range(90))
+
+
 def test_corner_pairing_takes_the_least_turn_and_holds_it_near_45_degrees() -> None:
     square = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
     for shift in range(4):  # the same square, its corners labelled from another one
