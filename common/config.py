@@ -258,6 +258,15 @@ class ControllerConfig(_Strict):
     plateau_s: float = Field(
         1.5, gt=0.0, description="sim time without a 5 % fall of the averaged error (s)"
     )
+    hand_clearance_m: float | None = Field(
+        0.002,
+        ge=0.0,
+        description="the hand box's corners stay this far above the plane of the red marker "
+        "(the object's top face, as vision measures it); None: off",
+    )
+    clearance_rate_1_s: float = Field(
+        3.0, gt=0.0, description="a corner's height may fall at most this times its margin (1/s)"
+    )
     max_linear_m_s: float = Field(0.15, gt=0.0, description="twist clamp, linear (m/s)")
     max_angular_rad_s: float = Field(1.0, gt=0.0, description="twist clamp, angular (rad/s)")
     track_target_motion: bool = Field(

@@ -9,13 +9,16 @@ camera pose held by the controller (the calibration); never the simulator's grou
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from common import kinematics as kin
 from common.kinematics import FloatArray
 from common.marker import Marker
 from common.messages import EndEffectorTwist, Features, Header
-from services.controller.ibvs import ControlOutput, IbvsController
+from services.controller import clearance
+from services.controller.ibvs import ControlOutput, IbvsController, clamp_twist
 
 ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
 
@@ -26,7 +29,7 @@ def control_step(
     """One control step (``controller`` advances) on ``features`` with the joints at ``q_rad``
     (the joint state of the same frame)."""
     frames = kin.frame_transforms(np.array(q_rad))
-    return controller.step(
+    out = controller.step(
         Marker.from_wire(features.hand),
         Marker.from_wire(features.target),
         features.intrinsics,
@@ -34,6 +37,28 @@ def control_step(
         features.header.sim_time_s,
         elbow_base_m=frames[ELBOW_FRAME][:3, 3],
     )
+    return above_the_target(controller, out, frames[-1])
+
+
+def above_the_target(
+    controller: IbvsController, out: ControlOutput, t_base_ee: FloatArray
+) -> ControlOutput:
+    """``out`` with its twist kept from lowering the hand box onto the object's top face
+    (:mod:`services.controller.clearance`; the face from the last usable view of the red
+    marker, the box from the encoders); unchanged while holding or before any view."""
+    cfg = controller.config
+    last = controller.last_target
+    if not out.valid or cfg.hand_clearance_m is None or last is None:
+        return out
+    plane = clearance.target_top_plane(last.points_m, controller.t_base_cam)
+    corners = clearance.hand_box_corners_ee() @ t_base_ee[:3, :3].T + t_base_ee[:3, 3]
+    twist, corrected = clearance.keep_above(
+        out.twist_base_ee, corners, t_base_ee[:3, 3], plane,
+        cfg.hand_clearance_m, cfg.clearance_rate_1_s,
+    )  # fmt: skip
+    if not corrected:
+        return out
+    return replace(out, twist_base_ee=clamp_twist(twist, cfg.max_linear_m_s, cfg.max_angular_rad_s))
 
 
 def twist_message(out: ControlOutput, header: Header, mode: str) -> EndEffectorTwist:

@@ -1,0 +1,87 @@
+"""Keep the hand above the top face of the object it reaches for. Pure.
+
+The goal puts the hand marker ``approach_height_m`` above the red one, which leaves the
+hand's box (under its marker) a few millimetres above the object's top face. On the way the
+image law turns the hand freely, and a turn about a horizontal axis dips one edge of the box
+by centimetres: the hand struck the object from starts beside it, the contact drove a wrist
+joint past its limit and the run never recovered.
+
+The top face's plane comes from vision (the red marker's measured corners, through the
+assumed camera pose); the hand box's corners from the encoders (forward kinematics and the
+robot model). Each corner's height ``h`` above the plane may fall no faster than
+``rate · (h − h_min)`` (a control barrier: it slows to a stop at ``h_min``): with ``n`` the
+plane's upward normal and ``d`` the corner from the end-effector origin,
+``ḣ = n · v + (d × n) · ω``, and a twist that breaks a corner's bound gets the least upward
+velocity ``δ n`` that meets every corner's: the turn and the sideways motion are kept (a
+change of ``ω`` would turn the hand away from what the image law asked). The object's sides
+are unknown, so the plane is kept everywhere: the starts lie above their goal, the goal above
+the plane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from common import kinematics as kin
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Plane:
+    """A point on the plane and its unit normal, base frame (m)."""
+
+    point_m: FloatArray
+    normal: FloatArray
+
+
+def hand_box_corners_ee() -> FloatArray:
+    """The hand box's eight corners in DH frame 6 (8×3, m; the sim's URDF builds the box from
+    the same dimensions)."""
+    centre = np.array([0.0, kin.HAND_OFFSET_M + kin.HAND_LENGTH_M / 2, 0.0])
+    half = np.array([kin.HAND_THICKNESS_M, kin.HAND_LENGTH_M, kin.HAND_WIDTH_M]) / 2
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+    return centre + signs * half
+
+
+def target_top_plane(points_cam_m: FloatArray, t_base_cam: FloatArray) -> Plane:
+    """The plane of the red marker's four corners (camera frame, m) in the base frame, its
+    normal turned towards the camera (up, out of the object)."""
+    rot, origin = t_base_cam[:3, :3], t_base_cam[:3, 3]
+    points = np.asarray(points_cam_m, dtype=float) @ rot.T + origin
+    centre = points.mean(axis=0)
+    normal = np.cross(points[1] - points[0], points[3] - points[0])
+    normal = normal / np.linalg.norm(normal)
+    if normal @ (origin - centre) < 0:
+        normal = -normal
+    return Plane(centre, normal)
+
+
+def heights_m(corners_base_m: FloatArray, plane: Plane) -> FloatArray:
+    """Each corner's signed height above the plane (m)."""
+    return (np.asarray(corners_base_m, dtype=float) - plane.point_m) @ plane.normal
+
+
+def keep_above(
+    twist_base_ee: FloatArray,
+    corners_base_m: FloatArray,
+    p_ee_base_m: FloatArray,
+    plane: Plane,
+    min_height_m: float,
+    rate_1_s: float,
+) -> tuple[FloatArray, bool]:
+    """``twist_base_ee`` (v, ω at the end-effector origin, base frame) lifted so that no
+    corner's height falls faster than ``rate_1_s · (h − min_height_m)``; and whether it was.
+    A corner below ``min_height_m`` is asked to rise at that rate."""
+    twist = np.array(twist_base_ee, dtype=float)
+    corners = np.asarray(corners_base_m, dtype=float)
+    n = plane.normal
+    rates = twist[:3] @ n + np.cross(corners - p_ee_base_m, n) @ twist[3:]  # ḣ of each corner
+    short = float(np.max(-rate_1_s * (heights_m(corners, plane) - min_height_m) - rates))
+    if short <= 0.0:
+        return twist, False
+    twist[:3] += short * n  # lifts every corner by the same rate
+    return twist, True

@@ -1,0 +1,61 @@
+"""The hand box is kept above the object's top face: the barrier on its corners' heights."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common import kinematics as kin
+from services.controller.clearance import (
+    Plane,
+    hand_box_corners_ee,
+    heights_m,
+    keep_above,
+    target_top_plane,
+)
+
+FLOOR = Plane(np.zeros(3), np.array([0.0, 1.0, 0.0]))  # y up, as the arm's base frame
+# A hand box lying flat, its lowest face 10 mm above the floor; the end-effector origin above it.
+BOX = np.array([[x, y, z] for x in (-0.04, 0.04) for y in (0.01, 0.035) for z in (-0.045, 0.045)])
+EE = np.array([0.0, 0.05, 0.0])
+
+
+def test_the_box_has_the_robot_models_size() -> None:
+    corners = hand_box_corners_ee()
+    assert corners.shape == (8, 3)
+    np.testing.assert_allclose(
+        np.ptp(corners, axis=0), [kin.HAND_THICKNESS_M, kin.HAND_LENGTH_M, kin.HAND_WIDTH_M]
+    )
+
+
+def test_a_fall_onto_the_face_slows_to_the_margins_rate_and_other_motion_is_kept() -> None:
+    down = np.array([0.02, -0.5, 0.0, 0.0, 0.0, 0.0])
+    twist, corrected = keep_above(down, BOX, EE, FLOOR, 0.002, 3.0)
+    assert corrected
+    assert twist[1] == pytest.approx(-3.0 * (0.01 - 0.002))  # the lowest corners' bound
+    assert twist[0] == pytest.approx(0.02) and np.allclose(twist[3:], 0.0)
+    sideways = np.array([0.1, 0.0, -0.05, 0.0, 0.0, 0.0])
+    assert keep_above(sideways, BOX, EE, FLOOR, 0.002, 3.0) == (pytest.approx(sideways), False)
+
+
+def test_a_turn_that_dips_an_edge_is_corrected_and_every_corner_meets_its_bound() -> None:
+    tilt = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 2.0])  # about z: one x edge goes down
+    twist, corrected = keep_above(tilt, BOX, EE, FLOOR, 0.002, 3.0)
+    rates = twist[:3] + np.cross(twist[3:], BOX - EE)
+    assert corrected
+    assert np.all(rates @ FLOOR.normal >= -3.0 * (heights_m(BOX, FLOOR) - 0.002) - 1e-9)
+
+
+def test_a_corner_below_the_margin_is_lifted() -> None:
+    low = BOX - np.array([0.0, 0.009, 0.0])  # lowest face 1 mm up, under a 2 mm margin
+    twist, corrected = keep_above(np.zeros(6), low, EE, FLOOR, 0.002, 3.0)
+    assert corrected and twist[1] == pytest.approx(3.0 * 0.001)
+
+
+def test_the_top_face_plane_comes_from_the_marker_corners_and_faces_the_camera() -> None:
+    t_base_cam = kin.homogeneous(np.eye(3), np.array([0.0, 0.5, 0.0]))
+    square = np.array([[0.1, -0.2, 0.3], [0.2, -0.2, 0.3], [0.2, -0.2, 0.4], [0.1, -0.2, 0.4]])
+    for corners in (square, square[::-1]):
+        plane = target_top_plane(corners, t_base_cam)
+        np.testing.assert_allclose(plane.normal, [0.0, 1.0, 0.0], atol=1e-12)
+        np.testing.assert_allclose(plane.point_m, [0.15, 0.3, 0.35])
