@@ -258,11 +258,14 @@ class ControllerConfig(_Strict):
     plateau_s: float = Field(
         1.5, gt=0.0, description="sim time without a 5 % fall of the averaged error (s)"
     )
-    hand_clearance_m: float | None = Field(
+    keep_above_target: bool = Field(
+        True, description="keep the hand box above the object's top face (hand_clearance_m)"
+    )
+    hand_clearance_m: float = Field(
         0.002,
         ge=0.0,
         description="the hand box's corners stay this far above the plane of the red marker "
-        "(the object's top face, as vision measures it); None: off",
+        "(the object's top face, as vision measures it)",
     )
     clearance_rate_1_s: float = Field(
         3.0, gt=0.0, description="a corner's height may fall at most this times its margin (1/s)"

@@ -48,7 +48,7 @@ def above_the_target(
     marker, the box from the encoders); unchanged while holding or before any view."""
     cfg = controller.config
     last = controller.last_target
-    if not out.valid or cfg.hand_clearance_m is None or last is None:
+    if not out.valid or not cfg.keep_above_target or last is None:
         return out
     plane = clearance.target_top_plane(last.points_m, controller.t_base_cam)
     corners = clearance.hand_box_corners_ee() @ t_base_ee[:3, :3].T + t_base_ee[:3, 3]
