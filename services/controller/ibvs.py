@@ -224,6 +224,7 @@ class ControlOutput:
     hold_reason: str = ""
     phase: str = "servoing"  # servoing / acquiring / holding
     hold_since_s: float | None = None  # sim time the current hold began
+    lifted: bool = False  # the twist was lifted to keep the hand above the object (clearance)
 
     @property
     def status(self) -> str:

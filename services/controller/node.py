@@ -41,6 +41,7 @@ class ControllerService:
         self.target_speed_m_s = 0.0  # estimated; set by the event loop, read by status queries
         self.last_output: EndEffectorTwist | None = None
         self.target_remembered = False
+        self.clearance_lifts = 0  # twists lifted to keep the hand above the object
 
     def status_fields(self) -> dict:
         return {
@@ -60,6 +61,7 @@ class ControllerService:
             # servoing on where its motion says a hidden target went, not yet seen there
             "target_predicted": self.controller.predicted,
             "target_speed_m_s": self.target_speed_m_s,
+            "clearance_lifts": self.clearance_lifts,
         }
 
     def stuck(self) -> bool:
@@ -79,6 +81,7 @@ class ControllerService:
         self.holding, self.target_remembered = not out.valid, out.target_remembered
         self.hold_reason, self.phase = out.hold_reason, out.phase
         self.hold_since_s, self.sim_time_s = out.hold_since_s, features.header.sim_time_s
+        self.clearance_lifts += out.lifted
         self.last_output = twist_message(
             out,
             self.node.header(features.header.sim_time_s, features.header.frame_seq),

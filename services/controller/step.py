@@ -58,7 +58,8 @@ def above_the_target(
     )  # fmt: skip
     if not corrected:
         return out
-    return replace(out, twist_base_ee=clamp_twist(twist, cfg.max_linear_m_s, cfg.max_angular_rad_s))
+    lifted = clamp_twist(twist, cfg.max_linear_m_s, cfg.max_angular_rad_s)
+    return replace(out, twist_base_ee=lifted, lifted=True)
 
 
 def twist_message(out: ControlOutput, header: Header, mode: str) -> EndEffectorTwist:

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from common import kinematics as kin
+from common.config import ControllerConfig, load_scenario
+from common.marker import Marker
 from services.controller.clearance import (
     Plane,
     hand_box_corners_ee,
@@ -13,6 +17,8 @@ from services.controller.clearance import (
     keep_above,
     target_top_plane,
 )
+from services.controller.ibvs import ControlOutput, IbvsController
+from services.controller.step import above_the_target
 
 FLOOR = Plane(np.zeros(3), np.array([0.0, 1.0, 0.0]))  # y up, as the arm's base frame
 # A hand box lying flat, its lowest face 10 mm above the floor; the end-effector origin above it.
@@ -59,3 +65,28 @@ def test_the_top_face_plane_comes_from_the_marker_corners_and_faces_the_camera()
         plane = target_top_plane(corners, t_base_cam)
         np.testing.assert_allclose(plane.normal, [0.0, 1.0, 0.0], atol=1e-12)
         np.testing.assert_allclose(plane.point_m, [0.15, 0.3, 0.35])
+
+
+def test_the_controllers_twist_is_lifted_over_the_last_seen_target_and_flagged() -> None:
+    """``above_the_target`` on a real arm posture: the red square 3 mm under the hand box's
+    lowest corner (camera at the base, so its frame is the base's); a twist pressing down is
+    lifted to the barrier's rate and flagged, a hold or the switch off leaves it as it was."""
+    q = np.array(load_scenario(None).robot.q0)
+    frames = kin.frame_transforms(q)
+    t_ee = frames[-1]
+    corners = hand_box_corners_ee() @ t_ee[:3, :3].T + t_ee[:3, 3]
+    floor_y = corners[:, 1].min() - 0.003
+    assert floor_y < 0.0  # below the camera, so the plane's normal (towards it) is up
+    x, z = corners[:, 0].mean(), corners[:, 2].mean()
+    square = np.array([[x - 0.03, floor_y, z - 0.03], [x + 0.03, floor_y, z - 0.03],
+                       [x + 0.03, floor_y, z + 0.03], [x - 0.03, floor_y, z + 0.03]])  # fmt: skip
+    controller = IbvsController(ControllerConfig(), np.eye(4))
+    k = load_scenario(None).camera.intrinsics()
+    controller.last_target = Marker.seen_at(square, k)
+    down = ControlOutput(np.array([0.0, -0.1, 0.0, 0.0, 0.0, 0.0]), True, 5.0, False)
+    out = above_the_target(controller, down, t_ee)
+    assert out.lifted and out.twist_base_ee[1] == pytest.approx(-3.0 * (0.003 - 0.002))
+    held = replace(down, valid=False)
+    assert above_the_target(controller, held, t_ee) is held
+    controller.config = ControllerConfig(keep_above_target=False)
+    assert above_the_target(controller, down, t_ee) is down
