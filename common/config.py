@@ -301,6 +301,14 @@ class ControllerConfig(_Strict):
         description="a hold this long (sim s) is reported as stuck: umay run ends with it, "
         "umay status shows what it waits for",
     )
+    stall_after_s: float = Field(
+        5.0,
+        gt=0.0,
+        le=3600.0,
+        description="servoing this long (sim s) without the image error falling 5 % below its "
+        "best is reported as stalled (a local minimum of the law, or a limit it pushes "
+        "against): umay run ends with it",
+    )
 
 
 class ActuationConfig(_Strict):

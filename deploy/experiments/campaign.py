@@ -310,14 +310,17 @@ CAUSES = (
 
 def failure_cause(row: CompareRow, manipulability_threshold: float = 0.002) -> str:
     """One named cause per run. ``converged`` (on its goal) or *local minimum* (the image
-    error converged, the hand more than 5 mm from its goal); *acquisition failed*; *error*;
+    error converged, the hand more than 5 mm from its goal; or ``local minimum (image error
+    stalled)``: the run ended stalled above the threshold, no limit to blame); *acquisition
+    failed*; *error*;
     *collision* with what the arm pressed on (``collision (object)``: it touched the scenery,
     whatever followed, which a servo law cannot undo by itself); a run ended holding: *marker
     left the image* when the hand marker was at or past the image border, else *stuck* with
-    what it waited for (from the detail); a run still servoing at its timeout: *joint limit*
+    what it waited for (from the detail); a run still servoing at its end: *joint limit*
     (a joint inside the actuation's slow-down zone at the end, :data:`JOINT_LIMIT_MARGIN_DEG`),
     *singularity* (least manipulability below the actuation's damping threshold), else
-    *timeout*. The ground-truth fields judge; nothing flows back."""
+    *local minimum (image error stalled)* or *timeout*. The ground-truth fields judge; nothing
+    flows back."""
     if row.converged:
         return "converged" if row.on_goal else "local minimum"
     if row.reason == "acquisition_failed":
@@ -336,7 +339,7 @@ def failure_cause(row: CompareRow, manipulability_threshold: float = 0.002) -> s
         return "joint limit"
     if row.min_manipulability is not None and row.min_manipulability < manipulability_threshold:
         return "singularity"
-    return "timeout"
+    return "local minimum (image error stalled)" if row.reason == "stalled" else "timeout"
 
 
 def close_at_end(row: CompareRow) -> bool:

@@ -24,6 +24,7 @@ from deploy.experiments.domains import DomainRecord, DomainStart, StudyDefinitio
 # One letter per failure cause, written in the heat map's cells (docs/domains.md has the key).
 CAUSE_LETTERS = {
     "local minimum": "L",
+    "collision": "C",
     "marker left the image": "O",
     "joint limit": "J",
     "singularity": "S",

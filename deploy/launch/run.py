@@ -66,6 +66,7 @@ class RunMonitor:
     timeout_s: float = 30.0
     not_before_s: float = 0.0  # convergence counts once the scenario's events are over
     stuck_after_s: float = 4.0  # a hold this long (sim s) ends the run: stuck
+    stall_after_s: float = 5.0  # servoing this long (sim s) without progress: stalled
     rejected: int = 0
     hold: HoldState = field(default_factory=HoldState)
     end: RunEnd | None = None  # why the run ended, and at which frame
@@ -106,7 +107,9 @@ class RunMonitor:
         self.twists[tw.header.frame_seq] = tw
         if self.decided.is_set():
             return
-        limits = EndLimits(self.timeout_s, self.not_before_s, self.stuck_after_s)
+        limits = EndLimits(
+            self.timeout_s, self.not_before_s, self.stuck_after_s, self.stall_after_s
+        )
         self.hold, end = judge_twist(limits, self.hold, tw)
         if end is not None:
             self.end = end
@@ -143,6 +146,7 @@ def run_once(
         timeout_s=limits.timeout_s,
         not_before_s=limits.not_before_s,
         stuck_after_s=limits.stuck_after_s,
+        stall_after_s=limits.stall_after_s,
     )
     session = open_session(connect=[], listen=[endpoint])
     recorder = None

@@ -94,6 +94,8 @@ def row(**fields) -> CompareRow:
             "stuck (hand partial)",
         ),
         ({}, "timeout"),
+        ({"reason": "stalled"}, "local minimum (image error stalled)"),
+        ({"reason": "stalled", "final_joint_margin_deg": 4.0}, "joint limit"),  # a limit blamed
         ({"reason": "error", "detail": "service exited"}, "error"),
         (  # the arm pressed on the object: named so whatever it led to (here a joint limit)
             {"first_contact_s": 1.6, "contact_with": "object", "final_joint_margin_deg": -10.0},

@@ -8,7 +8,7 @@ from common.codec import encode
 from common.messages import EndEffectorTwist, Header
 from deploy.experiments.evaluate import summarize
 from deploy.launch.run import RunMonitor, twist_phase
-from deploy.launch.run_end import stuck_detail
+from deploy.launch.run_end import stall_detail, stuck_detail
 
 PERIOD_S = 1 / 30
 
@@ -26,7 +26,7 @@ class Sample:
     payload: Payload
 
 
-def twist(seq: int, valid: bool, reason: str = "") -> EndEffectorTwist:
+def twist(seq: int, valid: bool, reason: str = "", error_px: float = 3.0) -> EndEffectorTwist:
     header = Header(seq=seq, sim_time_s=seq * PERIOD_S, send_time_s=0.0, frame_seq=seq)
     return EndEffectorTwist(
         header=header,
@@ -35,7 +35,7 @@ def twist(seq: int, valid: bool, reason: str = "") -> EndEffectorTwist:
         valid=valid,
         hold_reason=reason,
         mode="dynamic",
-        error_px_rms=3.0 if valid else 0.0,
+        error_px_rms=error_px if valid else 0.0,
         converged=False,
     )
 
@@ -71,6 +71,37 @@ def test_a_failed_acquisition_ends_the_run_at_once() -> None:
     reason = "acquisition failed: target partial after 4 attempt(s) from 0.53 s"
     feed(monitor, [twist(0, True), twist(1, False, reason)])
     assert monitor.ended == "acquisition_failed" and reason in monitor.ended_detail
+
+
+def test_servoing_without_progress_ends_the_run_as_stalled_naming_the_best_and_since_when() -> None:
+    monitor = RunMonitor(timeout_s=30.0, stall_after_s=5.0)
+    # falls from 40 px to 20 px over the first second, then creeps (under 5 % of 20 px)
+    feed(monitor, [twist(i, True, error_px=40.0 - 20.0 * i / 30) for i in range(31)])
+    creep = [twist(i, True, error_px=20.0 - 0.5 * (i - 30) / 150) for i in range(31, 180)]
+    feed(monitor, creep)
+    assert not monitor.decided.is_set()  # 4.97 s since its best: not yet
+    feed(monitor, [twist(180, True, error_px=19.6)])
+    assert monitor.decided.is_set() and monitor.ended == "stalled"
+    assert monitor.ended_frame == 180
+    assert monitor.ended_detail == stall_detail(19.6, 20.0, 1.0, 6.0)
+    assert "since sim time 1.00 s" in monitor.ended_detail
+
+
+def test_a_slow_steady_fall_is_progress_and_never_stalls() -> None:
+    # 6 % every 5 s: a little faster than the 5 % in stall_after_s that counts as progress
+    monitor = RunMonitor(timeout_s=30.0, stall_after_s=5.0)
+    feed(monitor, [twist(i, True, error_px=30.0 * 0.94 ** (i / 150)) for i in range(29 * 30)])
+    assert not monitor.decided.is_set()
+
+
+def test_acquiring_and_the_scenario_events_do_not_count_as_stalled() -> None:
+    acquiring = "acquiring: target partial, attempt 1/4"
+    monitor = RunMonitor(timeout_s=30.0, stall_after_s=1.0, not_before_s=3.0)
+    feed(monitor, [twist(i, True, error_px=5.0) for i in range(90)])  # events go on: tracking
+    feed(monitor, [twist(i, True, acquiring, error_px=0.0) for i in range(90, 150)])
+    assert not monitor.decided.is_set()
+    feed(monitor, [twist(i, True, error_px=5.0) for i in range(150, 181)])  # servoing: 1 s
+    assert monitor.ended == "stalled" and monitor.ended_frame == 180
 
 
 def test_the_live_line_names_the_phase() -> None:
