@@ -57,3 +57,32 @@ def processes_mentioning(text: str) -> list[int]:
         if text in cmdline:
             found.append(int(entry.name))
     return found
+
+
+# The slowest tests, slowest first (`pytest --durations=40`): `make test` hands whole tests to
+# its two workers one at a time in collection order (`--dist loadgroup --no-loadscope-reorder`),
+# so starting with the long ones lets the many short ones fill in behind them and both workers
+# finish together, instead of one worker drawing the longest test last.
+SLOW_FIRST = (
+    "tests/integration/test_compare_run.py::test_small_comparison_outputs",
+    "tests/integration/test_campaign_run.py::",
+    "tests/integration/test_integration.py::test_each_strategy_converges",
+    "tests/integration/test_integration.py::test_neither_wall_clock",
+    "tests/integration/test_domains_executors.py::",
+    "tests/integration/test_realism_integration.py::",
+    "tests/integration/test_pipeline_vs_distributed.py::",
+    "tests/integration/test_recording.py::",
+    "tests/integration/test_foxglove_view.py::",
+    "tests/integration/test_bench_run.py::",
+    "tests/integration/test_supervisor.py::",
+    "tests/unit/test_campaign.py::test_each_start",
+    "tests/unit/test_kinect_in_loop.py::",
+)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    def rank(item: pytest.Item) -> int:
+        found = (i for i, prefix in enumerate(SLOW_FIRST) if item.nodeid.startswith(prefix))
+        return next(found, len(SLOW_FIRST))
+
+    items.sort(key=rank)  # stable: the rest keep their order

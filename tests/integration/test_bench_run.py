@@ -47,6 +47,7 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> dict:
     return result
 
 
+@pytest.mark.xdist_group("bench")  # the module's bench runs once per worker
 def test_bench_json_is_complete_and_sane(bench: dict) -> None:
     r = bench
     assert r["config"]["width_px"] == 320 and r["config"]["height_px"] == 240
@@ -128,6 +129,7 @@ def test_bench_json_is_complete_and_sane(bench: dict) -> None:
     assert set(s["services"]) == set(PIPELINE)
 
 
+@pytest.mark.xdist_group("bench")  # the module's bench runs once per worker
 def test_bench_keeps_every_frame_and_draws_them(bench: dict) -> None:
     """Frame by frame: each complete frame's stages add up to its latency, the in-process
     loop timed the same frames, and the figure of them was written."""

@@ -171,6 +171,7 @@ def collect(client: FoxgloveClient) -> dict[str, list[tuple[int, object]]]:
     return out
 
 
+@pytest.mark.xdist_group("live_view")  # the module's live run is started once per worker
 def test_live_view_shows_the_run(live) -> None:
     url, sent, _keys, _tmp = live
     client = FoxgloveClient(url).start()
@@ -198,6 +199,7 @@ def test_live_view_shows_the_run(live) -> None:
     assert {lg.name for lg in logs} >= {"sim", "vision", "controller", "actuation"}
 
 
+@pytest.mark.xdist_group("live_view")  # the module's live run is started once per worker
 def test_clients_that_vanish_or_stall_do_not_slow_the_loop(live) -> None:
     url, sent, _keys, _tmp = live
     # A client that disconnects mid-stream, without a close handshake.

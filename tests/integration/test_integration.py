@@ -74,7 +74,15 @@ def lockstep_result(mode: str, tmp_path: Path) -> dict:
     return _results[mode][0]
 
 
-@pytest.mark.parametrize("mode", ["constant", "dynamic", "pmj", "mpj", "points3d"])
+# The dynamic run is reused by test_neither_wall_clock_nor_the_transport_changes_a_lockstep_run:
+# one worker runs both (make test: --dist loadgroup).
+SAME_WORKER = pytest.mark.xdist_group("default_dynamic")
+
+
+@pytest.mark.parametrize(
+    "mode",
+    ["constant", pytest.param("dynamic", marks=SAME_WORKER), "pmj", "mpj", "points3d"],
+)
 def test_each_strategy_converges_from_the_default_scenario(mode: str, tmp_path: Path) -> None:
     r = lockstep_result(mode, tmp_path)
     assert r["converged"] and r["reason"] == "converged", r
@@ -83,14 +91,16 @@ def test_each_strategy_converges_from_the_default_scenario(mode: str, tmp_path: 
     assert r["mode"] == mode and r["frames"] > 10 and r["path_length_m"] > 0.02
 
 
-def test_two_lockstep_runs_give_identical_results(tmp_path: Path) -> None:
+@SAME_WORKER
+def test_neither_wall_clock_nor_the_transport_changes_a_lockstep_run(tmp_path: Path) -> None:
     """Wall-clock timing must not leak into a lockstep run: in the second run the actuation
     deadman fires between every pair of frames (5 ms timeout), as it would on a loaded
-    machine where rendering takes longer than the 250 ms default."""
+    machine where rendering takes longer than the 250 ms default. Nor may the way frames
+    travel: the second run has frames by reference off (``UMAY_ZENOH_SHM=0``), so they go
+    whole. The two runs are the same, frame for frame."""
     first = lockstep_result("dynamic", tmp_path)
-    _, second = umay_run(
-        tmp_path, "--mode", "dynamic", "--set", "actuation.deadman_timeout_s=0.005"
-    )
+    deadman = ("--set", "actuation.deadman_timeout_s=0.005")
+    _, second = umay_run(tmp_path, "--mode", "dynamic", *deadman, env={ENV_SHM: "0"})
     assert second is not None
     a = {k: v for k, v in first.items() if k != "wall_time_s"}
     b = {k: v for k, v in second.items() if k != "wall_time_s"}
@@ -129,18 +139,6 @@ def test_camera_frames_go_by_reference_and_the_loop_converges(tmp_path: Path) ->
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=30)
         session.close()
-
-
-def test_frames_by_copy_give_the_same_run(tmp_path: Path) -> None:
-    """Frames by reference off (``UMAY_ZENOH_SHM=0``): the frames go whole, and the lockstep
-    run is the same, frame for frame, as with them on."""
-    by_reference = lockstep_result("dynamic", tmp_path)
-    _, by_copy = umay_run(tmp_path, "--mode", "dynamic", env={ENV_SHM: "0"})
-    assert by_copy is not None
-    drop = {"wall_time_s"}
-    assert {k: v for k, v in by_copy.items() if k not in drop} == {
-        k: v for k, v in by_reference.items() if k not in drop
-    }
 
 
 @pytest.mark.parametrize(

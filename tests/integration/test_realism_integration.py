@@ -1,12 +1,10 @@
-"""Multi-process runs with a realistic camera: Kinect noise with depth at 1 Hz (every
-strategy), the target hidden mid-run, the target sliding away. The real services as separate
-OS processes over Zenoh on loopback, each test under its own key prefix and port, multicast
-scouting off, lockstep."""
+"""Multi-process runs with a realistic scene: the target hidden mid-run (Kinect noise with
+depth at 1 Hz: tests/unit/test_kinect_in_loop.py; the target sliding away:
+tests/unit/test_sliding_target.py). The real services as separate OS processes over Zenoh on
+loopback, each test under its own key prefix and port, multicast scouting off, lockstep."""
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 import threading
 import time
 import uuid
@@ -15,52 +13,14 @@ from pathlib import Path
 import numpy as np
 
 from common.codec import FRAME_MAX_BYTES, decode
-from common.config import DEFAULT_SCENARIO, load_scenario
+from common.config import load_scenario
 from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, JointState, JointVelocityCommand
 from common.runtime import parse_overrides
 from common.session import free_tcp_endpoint, open_session
-from deploy.experiments.compare.rows import rows_from_json
 from deploy.launch.run import run_once
 from deploy.launch.status import collect
 from deploy.recording.read import iter_messages
-from tests.integration.test_compare_run import RUN_TIMEOUT_S, UMAY
-from tests.integration.test_integration import umay_run
-from tests.unit.test_compare import MODES
-
-
-def test_kinect_noise_and_depth_at_1hz_every_strategy_converges(tmp_path: Path) -> None:
-    """The thesis's sensor conditions (depth at 1 Hz) with the Kinect model on: every strategy,
-    on the default scenario, through ``umay compare --pipeline inprocess`` to keep CI short
-    (the in-process pipeline is the distributed lockstep run to the bit:
-    test_pipeline_vs_distributed.py)."""
-    folder = tmp_path / "scenarios"
-    folder.mkdir()
-    shutil.copy(DEFAULT_SCENARIO, folder / "default.toml")
-    out = tmp_path / "out"
-    overrides = ["camera.kinect.enabled=true", "camera.depth_hz=1.0", "controller.converged_px=0.5"]
-    proc = subprocess.run(
-        [*UMAY, "compare", "--scenarios", str(folder), "--jobs", "2", "--out", str(out)]
-        + ["--pipeline", "inprocess"]
-        + [a for item in overrides for a in ("--set", item)],
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-    )
-    assert proc.returncode == 0, proc.stderr
-    rows = rows_from_json((out / "results.json").read_text())
-    print("\nKinect noise, depth at 1 Hz:")
-    for r in rows:
-        print(
-            f"  {r.mode:9s} {r.reason} {r.frames} frames, {r.final_pixel_rms} px, "
-            f"{r.final_position_error_m} m"
-        )
-    assert sorted(r.mode for r in rows) == sorted(MODES)
-    for r in rows:
-        assert r.converged, r
-        assert r.final_pixel_rms is not None and r.final_pixel_rms < 1.5, r
-        assert r.final_position_error_m is not None and r.final_position_error_m < 0.010, r
-
 
 HIDE_AT_S, HIDE_FOR_S = 1.5, 1.0
 
@@ -149,20 +109,3 @@ def test_hiding_the_target_stops_the_arm_and_the_run_resumes(tmp_path: Path) -> 
     print(f"after the target came back: {result}")
     assert result.converged and result.final_position_error_m < 0.005
     assert result.marker_lost_s is not None and result.marker_lost_s >= HIDE_FOR_S - 2 * period
-
-
-def test_the_hand_follows_a_sliding_target(tmp_path: Path) -> None:
-    """move_target at 2 cm/s for 4 s (the hand hides the object most of the time): the hand
-    keeps up, the tracking error is reported, and it converges once the object stops."""
-    events = (
-        "events=[{at_s = 1.0, action = 'move_target', duration_s = 4.0, "
-        "velocity_m_s = [0.0, 0.0, 0.02]}]"
-    )
-    proc, result = umay_run(tmp_path, "--mode", "dynamic", "--set", events)
-    assert result is not None, proc.stderr
-    print(f"\nsliding target: {result}")
-    assert result["tracking_position_error_m"] is not None
-    assert result["tracking_position_error_m"] < 0.010  # median while it slides
-    assert result["tracking_max_position_error_m"] < 0.030
-    assert result["converged"] and result["final_position_error_m"] < 0.005
-    assert result["sim_time_s"] > 5.0  # not before the object stopped

@@ -66,6 +66,7 @@ def replay(path: Path, service: str, tmp_path: Path, *args: str) -> subprocess.C
     )
 
 
+@pytest.mark.xdist_group("recording")  # the module's recording is made once per worker
 def test_run_record_writes_an_indexed_zstd_mcap_with_every_data_key(
     recording: tuple[Path, str],
 ) -> None:
@@ -127,6 +128,7 @@ def test_run_record_writes_an_indexed_zstd_mcap_with_every_data_key(
     assert keys.depth in shown.stdout and "DepthFrame" in shown.stdout
 
 
+@pytest.mark.xdist_group("recording")  # the module's recording is made once per worker
 @pytest.mark.parametrize("service", ["vision", "controller", "actuation"])
 def test_replay_check_reproduces_the_recorded_outputs(
     service: str, recording: tuple[Path, str], tmp_path: Path
@@ -139,6 +141,7 @@ def test_replay_check_reproduces_the_recorded_outputs(
     assert "matched 0 " not in proc.stdout
 
 
+@pytest.mark.xdist_group("recording")  # the module's recording is made once per worker
 def test_replay_check_fails_on_a_changed_controller_gain_and_names_the_fields(
     recording: tuple[Path, str], tmp_path: Path
 ) -> None:
@@ -267,6 +270,7 @@ def test_a_recording_cut_short_is_read_and_replayed_up_to_the_damage(tmp_path: P
     assert matched and int(matched.group(1)) >= 5, replayed.stdout
 
 
+@pytest.mark.xdist_group("recording")  # the module's recording is made once per worker
 def test_umay_plot_on_a_real_recording_writes_the_four_figures(
     recording: tuple[Path, str], tmp_path: Path
 ) -> None:
