@@ -54,6 +54,13 @@ class JacobianMode(StrEnum):
     POINTS3D = "points3d"
 
 
+class ConstantDepth(StrEnum):
+    """The depths the constant strategy's frozen interaction matrix is built with."""
+
+    SINGLE = "single"  # one depth for every corner: the thesis's (the target's at the start)
+    PER_CORNER = "per_corner"  # each desired corner's own depth, measured at the start
+
+
 class RobotConfig(_Strict):
     q0: Joints6 = Field(description="initial joint angles (rad), joint_1..joint_6")
 
@@ -248,6 +255,12 @@ class ControllerConfig(_Strict):
     )
     converged_frames: int = Field(
         5, ge=1, description="frames servoed on a still goal the error is averaged over"
+    )
+    constant_depth: ConstantDepth = Field(
+        ConstantDepth.SINGLE,
+        description="constant: build the frozen matrix with one depth for every corner (the "
+        "thesis) or with each desired corner's depth measured at the start (per_corner: the "
+        "tilt of the target's plane kept; docs/campaign.md)",
     )
     plateau_px: float = Field(
         1.0,

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
-from common.config import ControllerConfig, JacobianMode
+from common.config import ConstantDepth, ControllerConfig, JacobianMode
 from common.kinematics import BASE_UP, cross, skew
 from common.marker import Marker
 from common.motion import MarkerMotion
@@ -150,6 +150,21 @@ def control_matrix(
     if mode is JacobianMode.POINTS3D:
         raise ValueError("points3d servoes 3-D points: use points3d_control_matrix")
     raise ValueError(f"unknown Jacobian mode {mode!r}")
+
+
+def constant_interaction_matrix(
+    desired: Marker, k: CameraIntrinsics, depth: ConstantDepth
+) -> FloatArray:
+    """The constant strategy's matrix, built once at the start at the desired features: with
+    one depth for all corners, the desired corners' mean (the thesis), or with each corner's
+    own (``per_corner``). One depth treats the target's square as facing the camera; seen
+    obliquely from the torso, its corners' depths differ by centimetres, and from some starts
+    the law then settles where ``L_c⁺ e = 0`` with ``e ≠ 0`` (docs/campaign.md)."""
+    xy = pixel_to_normalized(desired.corners_px, k)
+    depths = np.asarray(desired.depth_m, dtype=float)
+    if depth is ConstantDepth.SINGLE:
+        depths = np.full(len(xy), float(np.mean(depths)))
+    return interaction_matrix(xy, depths)
 
 
 def camera_twist_to_base_ee(
@@ -414,10 +429,7 @@ class IbvsController:
         self.hold_since_s = None
         target = desired_observation(target, self.approach_height_m, k)
         if self.l_constant is None:
-            # One depth for all points, taken once at the start: the target's mean depth.
-            z0 = float(np.mean(target.depth_m))
-            xy = pixel_to_normalized(target.corners_px, k)
-            self.l_constant = interaction_matrix(xy, np.full(len(xy), z0))
+            self.l_constant = constant_interaction_matrix(target, k, self.config.constant_depth)
         if self.oriented_markers:
             self.pairing = 0
         else:

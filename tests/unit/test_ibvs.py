@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from common import kinematics as kin
-from common.camera import CameraIntrinsics
-from common.config import ControllerConfig, JacobianMode
+from common.camera import CameraIntrinsics, pixel_to_normalized
+from common.config import ConstantDepth, ControllerConfig, JacobianMode
 from common.marker import Marker
 from common.messages import MarkerState
 from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
@@ -20,6 +20,7 @@ from services.controller.ibvs import (
     camera_twist_to_base_ee,
     choose_pairing,
     clamp_twist,
+    constant_interaction_matrix,
     control_matrix,
     desired_observation,
     interaction_matrix,
@@ -393,3 +394,33 @@ def test_a_moving_target_is_followed_with_its_motion_fed_forward(track: bool) ->
     lag_px = out.error_px_rms
     print(f"following a 2 cm/s target, feed-forward {'on' if track else 'off'}: {lag_px:.2f} px")
     assert (lag_px < 1.0) if track else (lag_px > 10.0)
+
+
+def test_the_constant_matrix_takes_one_depth_or_each_corner_s_own() -> None:
+    """Built at the desired features: with one depth, the corners' mean (the thesis); per
+    corner, the matrix at the desired corners and depths, L*, as dynamic's at the goal."""
+    tilted = _axis_angle(np.array([1.0, 0.0, 0.0]), 0.9) @ square_points(np.zeros(3)).T
+    desired = observe(tilted.T + np.array([0.02, 0.1, 0.6]))
+    xy = pixel_to_normalized(desired.corners_px, K)
+    assert np.ptp(desired.depth_m) > 0.03  # seen obliquely: depths differ by centimetres
+    single = constant_interaction_matrix(desired, K, ConstantDepth.SINGLE)
+    mean = np.full(4, np.mean(desired.depth_m))
+    np.testing.assert_allclose(single, interaction_matrix(xy, mean))
+    per_corner = constant_interaction_matrix(desired, K, ConstantDepth.PER_CORNER)
+    np.testing.assert_allclose(per_corner, interaction_matrix(xy, desired.depth_m))
+    assert not np.allclose(single, per_corner)
+
+
+def test_the_controller_freezes_the_constant_matrix_with_the_configured_depths() -> None:
+    target = square_points(np.array([0.0, 0.05, 0.55]))
+    hand = square_points(np.array([0.03, 0.0, 0.5]))
+    for depth in ConstantDepth:
+        config = ControllerConfig(mode=JacobianMode.CONSTANT, constant_depth=depth)
+        ctrl = IbvsController(config, np.eye(4), 0.03)
+        ctrl.step(observe(hand), observe(target), K, hand.mean(axis=0))
+        desired = desired_observation(observe(target), 0.03, K)
+        np.testing.assert_allclose(ctrl.l_constant, constant_interaction_matrix(desired, K, depth))
+        moved = observe(target + np.array([0.0, 0.0, 0.2]))  # frozen: later views leave it
+        frozen = ctrl.l_constant.copy()
+        ctrl.step(observe(hand), moved, K, hand.mean(axis=0))
+        np.testing.assert_array_equal(ctrl.l_constant, frozen)
