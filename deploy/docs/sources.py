@@ -17,6 +17,8 @@ BENCH_DIR = "docs/bench"
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
 ACCURACY_JSON = "docs/vision/accuracy.json"  # umay accuracy on the suite's target placements
 CAMPAIGN_JSON = "docs/campaign/causes.json"  # the random-start campaign: one cause per run
+# The same starts with constant's matrix built from each corner's depth (per_corner).
+PER_CORNER_JSON = "docs/campaign/constant_per_corner/causes.json"
 # The same small study through each executor (one folder each, ``umay domains --out``).
 EXECUTORS_DIR = "docs/domains/executors"
 
@@ -50,6 +52,7 @@ class Inputs:
     domains: Any = None  # the domain study (deploy.experiments.domains_report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
+    per_corner: Sequence[Mapping[str, Any]] = ()  # constant per_corner on the same starts
     accuracy: Sequence[Mapping[str, Any]] = ()  # vision's accuracy, one record per condition
 
     def run(self, name: str) -> BenchRun:
@@ -79,6 +82,9 @@ def load_inputs(root: Path) -> Inputs:
         campaign = []
         if (root / CAMPAIGN_JSON).is_file():
             campaign = json.loads((root / CAMPAIGN_JSON).read_text())
+        per_corner = []
+        if (root / PER_CORNER_JSON).is_file():
+            per_corner = json.loads((root / PER_CORNER_JSON).read_text())
         accuracy = []
         if (root / ACCURACY_JSON).is_file():
             accuracy = json.loads((root / ACCURACY_JSON).read_text())
@@ -90,5 +96,6 @@ def load_inputs(root: Path) -> Inputs:
         domains=domains,
         executors=executors,
         campaign=campaign,
+        per_corner=per_corner,
         accuracy=accuracy,
     )

@@ -370,6 +370,15 @@ def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
     table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs), "docs")
     assert "| dynamic | 3 | 66.7% (2/3) | joint limit 1 |" in table
     assert "4 starts, 1 refused at start (25.0%" in table
+    assert "per_corner" not in table  # no per_corner campaign: no row
+    per_corner = [
+        {"start": "s1", "mode": "constant", "cause": "converged"},
+        {"start": "s2", "mode": "constant", "cause": "local minimum (image error stalled)"},
+        {"start": "s4", "mode": "constant", "cause": "refused at start"},
+    ]
+    table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs, per_corner=per_corner), "")
+    assert "| constant, per_corner depths | 2 | 50.0% (1/2) | local minimum" in table
+    assert "constant_per_corner/causes.json" in table
 
 
 def test_the_campaign_taxonomy_and_goals_count_every_cause_from_causes_json() -> None:
