@@ -86,9 +86,10 @@ def timeout_detail(tw: EndEffectorTwist, timeout_s: float) -> str:
     """Why a run that timed out at twist ``tw`` had not converged."""
     if not tw.valid:
         return f"{timeout_s:g} s simulated; last holding: {tw.hold_reason}"
-    phase = tw.hold_reason or "servoing"
+    if tw.hold_reason:  # acquiring: the twist carries no image error (it is not servoing)
+        return f"{timeout_s:g} s simulated; still {tw.hold_reason}"
     return (
-        f"{timeout_s:g} s simulated; still {phase}, image error {tw.error_px_rms:.3f} px "
+        f"{timeout_s:g} s simulated; still servoing, image error {tw.error_px_rms:.3f} px "
         "above the convergence threshold"
     )
 

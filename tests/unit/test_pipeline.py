@@ -129,6 +129,10 @@ def test_convergence_counts_only_after_the_events_and_the_timeout_names_the_last
     _, end = judge_twist(limits, hold, last)
     assert end is not None and end.reason == "timeout" and end.frame == 90
     assert end.detail == timeout_detail(last, 3.0) and "2.500 px" in end.detail
+    acquiring = last.model_copy(update={"hold_reason": "acquiring: target partial, attempt 3/4"})
+    assert timeout_detail(acquiring, 3.0) == (
+        "3 s simulated; still acquiring: target partial, attempt 3/4"
+    )  # no image error: an acquiring twist has none
 
 
 # --- the pipeline ---------------------------------------------------------------------------
