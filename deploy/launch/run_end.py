@@ -5,20 +5,22 @@ arriving over Zenoh, :class:`deploy.launch.run.RunMonitor`) and the in-process r
 A run ends at the first controller output (twist) that is converged once the scenario's events
 are over, reaches the simulated timeout, reports a failed acquisition, closes a hold longer
 than ``controller.stuck_after_s`` (sim time), or servoes an image error that has not fallen by
-:data:`STALL_PROGRESS` for ``controller.stall_after_s`` once the events are over (the law sits
-in a local minimum: its twist has gone to zero, or it pushes against a limit): the reasons
+5 % below its best for ``controller.stall_after_s`` once the events are over (the law sits
+in a local minimum: its twist has gone to zero, or it pushes against a limit;
+:mod:`services.controller.progress`): the reasons
 ``converged``, ``timeout``, ``acquisition_failed``, ``stuck`` and ``stalled``. The result is
 judged at that frame (deploy/evaluate.py).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from common.config import EventAction, Scenario
 from common.messages import EndEffectorTwist, SimTruth
 from deploy.experiments.evaluate import RunResult, summarize
 from services.controller.ibvs import ACQUISITION_FAILED
+from services.controller.progress import Progress, stall_detail
 
 
 @dataclass(frozen=True)
@@ -40,20 +42,14 @@ class EndLimits:
         )
 
 
-# A fall of the image error by this fraction of its best level so far counts as progress.
-STALL_PROGRESS = 0.05
-
-
 @dataclass(frozen=True)
 class HoldState:
     """What the end of a run is judged on besides the latest twist: the run of holding twists
-    going on (``since_s`` None: the last twist moved), and while servoing, the image error's
-    best level and since when it has not fallen by :data:`STALL_PROGRESS` below it."""
+    going on (``since_s`` None: the last twist moved), and while servoing, its progress."""
 
     since_s: float | None = None  # sim time the current run of holding twists began
     reason: str = ""  # of the latest holding twist
-    best_px: float | None = None  # None: not servoing (holding, acquiring, events going on)
-    best_since_s: float = 0.0
+    progress: Progress = field(default_factory=Progress)
 
 
 @dataclass(frozen=True)
@@ -70,15 +66,6 @@ def stuck_detail(hold_reason: str, since_s: float, now_s: float) -> str:
     return (
         f"held {now_s - since_s:.2f} s waiting for: {hold_reason or 'usable features'} "
         f"(holding since sim time {since_s:.2f} s)"
-    )
-
-
-def stall_detail(error_px: float, best_px: float, since_s: float, now_s: float) -> str:
-    """What a stalled run's image error did, and since when (sim time)."""
-    return (
-        f"image error {error_px:.3f} px, not below {best_px:.3f} px by "
-        f"{STALL_PROGRESS:.0%} for {now_s - since_s:.2f} s (since sim time {since_s:.2f} s): "
-        "the law sits in a local minimum or against a limit"
     )
 
 
@@ -100,16 +87,13 @@ def judge_twist(
     """The hold state after twist ``tw`` (twists in frame order) and the run's end if ``tw``
     ends it."""
     t, seq = tw.header.sim_time_s, tw.header.frame_seq
-    if not tw.valid:
-        hold = HoldState(t if hold.since_s is None else hold.since_s, tw.hold_reason)
-    elif tw.hold_reason or t < limits.not_before_s:  # acquiring, or the scenario's events
-        hold = HoldState()
+    # Servoing: not holding, not acquiring, the scenario's events over.
+    servoing = tw.valid and not tw.hold_reason and t >= limits.not_before_s
+    progress = hold.progress.after(t, tw.error_px_rms, servoing)
+    if tw.valid:
+        hold = HoldState(progress=progress)
     else:
-        e = tw.error_px_rms
-        if hold.best_px is None or e < (1.0 - STALL_PROGRESS) * hold.best_px:
-            hold = HoldState(best_px=e, best_since_s=t)
-        elif hold.since_s is not None:
-            hold = HoldState(best_px=hold.best_px, best_since_s=hold.best_since_s)
+        hold = HoldState(t if hold.since_s is None else hold.since_s, tw.hold_reason, progress)
     if tw.converged and t >= limits.not_before_s:
         return hold, RunEnd("converged", "", seq)
     if t >= limits.timeout_s:
@@ -118,8 +102,10 @@ def judge_twist(
         return hold, RunEnd("acquisition_failed", f"{tw.hold_reason} (held at {t:.2f} s)", seq)
     if hold.since_s is not None and t - hold.since_s >= limits.stuck_after_s:
         return hold, RunEnd("stuck", stuck_detail(hold.reason, hold.since_s, t), seq)
-    if hold.best_px is not None and t - hold.best_since_s >= limits.stall_after_s:
-        detail = stall_detail(tw.error_px_rms, hold.best_px, hold.best_since_s, t)
+    stalled_s = progress.stalled_for_s(t)
+    if stalled_s is not None and stalled_s >= limits.stall_after_s:
+        assert progress.best_px is not None
+        detail = stall_detail(tw.error_px_rms, progress.best_px, progress.best_since_s, t)
         return hold, RunEnd("stalled", detail, seq)
     return hold, None
 

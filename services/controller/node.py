@@ -14,6 +14,7 @@ from common.node import Node
 from common.pairing import FramePairer
 from common.runtime import ServiceContext
 from services.controller.ibvs import IbvsController, describe_hold, is_stuck
+from services.controller.progress import Progress, describe_stall
 from services.controller.step import control_step, twist_message
 
 
@@ -42,6 +43,8 @@ class ControllerService:
         self.last_output: EndEffectorTwist | None = None
         self.target_remembered = False
         self.clearance_lifts = 0  # twists lifted to keep the hand above the object
+        self.progress = Progress()  # whether servoing still brings the error down
+        self.events_end_s = ctx.scenario.events_end_s  # progress counts once they are over
 
     def status_fields(self) -> dict:
         return {
@@ -57,6 +60,10 @@ class ControllerService:
                 None if self.hold_since_s is None else self.sim_time_s - self.hold_since_s
             ),
             "stuck": self.stuck(),
+            # servoing without the error falling 5 % below its best (sim s): a local minimum
+            "error_best_px": self.progress.best_px,
+            "stalled_for_s": self.progress.stalled_for_s(self.sim_time_s),
+            "stalled": self.stalled(),
             "target_remembered": self.target_remembered,
             # servoing on where its motion says a hidden target went, not yet seen there
             "target_predicted": self.controller.predicted,
@@ -68,7 +75,14 @@ class ControllerService:
         """Held longer than the scenario's ``controller.stuck_after_s`` (sim time)."""
         return is_stuck(self.hold_since_s, self.sim_time_s, self.controller.config.stuck_after_s)
 
+    def stalled(self) -> bool:
+        """Servoing longer than ``controller.stall_after_s`` (sim time) without progress."""
+        stalled_s = self.progress.stalled_for_s(self.sim_time_s)
+        return stalled_s is not None and stalled_s >= self.controller.config.stall_after_s
+
     def degraded(self) -> str:
+        if self.stalled():
+            return describe_stall(self.error_px, self.progress, self.sim_time_s)
         if not self.holding:
             return ""
         return describe_hold(
@@ -82,6 +96,10 @@ class ControllerService:
         self.hold_reason, self.phase = out.hold_reason, out.phase
         self.hold_since_s, self.sim_time_s = out.hold_since_s, features.header.sim_time_s
         self.clearance_lifts += out.lifted
+        # On the goal (umay up holds it there) the error has nothing left to fall by.
+        servoing = out.phase == "servoing" and not out.converged
+        servoing = servoing and self.sim_time_s >= self.events_end_s
+        self.progress = self.progress.after(self.sim_time_s, out.error_px_rms, servoing)
         self.last_output = twist_message(
             out,
             self.node.header(features.header.sim_time_s, features.header.frame_seq),

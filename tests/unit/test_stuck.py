@@ -8,7 +8,8 @@ from common.codec import encode
 from common.messages import EndEffectorTwist, Header
 from deploy.experiments.evaluate import summarize
 from deploy.launch.run import RunMonitor, twist_phase
-from deploy.launch.run_end import stall_detail, stuck_detail
+from deploy.launch.run_end import stuck_detail
+from services.controller.progress import Progress, describe_stall, stall_detail
 
 PERIOD_S = 1 / 30
 
@@ -132,4 +133,15 @@ def test_status_says_what_a_hold_waits_for_and_for_how_long() -> None:
     )
     assert describe_hold("hand lost", 1.0, 6.5, cfg) == (
         "holding: hand lost (stuck, for 5.5 s, since sim time 1.00 s)"
+    )
+
+
+def test_progress_restarts_off_servoing_and_status_describes_a_stall() -> None:
+    p = Progress().after(0.0, 20.0, True).after(1.0, 19.5, True)  # under 5 % below 20 px
+    assert (p.best_px, p.best_since_s, p.stalled_for_s(6.0)) == (20.0, 0.0, 6.0)
+    assert p.after(6.5, 18.9, True).best_since_s == 6.5  # 5.5 % below: progress
+    assert p.after(2.0, 19.0, False) == Progress() and Progress().stalled_for_s(3.0) is None
+    assert describe_stall(19.4, p, 6.0) == (
+        "stalled: image error 19.4 px, not 5% below its best 20.0 px for 6.0 s "
+        "(since sim time 0.00 s)"
     )

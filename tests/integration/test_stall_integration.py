@@ -1,0 +1,65 @@
+"""A law stuck in a local minimum, through the real services (lockstep, loopback, own
+prefix): campaign start 3 with the thesis's constant Jacobian settles 5-26 px from its goal
+with its twist gone to zero. ``umay run`` ends it as stalled within stall_after_s of its best
+error; under ``umay up`` the controller's status says it is stalled and since when."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+from pathlib import Path
+
+from common.session import open_session
+from deploy.experiments.campaign import start_overrides
+from deploy.launch.status import collect
+from tests.conftest import launch_umay_up
+from tests.integration.test_integration import umay_run
+
+REPO = Path(__file__).resolve().parents[2]
+BASE = str(REPO / "deploy/scenarios/suite/01_baseline.toml")
+
+
+def start_3() -> list[str]:
+    """The campaign's start 3 as scenario overrides, constant strategy."""
+    starts = json.loads((REPO / "docs/campaign/starts.json").read_text())
+    s = next(x for x in starts if x["name"] == "start_0003")
+    items = start_overrides(s["name"], s["q0_rad"], s["target_position_m"], s["target_yaw_rad"])
+    args = ["--scenario", BASE, "--mode", "constant"]
+    for item in [*items, "run.timeout_s=40.0"]:
+        args += ["--set", item]
+    return args
+
+
+def test_umay_run_ends_a_stalled_law_early_naming_its_best_error(tmp_path: Path) -> None:
+    proc, r = umay_run(tmp_path, *start_3())
+    assert r is not None, proc.stderr
+    assert proc.returncode == 1 and r["reason"] == "stalled", r
+    assert r["sim_time_s"] < 10.0, r  # not the 40 s timeout
+    assert "not below" in r["detail"] and "local minimum" in r["detail"], r
+    assert r["final_pixel_rms"] > 5.0, r
+
+
+def test_umay_up_keeps_going_and_status_says_it_is_stalled(tmp_path: Path) -> None:
+    args = [a for a in start_3() if a != "--mode" and a != "constant"]
+    args += ["--set", "controller.mode='constant'"]
+    proc, keys, endpoint = launch_umay_up(tmp_path / "logs", "lockstep", *args)
+    session = open_session(connect=[endpoint])
+    try:
+        deadline, controller = time.monotonic() + 120, None
+        while time.monotonic() < deadline and proc.poll() is None:
+            views = {v.name: v for v in collect(session, keys, 0.5) if v.status}
+            controller = views.get("controller")
+            if controller and controller.status.fields.get("stalled"):
+                break
+            time.sleep(0.5)
+        assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
+        assert controller is not None and controller.status.fields["stalled"], controller
+        fields = controller.status.fields
+        assert fields["stalled_for_s"] >= 5.0 and fields["error_best_px"] > 5.0, fields
+        assert controller.status.degraded_reason.startswith("stalled: image error"), fields
+        assert not fields["converged"] and not fields["holding"], fields
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=30)
+        session.close()
