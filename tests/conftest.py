@@ -86,3 +86,21 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         return next(found, len(SLOW_FIRST))
 
     items.sort(key=rank)  # stable: the rest keep their order
+
+
+def views_once_controller(proc, session, keys, field: str, timeout_s: float) -> dict:
+    """Every service's status view, by name, polled from a running ``umay up`` until the
+    controller's status field ``field`` is true (or ``timeout_s`` passes, or ``umay up``
+    exits: the caller checks)."""
+    import time
+
+    from deploy.launch.status import collect
+
+    deadline, views = time.monotonic() + timeout_s, {}
+    while time.monotonic() < deadline and proc.poll() is None:
+        views = {v.name: v for v in collect(session, keys, 0.5) if v.status}
+        controller = views.get("controller")
+        if controller and controller.status.fields.get(field):
+            break
+        time.sleep(0.5)
+    return views

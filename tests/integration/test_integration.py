@@ -23,8 +23,7 @@ from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, Header, JointState, MarkerFeatures
 from common.queries import query_status
 from common.session import ENV_SHM, free_tcp_endpoint, open_session
-from deploy.launch.status import collect
-from tests.conftest import launch_umay_up
+from tests.conftest import launch_umay_up, views_once_controller
 
 UMAY = [sys.executable, "-m", "deploy"]
 RUN_TIMEOUT_S = 900
@@ -114,13 +113,7 @@ def test_camera_frames_go_by_reference_and_the_loop_converges(tmp_path: Path) ->
     proc, keys, endpoint = launch_umay_up(tmp_path / "logs", "lockstep")
     session = open_session(connect=[endpoint])
     try:
-        deadline, views = time.monotonic() + RUN_TIMEOUT_S, {}
-        while time.monotonic() < deadline and proc.poll() is None:
-            views = {v.name: v for v in collect(session, keys, 0.5) if v.status}
-            controller = views.get("controller")
-            if controller and controller.status.fields.get("converged"):
-                break
-            time.sleep(0.5)
+        views = views_once_controller(proc, session, keys, "converged", RUN_TIMEOUT_S)
         assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
         assert views["controller"].status.fields["converged"], views
         sim, vision = views["sim"].status, views["vision"].status

@@ -7,13 +7,11 @@ from __future__ import annotations
 
 import json
 import signal
-import time
 from pathlib import Path
 
 from common.session import open_session
 from deploy.experiments.campaign import start_overrides
-from deploy.launch.status import collect
-from tests.conftest import launch_umay_up
+from tests.conftest import launch_umay_up, views_once_controller
 from tests.integration.test_integration import umay_run
 
 REPO = Path(__file__).resolve().parents[2]
@@ -46,13 +44,7 @@ def test_umay_up_keeps_going_and_status_says_it_is_stalled(tmp_path: Path) -> No
     proc, keys, endpoint = launch_umay_up(tmp_path / "logs", "lockstep", *args)
     session = open_session(connect=[endpoint])
     try:
-        deadline, controller = time.monotonic() + 120, None
-        while time.monotonic() < deadline and proc.poll() is None:
-            views = {v.name: v for v in collect(session, keys, 0.5) if v.status}
-            controller = views.get("controller")
-            if controller and controller.status.fields.get("stalled"):
-                break
-            time.sleep(0.5)
+        controller = views_once_controller(proc, session, keys, "stalled", 120).get("controller")
         assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
         assert controller is not None and controller.status.fields["stalled"], controller
         fields = controller.status.fields
