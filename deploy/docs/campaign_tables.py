@@ -24,9 +24,14 @@ NOT_RUN = "*Not run yet: `umay campaign --out docs/campaign`, then `umay docs`.*
 PER_CORNER = "constant, per_corner depths"
 
 
-def _per_corner_runs(inputs: Inputs) -> list[Mapping[str, Any]]:
-    """The per_corner campaign's runs (constant only), or none."""
-    return [r for r in inputs.per_corner if r["mode"] == "constant"]
+def _rows_of(
+    inputs: Inputs, runs: list[Mapping[str, Any]], modes: list[str]
+) -> list[tuple[str, list[Mapping[str, Any]]]]:
+    """Each table row's label and its runs: a strategy each, then constant with per_corner
+    depths when that campaign is there."""
+    groups = [(mode, [r for r in runs if r["mode"] == mode]) for mode in modes]
+    per_corner = [r for r in inputs.per_corner if r["mode"] == "constant"]
+    return groups + ([(PER_CORNER, per_corner)] if per_corner else [])
 
 
 def _sources(inputs: Inputs, here: str) -> str:
@@ -53,10 +58,7 @@ def campaign_summary(inputs: Inputs, here: str) -> str:
         return NOT_RUN
     runs, modes, starts, refused = _runs(inputs)
     body = []
-    groups = [(mode, [r for r in runs if r["mode"] == mode]) for mode in modes]
-    if inputs.per_corner:
-        groups.append((PER_CORNER, _per_corner_runs(inputs)))
-    for mode, own in groups:
+    for mode, own in _rows_of(inputs, runs, modes):
         ran = [r for r in own if r["cause"] != REFUSED]
         on_goal = sum(r["cause"] == ON_GOAL for r in ran)
         failures = Counter(r["cause"] for r in ran if r["cause"] != ON_GOAL)
@@ -81,10 +83,7 @@ def campaign_taxonomy(inputs: Inputs, here: str) -> str:
     refused = len(refused_starts)
     causes = [c for c in CAUSES if c not in (ON_GOAL, REFUSED)]
     body = []
-    groups = [(mode, [r for r in runs if r["mode"] == mode]) for mode in modes]
-    if inputs.per_corner:
-        groups.append((PER_CORNER, _per_corner_runs(inputs)))
-    for mode, own in groups:
+    for mode, own in _rows_of(inputs, runs, modes):
         ran = [r for r in own if r["cause"] != REFUSED]
         won = [r for r in ran if r["cause"] == ON_GOAL]
         families = Counter(cause_family(r["cause"]) for r in ran)
@@ -124,14 +123,11 @@ def campaign_goals(inputs: Inputs, here: str) -> str:
     runs, modes, starts, refused = _runs(inputs)
     ran = [r for r in runs if r["cause"] != REFUSED]
     success = []
-    for mode in modes:
-        own = [r for r in ran if r["mode"] == mode]
+    for label, group in _rows_of(inputs, runs, modes):
+        own = [r for r in group if r["cause"] != REFUSED]
         won = sum(r["cause"] == ON_GOAL for r in own)
-        success.append(f"{mode} {100.0 * won / len(own):.1f} %" if own else f"{mode} –")
-    own = [r for r in _per_corner_runs(inputs) if r["cause"] != REFUSED]
-    if own:
-        won = sum(r["cause"] == ON_GOAL for r in own)
-        success.append(f"({PER_CORNER} {100.0 * won / len(own):.1f} %)")
+        share = f"{label} {100.0 * won / len(own):.1f} %" if own else f"{label} –"
+        success.append(f"({share})" if label == PER_CORNER else share)
     unnamed = sum(
         cause_family(r["cause"]) not in CAUSES or (r["cause"] != ON_GOAL and not r["detail"])
         for r in runs

@@ -62,6 +62,11 @@ class Inputs:
         raise DocsError(f"{BENCH_DIR}/{name}.json is missing (run the command in performance.md)")
 
 
+def _records(path: Path) -> list[Mapping[str, Any]]:
+    """A JSON list of records, or none where it has not been made yet."""
+    return json.loads(path.read_text()) if path.is_file() else []
+
+
 def load_inputs(root: Path) -> Inputs:
     """The comparison's rows and every benchmark run under ``root``."""
     try:
@@ -79,15 +84,9 @@ def load_inputs(root: Path) -> Inputs:
             (path.parent.name, load_study_json(path))
             for path in sorted((root / EXECUTORS_DIR).glob("*/domains.json"))
         ]
-        campaign = []
-        if (root / CAMPAIGN_JSON).is_file():
-            campaign = json.loads((root / CAMPAIGN_JSON).read_text())
-        per_corner = []
-        if (root / PER_CORNER_JSON).is_file():
-            per_corner = json.loads((root / PER_CORNER_JSON).read_text())
-        accuracy = []
-        if (root / ACCURACY_JSON).is_file():
-            accuracy = json.loads((root / ACCURACY_JSON).read_text())
+        campaign = _records(root / CAMPAIGN_JSON)
+        per_corner = _records(root / PER_CORNER_JSON)
+        accuracy = _records(root / ACCURACY_JSON)
     except (OSError, ValueError) as exc:
         raise DocsError(f"cannot read the sources: {exc}") from exc
     return Inputs(

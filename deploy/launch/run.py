@@ -63,10 +63,7 @@ class RunMonitor:
     truths: dict[int, SimTruth] = field(default_factory=dict)
     twists: dict[int, EndEffectorTwist] = field(default_factory=dict)
     decided: threading.Event = field(default_factory=threading.Event)
-    timeout_s: float = 30.0
-    not_before_s: float = 0.0  # convergence counts once the scenario's events are over
-    stuck_after_s: float = 4.0  # a hold this long (sim s) ends the run: stuck
-    stall_after_s: float = 5.0  # servoing this long (sim s) without progress: stalled
+    limits: EndLimits = field(default_factory=EndLimits)  # the scenario's end conditions
     rejected: int = 0
     hold: HoldState = field(default_factory=HoldState)
     end: RunEnd | None = None  # why the run ended, and at which frame
@@ -107,10 +104,7 @@ class RunMonitor:
         self.twists[tw.header.frame_seq] = tw
         if self.decided.is_set():
             return
-        limits = EndLimits(
-            self.timeout_s, self.not_before_s, self.stuck_after_s, self.stall_after_s
-        )
-        self.hold, end = judge_twist(limits, self.hold, tw)
+        self.hold, end = judge_twist(self.limits, self.hold, tw)
         if end is not None:
             self.end = end
             self.decided.set()
@@ -142,12 +136,7 @@ def run_once(
     endpoint = listen or default_listen_endpoint()
     keys = Keys(prefix)
     limits = EndLimits.of(scenario)
-    monitor = RunMonitor(
-        timeout_s=limits.timeout_s,
-        not_before_s=limits.not_before_s,
-        stuck_after_s=limits.stuck_after_s,
-        stall_after_s=limits.stall_after_s,
-    )
+    monitor = RunMonitor(limits=limits)
     session = open_session(connect=[], listen=[endpoint])
     recorder = None
     if record is not None:

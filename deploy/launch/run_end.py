@@ -102,8 +102,7 @@ def judge_twist(
         return hold, RunEnd("acquisition_failed", f"{tw.hold_reason} (held at {t:.2f} s)", seq)
     if hold.since_s is not None and t - hold.since_s >= limits.stuck_after_s:
         return hold, RunEnd("stuck", stuck_detail(hold.reason, hold.since_s, t), seq)
-    stalled_s = progress.stalled_for_s(t)
-    if stalled_s is not None and stalled_s >= limits.stall_after_s:
+    if progress.stalled(t, limits.stall_after_s):
         assert progress.best_px is not None
         detail = stall_detail(tw.error_px_rms, progress.best_px, progress.best_since_s, t)
         return hold, RunEnd("stalled", detail, seq)

@@ -77,8 +77,7 @@ class ControllerService:
 
     def stalled(self) -> bool:
         """Servoing longer than ``controller.stall_after_s`` (sim time) without progress."""
-        stalled_s = self.progress.stalled_for_s(self.sim_time_s)
-        return stalled_s is not None and stalled_s >= self.controller.config.stall_after_s
+        return self.progress.stalled(self.sim_time_s, self.controller.config.stall_after_s)
 
     def degraded(self) -> str:
         if self.stalled():

@@ -33,6 +33,11 @@ class Progress:
         servoing)."""
         return None if self.best_px is None else now_s - self.best_since_s
 
+    def stalled(self, now_s: float, stall_after_s: float) -> bool:
+        """Servoing for ``stall_after_s`` by ``now_s`` without progress."""
+        stalled_s = self.stalled_for_s(now_s)
+        return stalled_s is not None and stalled_s >= stall_after_s
+
 
 def stall_detail(error_px: float, best_px: float, since_s: float, now_s: float) -> str:
     """What a stalled run's image error did, and since when (sim time)."""

@@ -8,7 +8,7 @@ from common.codec import encode
 from common.messages import EndEffectorTwist, Header
 from deploy.experiments.evaluate import summarize
 from deploy.launch.run import RunMonitor, twist_phase
-from deploy.launch.run_end import stuck_detail
+from deploy.launch.run_end import EndLimits, stuck_detail
 from services.controller.progress import Progress, describe_stall, stall_detail
 
 PERIOD_S = 1 / 30
@@ -47,7 +47,7 @@ def feed(monitor: RunMonitor, twists: list[EndEffectorTwist]) -> None:
 
 
 def test_a_hold_longer_than_stuck_after_ends_the_run_naming_what_and_since_when() -> None:
-    monitor = RunMonitor(timeout_s=30.0, stuck_after_s=4.0)
+    monitor = RunMonitor(limits=EndLimits(timeout_s=30.0, stuck_after_s=4.0))
     feed(monitor, [twist(i, True) for i in range(30)])  # servoing for 1 s
     feed(monitor, [twist(i, False, "target partial") for i in range(30, 30 + 4 * 30)])
     assert not monitor.decided.is_set()  # 3.97 s of holding: not yet
@@ -60,7 +60,7 @@ def test_a_hold_longer_than_stuck_after_ends_the_run_naming_what_and_since_when(
 
 
 def test_motion_between_holds_restarts_the_count() -> None:
-    monitor = RunMonitor(timeout_s=30.0, stuck_after_s=1.0)
+    monitor = RunMonitor(limits=EndLimits(timeout_s=30.0, stuck_after_s=1.0))
     for start in range(0, 300, 40):  # 0.9 s holding, then one frame of motion, again and again
         feed(monitor, [twist(start + i, False, "hand lost") for i in range(27)])
         feed(monitor, [twist(start + i, True) for i in range(27, 40)])
@@ -68,14 +68,14 @@ def test_motion_between_holds_restarts_the_count() -> None:
 
 
 def test_a_failed_acquisition_ends_the_run_at_once() -> None:
-    monitor = RunMonitor(timeout_s=30.0, stuck_after_s=4.0)
+    monitor = RunMonitor(limits=EndLimits(timeout_s=30.0, stuck_after_s=4.0))
     reason = "acquisition failed: target partial after 4 attempt(s) from 0.53 s"
     feed(monitor, [twist(0, True), twist(1, False, reason)])
     assert monitor.ended == "acquisition_failed" and reason in monitor.ended_detail
 
 
 def test_servoing_without_progress_ends_the_run_as_stalled_naming_the_best_and_since_when() -> None:
-    monitor = RunMonitor(timeout_s=30.0, stall_after_s=5.0)
+    monitor = RunMonitor(limits=EndLimits(timeout_s=30.0, stall_after_s=5.0))
     # falls from 40 px to 20 px over the first second, then creeps (under 5 % of 20 px)
     feed(monitor, [twist(i, True, error_px=40.0 - 20.0 * i / 30) for i in range(31)])
     creep = [twist(i, True, error_px=20.0 - 0.5 * (i - 30) / 150) for i in range(31, 180)]
@@ -90,14 +90,14 @@ def test_servoing_without_progress_ends_the_run_as_stalled_naming_the_best_and_s
 
 def test_a_slow_steady_fall_is_progress_and_never_stalls() -> None:
     # 6 % every 5 s: a little faster than the 5 % in stall_after_s that counts as progress
-    monitor = RunMonitor(timeout_s=30.0, stall_after_s=5.0)
+    monitor = RunMonitor(limits=EndLimits(timeout_s=30.0, stall_after_s=5.0))
     feed(monitor, [twist(i, True, error_px=30.0 * 0.94 ** (i / 150)) for i in range(29 * 30)])
     assert not monitor.decided.is_set()
 
 
 def test_acquiring_and_the_scenario_events_do_not_count_as_stalled() -> None:
     acquiring = "acquiring: target partial, attempt 1/4"
-    monitor = RunMonitor(timeout_s=30.0, stall_after_s=1.0, not_before_s=3.0)
+    monitor = RunMonitor(limits=EndLimits(timeout_s=30.0, stall_after_s=1.0, not_before_s=3.0))
     feed(monitor, [twist(i, True, error_px=5.0) for i in range(90)])  # events go on: tracking
     feed(monitor, [twist(i, True, acquiring, error_px=0.0) for i in range(90, 150)])
     assert not monitor.decided.is_set()
