@@ -153,6 +153,8 @@ def test_no_opengl_falls_back_to_tinyrenderer_and_says_why(
         raise GlUnavailable("no EGL OpenGL context (test: no driver)")
 
     monkeypatch.setattr(world_module, "GlRenderer", refuse)
+    # An idle context left by an earlier test of this worker would be reused, not made.
+    monkeypatch.setattr(world_module, "_idle_gl", [])
     with caplog.at_level(logging.WARNING):
         w = World(load_scenario(None, parse_overrides(SIZE)))
     try:
