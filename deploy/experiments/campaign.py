@@ -260,8 +260,10 @@ def plan_campaign(
     distribution_path: Path = DEFAULT_DISTRIBUTION,
     seed: int | None = None,
     overrides: Sequence[str] = (),
+    figures: bool = True,
 ) -> CampaignPlan:
-    """Draw ``n`` starts (``seed`` instead of the distribution's), validate every job."""
+    """Draw ``n`` starts (``seed`` instead of the distribution's), validate every job.
+    ``figures``: the first start's runs are recorded, for the figures (False: none is)."""
     if n < 1:
         raise CompareError(f"--n: at least 1 start, not {n}")
     dist, base_path = load_distribution(distribution_path)
@@ -285,10 +287,14 @@ def plan_campaign(
                 scenario = load_scenario(base_path, parse_overrides(list(items)))
             except ScenarioError as exc:
                 raise CompareError(f"{start.name}: {exc}") from exc
-            jobs.append(Job(base_path, scenario, mode, items, record=start.name == names[0]))
-    figures = names[0] if names else ""
+            record = figures and start.name == names[0]
+            jobs.append(Job(base_path, scenario, mode, items, record=record))
+    figures_start = names[0] if names and figures else ""
     return CampaignPlan(
-        Plan(tuple(jobs), tuple(modes), tuple(names), figures), starts, dist, distribution_path
+        Plan(tuple(jobs), tuple(modes), tuple(names), figures_start),
+        starts,
+        dist,
+        distribution_path,
     )
 
 

@@ -222,6 +222,12 @@ def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
     _pipeline_option(p)
     p.add_argument("--out", default="out/campaign", metavar="DIR", help="output folder")
+    p.add_argument(
+        "--no-figures",
+        action="store_true",
+        help="no figures: the first start's runs are not recorded (with --pipeline inprocess, "
+        "every run then stays in-process)",
+    )
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_campaign)
 
@@ -249,7 +255,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         modes = parse_modes(args.modes)
         if args.jobs < 1:
             raise CompareError(f"--jobs: must be at least 1, not {args.jobs}")
-        cplan = plan_campaign(args.n, modes, Path(args.distribution), args.seed, args.set)
+        cplan = plan_campaign(
+            args.n, modes, Path(args.distribution), args.seed, args.set, not args.no_figures
+        )
         out_dir = check_output_dir("--out", args.out)
     except (CompareError, OutputPathError) as exc:
         print(f"umay campaign: {exc}", file=sys.stderr)

@@ -14,11 +14,11 @@ from deploy.experiments.compare.rows import differences, rows_from_json
 CHEAP = ["camera.width_px=320", "camera.height_px=240", "run.timeout_s=15.0"]
 
 
-def campaign(out: Path, jobs: int) -> subprocess.CompletedProcess:
+def campaign(out: Path, jobs: int, *extra: str) -> subprocess.CompletedProcess:
     sets = [a for item in CHEAP for a in ("--set", item)]
     return subprocess.run(
         [sys.executable, "-m", "deploy", "campaign", "--n", "3", "--modes", "dynamic", "mpj",
-         "--jobs", str(jobs), "--out", str(out), "--pipeline", "inprocess", *sets],
+         "--jobs", str(jobs), "--out", str(out), "--pipeline", "inprocess", *sets, *extra],
         capture_output=True, text=True, timeout=900,
     )  # fmt: skip
 
@@ -26,11 +26,11 @@ def campaign(out: Path, jobs: int) -> subprocess.CompletedProcess:
 def test_a_small_campaign_names_every_run_and_repeats_bit_for_bit(tmp_path: Path) -> None:
     """Twice, with two runs at once and then one at a time: the same seed gives the same runs
     to the bit whatever the order they run in. Through the in-process pipeline, as the
-    published campaign (the first start's runs, the figures, still go through the four
-    service processes; the in-process run is the distributed one to the bit:
-    test_pipeline_vs_distributed.py)."""
-    first = campaign(tmp_path / "a", jobs=2)
-    second = campaign(tmp_path / "b", jobs=1)
+    published campaign. In the first, the first start's runs (the figures) go through the four
+    service processes; the second has no figures, so they too run in-process, and still give
+    the same numbers (the in-process run is the distributed one to the bit)."""
+    first = campaign(tmp_path / "a", 2)
+    second = campaign(tmp_path / "b", 1, "--no-figures")
     assert first.returncode == 0, first.stderr
     assert second.returncode == 0, second.stderr
     causes = json.loads((tmp_path / "a" / "causes.json").read_text())
@@ -43,6 +43,8 @@ def test_a_small_campaign_names_every_run_and_repeats_bit_for_bit(tmp_path: Path
             assert c["detail"], c  # every failure says why
     a = rows_from_json((tmp_path / "a" / "results.json").read_text())
     b = rows_from_json((tmp_path / "b" / "results.json").read_text())
+    assert (tmp_path / "a" / "figures" / "overlay.png").is_file()
+    assert not (tmp_path / "b" / "figures").exists()
     assert a and differences(a, b) == []  # lockstep: the same to the bit, wall time aside
     assert (tmp_path / "a" / "campaign.md").read_text() == (
         tmp_path / "b" / "campaign.md"

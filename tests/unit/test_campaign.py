@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -126,3 +128,20 @@ def test_taxonomy_counts_every_start_and_run() -> None:
     ok = sum(not s.refused for s in starts)
     assert f"| dynamic | {ok} | {ok} | 100.0% |" in md
     assert f"{len(starts)} starts drawn (seed {DIST.seed}" in md
+
+
+def test_the_first_starts_runs_are_recorded_for_the_figures_unless_none_are_wanted(
+    tmp_path: Path,
+) -> None:
+    from deploy.experiments.campaign import plan_campaign
+    from deploy.experiments.compare.run import make_figures
+
+    with_figures = plan_campaign(2, ["dynamic", "mpj"])
+    first = next(s.name for s in with_figures.starts if not s.refused)
+    recorded = [(j.scenario.name, j.mode) for j in with_figures.plan.jobs if j.record]
+    assert with_figures.plan.figures_scenario == first
+    assert {mode for _, mode in recorded} == {"dynamic", "mpj"} and len(recorded) == 2
+    without = plan_campaign(2, ["dynamic", "mpj"], figures=False)
+    assert not any(j.record for j in without.plan.jobs)
+    assert [j.overrides for j in without.plan.jobs] == [j.overrides for j in with_figures.plan.jobs]
+    assert make_figures(without.plan, tmp_path) == [] and not any(tmp_path.iterdir())

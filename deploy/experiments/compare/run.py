@@ -176,11 +176,14 @@ def _schedule(
 def make_figures(plan_: Plan, out_dir: Path) -> list[Path]:
     """Per strategy, the thesis-style figures of the figures scenario's run (Figs. 5.10-5.17:
     image trajectory, end-effector velocity, plus feature error and joint velocities), and
-    ``overlay.png`` of every strategy's image trajectory, error and speed."""
+    ``overlay.png`` of every strategy's image trajectory, error and speed. None when no run
+    was recorded (``umay campaign --no-figures``)."""
     from deploy.experiments.compare.plots import write_overlay
     from deploy.recording.plots import load_series, plot_series
 
-    job = next(j for j in plan_.jobs if j.record)
+    job = next((j for j in plan_.jobs if j.record), None)
+    if job is None:
+        return []
     converged_px = job.scenario.controller.converged_px
     written: list[Path] = []
     series = {}
