@@ -66,7 +66,6 @@ def processes_mentioning(text: str) -> list[int]:
 SLOW_FIRST = (
     "tests/integration/test_compare_run.py::test_small_comparison_outputs",
     "tests/integration/test_campaign_run.py::",
-    "tests/integration/test_integration.py::test_each_strategy_converges",
     "tests/integration/test_integration.py::test_neither_wall_clock",
     "tests/integration/test_domains_executors.py::",
     "tests/integration/test_realism_integration.py::",

@@ -19,15 +19,17 @@ import numpy as np
 import pytest
 
 from common.codec import encode
+from common.config import load_scenario
 from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, Header, JointState, MarkerFeatures
 from common.queries import query_status
 from common.session import ENV_SHM, free_tcp_endpoint, open_session
+from deploy.experiments.evaluate import RunResult
+from deploy.launch.run_inprocess import run_scenario_inprocess
 from tests.conftest import launch_umay_up, views_once_controller
 
 UMAY = [sys.executable, "-m", "deploy"]
 RUN_TIMEOUT_S = 900
-_results: dict[str, list[dict]] = {}
 
 
 def unique_prefix() -> str:
@@ -63,47 +65,38 @@ def umay_run(
     return proc, data
 
 
-def lockstep_result(mode: str, tmp_path: Path) -> dict:
-    """Run the default scenario once per mode; later calls reuse the result."""
-    if mode not in _results:
-        proc, data = umay_run(tmp_path, "--mode", mode)
-        assert data is not None, f"no result; stderr:\n{proc.stderr}\nstdout:\n{proc.stdout}"
-        _results[mode] = [data]
-        print(f"\n{mode}: {json.dumps(data)}")
-    return _results[mode][0]
+@pytest.mark.parametrize("mode", ["constant", "dynamic", "pmj", "mpj", "points3d"])
+def test_each_strategy_converges_from_the_default_scenario(mode: str) -> None:
+    """In one process (the same loop to the bit: the test below and
+    test_pipeline_vs_distributed.py); every strategy through the four service processes:
+    test_compare_run.py's figure runs."""
+    r = run_scenario_inprocess(load_scenario(None, {"controller": {"mode": mode}}))
+    assert r.converged and r.reason == "converged", r
+    assert r.final_pixel_rms is not None and r.final_pixel_rms < 1.0, r
+    assert r.final_position_error_m is not None and r.final_position_error_m < 0.005, r
+    assert r.mode == mode and r.frames > 10 and r.path_length_m > 0.02
 
 
-# The dynamic run is reused by test_neither_wall_clock_nor_the_transport_changes_a_lockstep_run:
-# one worker runs both (make test: --dist loadgroup).
-SAME_WORKER = pytest.mark.xdist_group("default_dynamic")
-
-
-@pytest.mark.parametrize(
-    "mode",
-    ["constant", pytest.param("dynamic", marks=SAME_WORKER), "pmj", "mpj", "points3d"],
-)
-def test_each_strategy_converges_from_the_default_scenario(mode: str, tmp_path: Path) -> None:
-    r = lockstep_result(mode, tmp_path)
-    assert r["converged"] and r["reason"] == "converged", r
-    assert r["final_pixel_rms"] < 1.0, r
-    assert r["final_position_error_m"] < 0.005, r
-    assert r["mode"] == mode and r["frames"] > 10 and r["path_length_m"] > 0.02
-
-
-@SAME_WORKER
-def test_neither_wall_clock_nor_the_transport_changes_a_lockstep_run(tmp_path: Path) -> None:
-    """Wall-clock timing must not leak into a lockstep run: in the second run the actuation
-    deadman fires between every pair of frames (5 ms timeout), as it would on a loaded
-    machine where rendering takes longer than the 250 ms default. Nor may the way frames
-    travel: the second run has frames by reference off (``UMAY_ZENOH_SHM=0``), so they go
-    whole. The two runs are the same, frame for frame."""
-    first = lockstep_result("dynamic", tmp_path)
+def test_neither_wall_clock_nor_the_transport_nor_the_process_split_changes_a_lockstep_run(
+    tmp_path: Path,
+) -> None:
+    """The default run through the four services converges. Wall-clock timing must not leak
+    into it: in the second run the actuation deadman fires between every pair of frames (5 ms
+    timeout), as it would on a loaded machine where rendering takes longer than the 250 ms
+    default. Nor may the way frames travel: the second run has frames by reference off
+    (``UMAY_ZENOH_SHM=0``), so they go whole. Nor the processes: the in-process pipeline gives
+    the same. The three runs are the same, frame for frame."""
+    _, first = umay_run(tmp_path, "--mode", "dynamic")
+    assert first is not None and first["reason"] == "converged", first
+    assert first["final_position_error_m"] < 0.005, first
     deadman = ("--set", "actuation.deadman_timeout_s=0.005")
     _, second = umay_run(tmp_path, "--mode", "dynamic", *deadman, env={ENV_SHM: "0"})
     assert second is not None
-    a = {k: v for k, v in first.items() if k != "wall_time_s"}
-    b = {k: v for k, v in second.items() if k != "wall_time_s"}
+    inprocess = run_scenario_inprocess(load_scenario(None, {}))
+    wall = {"wall_time_s"}
+    a, b = (RunResult.model_validate(r).model_dump(exclude=wall) for r in (first, second))
     assert a == b
+    assert a == inprocess.model_dump(exclude=wall)  # the float fields to the last bit
 
 
 def test_camera_frames_go_by_reference_and_the_loop_converges(tmp_path: Path) -> None:

@@ -35,14 +35,13 @@ def same_run(a: RunResult, b: RunResult) -> None:
 
 @pytest.mark.parametrize(
     "scenario_path, overrides, expected",
-    [
-        (None, (), "converged"),
+    [  # the default scenario: test_integration.py (with the deadman and frames by copy)
         (MOVING, (), "converged"),
         (None, ("run.timeout_s=0.5",), "timeout"),
         # the cue's flag must reach vision and the controller on both paths
         (None, ("marker.orientation_cue=true",), "converged"),
     ],
-    ids=["default", "moving_target", "timeout", "orientation_cue"],
+    ids=["moving_target", "timeout", "orientation_cue"],
 )
 def test_the_inprocess_run_is_the_distributed_lockstep_run(
     tmp_path: Path, scenario_path: str | None, overrides: tuple[str, ...], expected: str
