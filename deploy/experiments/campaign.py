@@ -37,7 +37,9 @@ from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
 from deploy.experiments.compare.summary import format_cell, markdown_table
 from deploy.experiments.reachability import (
     MAX_VIEW_ANGLE_DEG,
+    PENETRATION_TOLERANCE_M,
     arm_hides_hand_marker,
+    arm_penetration,
     check_scenario,
     goal_pose,
     marker_in_image,
@@ -185,6 +187,8 @@ REDRAW_HAND_FACING_AWAY = "hand marker facing away from the camera at start"
 REDRAW_HAND_HIDDEN = "hand marker hidden by the robot's own arm at start"
 # The goal reached on the start's elbow and wrist branch: there the servo ends.
 REDRAW_GOAL_HIDDEN = "hand marker hidden by the robot's own arm at the goal (on that branch)"
+# A posture that intersects the object or the table is no posture of the arm at all.
+REDRAW_ARM_INSIDE = "arm inside the object or the table at start"
 
 
 def draw_start(dist: Distribution, base: Scenario, index: int) -> Start:
@@ -233,6 +237,9 @@ def draw_start(dist: Distribution, base: Scenario, index: int) -> Start:
             redrawn[REDRAW_GOAL_HIDDEN] += 1
             continue
         q0 = tuple(round(float(v), 6) for v in q)
+        if arm_penetration(with_q0(scenario, q0))[0] > PENETRATION_TOLERANCE_M:
+            redrawn[REDRAW_ARM_INSIDE] += 1
+            continue
         try:
             check_scenario(with_q0(scenario, q0))
             refused = ""

@@ -29,6 +29,7 @@ from common import kinematics as kin
 from common.config import Scenario, ScenarioError, load_scenario
 from common.runtime import parse_overrides
 from deploy.experiments.campaign import (
+    REDRAW_ARM_INSIDE,
     REDRAW_GOAL_HIDDEN,
     REDRAW_HAND_FACING_AWAY,
     REDRAW_HAND_HIDDEN,
@@ -48,7 +49,9 @@ from deploy.experiments.compare.rows import CompareRow, is_on_goal
 from deploy.experiments.evaluate import RunResult
 from deploy.experiments.reachability import (
     MAX_VIEW_ANGLE_DEG,
+    PENETRATION_TOLERANCE_M,
     arm_hides_hand_marker,
+    arm_penetration,
     check_scenario,
     marker_in_image,
     solve_goal,
@@ -231,6 +234,8 @@ def draw_domain_start(study: StudyDefinition, base: Scenario, cell: Cell, draw: 
     if arm_hides_hand_marker(solved[0], scenario):
         return refuse(REDRAW_GOAL_HIDDEN, q)
     q0 = tuple(round(float(v), 6) for v in q)
+    if arm_penetration(with_q0(scenario, q0))[0] > PENETRATION_TOLERANCE_M:
+        return refuse(REDRAW_ARM_INSIDE, q)
     try:
         check_scenario(with_q0(scenario, q0))
     except ScenarioError as exc:

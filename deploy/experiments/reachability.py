@@ -2,8 +2,9 @@
 
 It refuses only what no motion of the loop can fix, each with its reason: a joint outside its
 limits, the target not wholly in the image, the hand marker not wholly in the image or facing
-away from the camera, a goal out of reach. A hand that hides the target is not refused: the
-controller uncovers it (services/controller/acquisition.py)."""
+away from the camera, the arm inside the object or the table, a goal out of reach. A hand that
+hides the target is not refused: the controller uncovers it (services/controller/acquisition.py).
+"""
 
 from __future__ import annotations
 
@@ -26,6 +27,9 @@ SIGHT_CLEARANCE_FRACTION = 0.08
 # targets at any yaw were refused though reachable (the damped iteration stalls at joint
 # limits from most seeds when the wrist must turn ~45°); 80 found all but one of them.
 GOAL_SEEDS = 80
+# Deeper than this into the scenery, a start posture is refused (below it: pybullet's rounding of
+# surfaces that touch).
+PENETRATION_TOLERANCE_M = 1e-4
 
 
 def marker_in_image(corners_base: np.ndarray, scenario: Scenario) -> bool:
@@ -117,6 +121,12 @@ def check_scenario(scenario: Scenario, seeds: int | None = None) -> np.ndarray:
             f"robot.q0: the hand marker faces away from the camera at start ({angle:.0f}° "
             f"from its line of sight; vision measures a square up to {MAX_VIEW_ANGLE_DEG:.0f}°)"
         )
+    depth_m, into = arm_penetration(scenario)
+    if depth_m > PENETRATION_TOLERANCE_M:
+        raise ScenarioError(
+            f"robot.q0: the arm is {1000.0 * depth_m:.1f} mm inside the {into} at start "
+            "(a posture the simulator cannot start from)"
+        )
     solved = solve_goal(scenario, GOAL_SEEDS if seeds is None else seeds)
     if solved is None:
         raise ScenarioError(
@@ -124,6 +134,20 @@ def check_scenario(scenario: Scenario, seeds: int | None = None) -> np.ndarray:
             "(out of reach or beyond the joint limits)"
         )
     return solved[0]
+
+
+def arm_penetration(scenario: Scenario) -> tuple[float, str]:
+    """How deep (m) the arm in its start posture ``robot.q0`` reaches into the object, the
+    table or the floor, and into which (0.0 and "" when clear): the scenario's own pybullet
+    scene, built without a camera (:meth:`services.sim.world.World.arm_penetration`)."""
+    from services.sim.world import World  # pybullet: only when a check gets this far
+
+    tiny = scenario.model_copy(update={"sim": scenario.sim.model_copy(update={"renderer": "tiny"})})
+    world = World(tiny, clip_scenery=False)
+    try:
+        return world.arm_penetration()
+    finally:
+        world.close()
 
 
 def solve_goal(scenario: Scenario, seeds: int = GOAL_SEEDS) -> tuple[np.ndarray, int] | None:

@@ -557,6 +557,20 @@ class World:
             touched.add(names.get(c[2], "scenery"))
         return force, tuple(sorted(touched))
 
+    def arm_penetration(self) -> tuple[float, str]:
+        """How deep (m) the arm reaches into the object, the table or the floor in its posture
+        now, and into which (0.0 and "" when it is clear of them). A start posture inside the
+        scenery cannot be simulated: the solver pushes the bodies apart at the first step."""
+        names = {self.object_body: "object", self.table_body: "table", self.floor_body: "floor"}
+        deepest, into = 0.0, ""
+        for body, name in names.items():
+            if body is None:
+                continue
+            for p in self.client.getClosestPoints(bodyA=self.robot, bodyB=body, distance=0.0):
+                if -p[8] > deepest:
+                    deepest, into = -float(p[8]), name
+        return deepest, into
+
     def marker_visibility(self, touch_px: float = 6.0) -> dict[str, MarkerView]:
         """Ground truth for evaluation: how much of each marker the camera sees, from a
         segmentation render. Keys ``hand`` and ``target``; see :class:`MarkerView`."""

@@ -3,11 +3,18 @@ run), and the judge reports the first one."""
 
 from __future__ import annotations
 
-from common.config import load_scenario
+import pytest
+
+from common.config import ScenarioError, load_scenario
 from common.messages import Header, SimTruth
 from common.runtime import parse_overrides
 from deploy.experiments.evaluate import CONTACT_MIN_N, first_contact
-from deploy.experiments.reachability import solve_goal
+from deploy.experiments.reachability import (
+    PENETRATION_TOLERANCE_M,
+    arm_penetration,
+    check_scenario,
+    solve_goal,
+)
 from services.sim.world import World
 
 SMALL = ["camera.width_px=160", "camera.height_px=120", "sim.renderer='gl'"]
@@ -56,3 +63,42 @@ def test_the_first_contact_pressing_harder_than_resting_noise_is_reported() -> N
     }
     assert first_contact(truths, 3) == (2 / 15, "object")
     assert first_contact(truths, 1) == (None, None)
+
+
+# A domain-study start (cell 26, draw 0) whose forearm starts 12 mm inside the target's block.
+ARM_IN_BLOCK = [
+    "robot.q0=[1.637742, -1.689403, 1.999626, 1.807145, 0.146094, -0.302508]",
+    "target.position=[0.18264047554538515, -0.32, 0.11600570401288576]",
+    "target.yaw=-0.028020330767983347",
+]
+BASELINE = "deploy/scenarios/suite/01_baseline.toml"
+
+
+def test_a_start_posture_inside_the_object_is_measured_and_refused_before_launch() -> None:
+    inside = load_scenario(BASELINE, parse_overrides(ARM_IN_BLOCK))
+    depth_m, into = arm_penetration(inside)
+    assert into == "object" and 0.010 < depth_m < 0.015
+    with pytest.raises(ScenarioError, match=r"robot\.q0: the arm is 12\.\d mm inside the object"):
+        check_scenario(inside)
+    clear = load_scenario(BASELINE)
+    assert arm_penetration(clear) == (0.0, "")
+    check_scenario(clear)  # the suite's baseline is not refused
+
+
+def test_the_penetration_is_pybullets_closest_points_at_the_posture() -> None:
+    """World.arm_penetration at the posture it holds: the hand pushed into the object at its
+    goal (approach height 0) reaches into it; lifted 5 cm above, it is clear."""
+    for height_m, expect_inside in ((0.0, True), (0.05, False)):
+        scenario = load_scenario(
+            None, parse_overrides([*SMALL, f"target.approach_height_m={height_m}"])
+        )
+        solved = solve_goal(scenario)
+        assert solved is not None
+        world = World(scenario)
+        try:
+            world.reset(solved[0])
+            depth_m, into = world.arm_penetration()
+        finally:
+            world.close()
+        assert (depth_m > PENETRATION_TOLERANCE_M) == expect_inside
+        assert into == ("object" if expect_inside else "")

@@ -93,7 +93,7 @@ def test_a_start_is_its_goal_turned_about_the_optical_axis_and_moved() -> None:
         assert STUDY.target_x_m[0] <= s.target_position_m[0] <= STUDY.target_x_m[1]
         lo, hi = STUDY.target_yaw_deg
         assert lo <= math.degrees(s.target_yaw_rad) <= hi
-        if s.q0_rad is None or s.refused:
+        if s.q0_rad is None:  # refused before a posture was walked to
             continue
         hand = kin.forward_kinematics(np.array(s.q0_rad)) @ kin.hand_marker_in_ee()
         goals = square_turns(goal_pose(scenario))
