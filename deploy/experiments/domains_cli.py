@@ -154,6 +154,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
         starts = [drawn[i] for i in sorted(drawn)]
         tasks = dom.plan_tasks(study, base_path, starts, modes, args.set)
         done: dict[str, dom.DomainRecord] = {}
+        earlier_wall_s = 0.0
         published = out_dir / "domains.json"
         if args.resume and jsonl.is_file():
             for line in jsonl.read_text().splitlines():
@@ -163,7 +164,9 @@ def cmd_domains(args: argparse.Namespace) -> int:
             # A published study keeps domains.json, not the log it was built from.
             from deploy.experiments.domains_report import load_study_json
 
-            done = {rec.key: rec for rec in load_study_json(published).runs}
+            kept = load_study_json(published)
+            done = {rec.key: rec for rec in kept.runs}
+            earlier_wall_s = kept.wall_time_s  # the study's time is its runs' time
             jsonl.write_text("".join(rec.model_dump_json() + "\n" for rec in done.values()))
         else:
             jsonl.write_text("")
@@ -195,7 +198,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
         executor.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    wall_s = time.monotonic() - started
+    wall_s = earlier_wall_s + time.monotonic() - started
     order = {t.key: i for i, t in enumerate(tasks)}
     runs = sorted((r for r in done.values() if r.key in order), key=lambda r: order[r.key])
     by_key = {t.key: t for t in tasks}
