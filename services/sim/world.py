@@ -209,6 +209,18 @@ def close_renderer(gl: GlRenderer) -> None:
         _idle_gl.append(gl)
 
 
+class DirectClient(BulletClient):
+    """A headless (DIRECT) pybullet client. ``BulletClient(pybullet.DIRECT)`` connects with
+    ``options=""``, for which pybullet prints a stray ``argv[0]=`` line on stdout, once per
+    world: in a campaign's or a pre-launch check's output, hundreds of them. Sets what
+    BulletClient's own constructor sets, connecting without options."""
+
+    def __init__(self) -> None:
+        self._shapes: dict = {}
+        self._pid = os.getpid()
+        self._client = pybullet.connect(pybullet.DIRECT)
+
+
 class World:
     """One pybullet simulation of the scenario, in DIRECT mode (no GUI).
 
@@ -244,7 +256,7 @@ class World:
         self._sensor_rng = np.random.default_rng(self.kinect.seed)
         self.physics_dt_s = 1.0 / scenario.sim.physics_hz
         self.sim_time_s = 0.0
-        self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        self.client = DirectClient()
         self.client.setGravity(*(-9.81 * kin.BASE_UP))
         self.client.setTimeStep(self.physics_dt_s)
         self.robot = self._load_robot()

@@ -102,3 +102,17 @@ def test_the_penetration_is_pybullets_closest_points_at_the_posture() -> None:
             world.close()
         assert (depth_m > PENETRATION_TOLERANCE_M) == expect_inside
         assert into == ("object" if expect_inside else "")
+
+
+def test_a_world_and_a_pre_launch_check_print_nothing(capfd: pytest.CaptureFixture[str]) -> None:
+    """No stray ``argv[0]=`` from pybullet's connect (services.sim.world.DirectClient): a
+    campaign makes hundreds of worlds, umay run one before its live line."""
+    import pybullet  # imported (and its build-time line printed) before the capture is read
+
+    assert pybullet.DIRECT is not None
+    capfd.readouterr()
+    check_scenario(load_scenario(BASELINE))
+    world = World(load_scenario(None, parse_overrides(SMALL)))
+    world.close()
+    captured = capfd.readouterr()
+    assert captured.out == "" and captured.err == ""
