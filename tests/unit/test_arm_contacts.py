@@ -3,6 +3,9 @@ run), and the judge reports the first one."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TypeVar
+
 import pytest
 
 from common.config import ScenarioError, load_scenario
@@ -17,11 +20,13 @@ from deploy.experiments.reachability import (
 )
 from services.sim.world import World
 
+T = TypeVar("T")
 SMALL = ["camera.width_px=160", "camera.height_px=120", "sim.renderer='gl'"]
 
 
-def contacts_at_goal(approach_height_m: float) -> tuple[float, tuple[str, ...]]:
-    """The arm's contacts with the hand marker held ``approach_height_m`` above the target."""
+def at_goal(approach_height_m: float, measure: Callable[[World], T]) -> T:
+    """``measure`` of a world whose hand holds its marker ``approach_height_m`` above the
+    target."""
     scenario = load_scenario(
         None, parse_overrides([*SMALL, f"target.approach_height_m={approach_height_m}"])
     )
@@ -30,12 +35,21 @@ def contacts_at_goal(approach_height_m: float) -> tuple[float, tuple[str, ...]]:
     world = World(scenario)
     try:
         world.reset(solved[0])
+        return measure(world)
+    finally:
+        world.close()
+
+
+def contacts_at_goal(approach_height_m: float) -> tuple[float, tuple[str, ...]]:
+    """The arm's contacts after one physics step at the goal posture."""
+
+    def contacts(world: World) -> tuple[float, tuple[str, ...]]:
         world.step(1)
         truth = world.truth()
         assert (truth.contact_n, truth.contact_with) == world.arm_contacts()
         return world.arm_contacts()
-    finally:
-        world.close()
+
+    return at_goal(approach_height_m, contacts)
 
 
 def test_a_hand_pushed_into_the_object_is_a_contact_and_one_above_it_is_not() -> None:
@@ -89,17 +103,7 @@ def test_the_penetration_is_pybullets_closest_points_at_the_posture() -> None:
     """World.arm_penetration at the posture it holds: the hand pushed into the object at its
     goal (approach height 0) reaches into it; lifted 5 cm above, it is clear."""
     for height_m, expect_inside in ((0.0, True), (0.05, False)):
-        scenario = load_scenario(
-            None, parse_overrides([*SMALL, f"target.approach_height_m={height_m}"])
-        )
-        solved = solve_goal(scenario)
-        assert solved is not None
-        world = World(scenario)
-        try:
-            world.reset(solved[0])
-            depth_m, into = world.arm_penetration()
-        finally:
-            world.close()
+        depth_m, into = at_goal(height_m, World.arm_penetration)
         assert (depth_m > PENETRATION_TOLERANCE_M) == expect_inside
         assert into == ("object" if expect_inside else "")
 
