@@ -325,7 +325,14 @@ class ControllerConfig(_Strict):
 
 
 class ActuationConfig(_Strict):
-    deadman_timeout_s: float = Field(0.25, gt=0.0, le=5.0)
+    deadman_timeout_s: float = Field(
+        0.2,
+        gt=0.0,
+        le=5.0,
+        description="zero velocity without a fresh valid twist this long (wall s): 6 camera "
+        "periods at 30 Hz, and room within the 300 ms stop budget for the stop to reach the "
+        "motors on a loaded machine",
+    )
     damping: float = Field(0.02, ge=0.0, le=1.0, description="DLS damping near singularities")
     manipulability_threshold: float = Field(
         0.002, ge=0.0, description="below this the DLS damping ramps in"

@@ -82,7 +82,7 @@ def test_neither_wall_clock_nor_the_transport_nor_the_process_split_changes_a_lo
 ) -> None:
     """The default run through the four services converges. Wall-clock timing must not leak
     into it: in the second run the actuation deadman fires between every pair of frames (5 ms
-    timeout), as it would on a loaded machine where rendering takes longer than the 250 ms
+    timeout), as it would on a loaded machine where rendering takes longer than the 200 ms
     default. Nor may the way frames travel: the second run has frames by reference off
     (``UMAY_ZENOH_SHM=0``), so they go whole. Nor the processes: the in-process pipeline gives
     the same. The three runs are the same, frame for frame."""

@@ -1,5 +1,5 @@
 """Safety chain end to end: the controller dies mid-motion and is not restarted; the joint
-speeds must reach zero within 300 ms (actuation deadman, 250 ms): the zero command published,
+speeds must reach zero within 300 ms (actuation deadman, 200 ms): the zero command published,
 and applied to the motors (the sim's own stamp, ``SimTiming.applied``), within 300 ms of the
 kill, and every encoder sample from the next physics step on still.
 
