@@ -20,8 +20,10 @@ import json
 import math
 import tomllib
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import TypeVar
 
@@ -261,6 +263,22 @@ class CampaignPlan:
     distribution_path: Path
 
 
+def _draw_all(
+    dist: Distribution, base: Scenario, n: int, jobs: int, on_drawn: Callable[[int], None]
+) -> Iterator[Start]:
+    """Starts 0 … n-1 in order, drawn by ``jobs`` processes (inverse kinematics and a
+    pybullet scene per draw: the slow part of planning a campaign)."""
+    if jobs <= 1 or n == 1:
+        for i in range(n):
+            yield draw_start(dist, base, i)
+            on_drawn(i)
+        return
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for i, start in enumerate(pool.map(partial(draw_start, dist, base), range(n))):
+            yield start
+            on_drawn(i)
+
+
 def plan_campaign(
     n: int,
     modes: Sequence[str],
@@ -268,9 +286,13 @@ def plan_campaign(
     seed: int | None = None,
     overrides: Sequence[str] = (),
     figures: bool = True,
+    jobs: int = 1,
+    on_drawn: Callable[[int], None] | None = None,
 ) -> CampaignPlan:
     """Draw ``n`` starts (``seed`` instead of the distribution's), validate every job.
-    ``figures``: the first start's runs are recorded, for the figures (False: none is)."""
+    ``figures``: the first start's runs are recorded, for the figures (False: none is).
+    ``jobs``: worker processes drawing at once (each start comes from its own generator, so
+    the same starts whatever ``jobs``); ``on_drawn(i)`` after start ``i``, in order."""
     if n < 1:
         raise CompareError(f"--n: at least 1 start, not {n}")
     dist, base_path = load_distribution(distribution_path)
@@ -280,7 +302,7 @@ def plan_campaign(
         base = load_scenario(base_path, parse_overrides(list(overrides)))
     except ScenarioError as exc:
         raise CompareError(str(exc)) from exc
-    starts = tuple(draw_start(dist, base, i) for i in range(n))
+    starts = tuple(_draw_all(dist, base, n, jobs, on_drawn or (lambda _i: None)))
     jobs: list[Job] = []
     names: list[str] = []
     for start in starts:

@@ -236,6 +236,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     """Exit 0 when every run has a named cause (whatever it is), 2 on bad input, 130 when
     interrupted."""
     from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from deploy.experiments.campaign import (
         failure_cause,
@@ -255,9 +256,13 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         modes = parse_modes(args.modes)
         if args.jobs < 1:
             raise CompareError(f"--jobs: must be at least 1, not {args.jobs}")
-        cplan = plan_campaign(
-            args.n, modes, Path(args.distribution), args.seed, args.set, not args.no_figures
-        )
+        columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn())
+        with Progress(*columns, TimeElapsedColumn(), console=console, transient=True) as bar:
+            drawing = bar.add_task("drawing starts", total=args.n)
+            cplan = plan_campaign(
+                args.n, modes, Path(args.distribution), args.seed, args.set,
+                not args.no_figures, args.jobs, lambda _i: bar.advance(drawing),
+            )  # fmt: skip
         out_dir = check_output_dir("--out", args.out)
     except (CompareError, OutputPathError) as exc:
         print(f"umay campaign: {exc}", file=sys.stderr)

@@ -166,3 +166,12 @@ def test_a_start_posture_inside_the_scenery_is_drawn_again_and_counted(
     start = draw_start(DIST, BASE, 0)
     assert start.redrawn.get(campaign.REDRAW_ARM_INSIDE) == 1 and len(calls) == 2
     assert not start.refused and start.draws > plain.draws and start.q0_rad != plain.q0_rad
+
+
+def test_starts_drawn_by_two_processes_are_the_same_and_reported_in_order() -> None:
+    from deploy.experiments.campaign import plan_campaign
+
+    drawn: list[int] = []
+    parallel = plan_campaign(3, ["dynamic"], figures=False, jobs=2, on_drawn=drawn.append)
+    assert drawn == [0, 1, 2]
+    assert parallel.starts == tuple(draw_start(DIST, BASE, i) for i in range(3))
