@@ -279,6 +279,27 @@ def _draw_all(
             on_drawn(i)
 
 
+def campaign_inputs(
+    n: int,
+    distribution_path: Path = DEFAULT_DISTRIBUTION,
+    seed: int | None = None,
+    overrides: Sequence[str] = (),
+) -> tuple[Distribution, Path, Scenario]:
+    """The distribution (``seed`` instead of its own), its base scenario's path and the base
+    scenario with ``overrides``, validated: raises :class:`CompareError` naming the bad
+    input. Cheap, so a command checks its input with it before drawing for minutes."""
+    if n < 1:
+        raise CompareError(f"--n: at least 1 start, not {n}")
+    dist, base_path = load_distribution(distribution_path)
+    if seed is not None:
+        dist = dist.model_copy(update={"seed": seed})
+    try:
+        base = load_scenario(base_path, parse_overrides(list(overrides)))
+    except ScenarioError as exc:
+        raise CompareError(str(exc)) from exc
+    return dist, base_path, base
+
+
 def plan_campaign(
     n: int,
     modes: Sequence[str],
@@ -293,15 +314,7 @@ def plan_campaign(
     ``figures``: the first start's runs are recorded, for the figures (False: none is).
     ``jobs``: worker processes drawing at once (each start comes from its own generator, so
     the same starts whatever ``jobs``); ``on_drawn(i)`` after start ``i``, in order."""
-    if n < 1:
-        raise CompareError(f"--n: at least 1 start, not {n}")
-    dist, base_path = load_distribution(distribution_path)
-    if seed is not None:
-        dist = dist.model_copy(update={"seed": seed})
-    try:
-        base = load_scenario(base_path, parse_overrides(list(overrides)))
-    except ScenarioError as exc:
-        raise CompareError(str(exc)) from exc
+    dist, base_path, base = campaign_inputs(n, distribution_path, seed, overrides)
     starts = tuple(_draw_all(dist, base, n, jobs, on_drawn or (lambda _i: None)))
     jobs: list[Job] = []
     names: list[str] = []

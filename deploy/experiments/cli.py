@@ -239,6 +239,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from deploy.experiments.campaign import (
+        campaign_inputs,
         failure_cause,
         plan_campaign,
         run_campaign,
@@ -256,6 +257,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         modes = parse_modes(args.modes)
         if args.jobs < 1:
             raise CompareError(f"--jobs: must be at least 1, not {args.jobs}")
+        # Every input checked, --out last (it creates the folder), before minutes of drawing.
+        campaign_inputs(args.n, Path(args.distribution), args.seed, args.set)
+        out_dir = check_output_dir("--out", args.out)
         columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn())
         with Progress(*columns, TimeElapsedColumn(), console=console, transient=True) as bar:
             drawing = bar.add_task("drawing starts", total=args.n)
@@ -263,7 +267,6 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                 args.n, modes, Path(args.distribution), args.seed, args.set,
                 not args.no_figures, args.jobs, lambda _i: bar.advance(drawing),
             )  # fmt: skip
-        out_dir = check_output_dir("--out", args.out)
     except (CompareError, OutputPathError) as exc:
         print(f"umay campaign: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

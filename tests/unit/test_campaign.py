@@ -175,3 +175,32 @@ def test_starts_drawn_by_two_processes_are_the_same_and_reported_in_order() -> N
     parallel = plan_campaign(3, ["dynamic"], figures=False, jobs=2, on_drawn=drawn.append)
     assert drawn == [0, 1, 2]
     assert parallel.starts == tuple(draw_start(DIST, BASE, i) for i in range(3))
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--out", "/proc/no-such-dir/out"], "--out /proc/no-such-dir/out: cannot write"),
+        (["--set", "controller.gain=-3"], "controller.gain"),
+        (["--n", "0"], "--n: at least 1 start"),
+    ],
+)
+def test_bad_campaign_input_exits_2_before_any_start_is_drawn(
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    args: list[str],
+    message: str,
+) -> None:
+    """Drawing 200 starts takes minutes: a bad option is named before it starts."""
+    import deploy.experiments.campaign as campaign
+    from deploy.cli import main
+
+    def no_drawing(*_args: object) -> None:
+        raise AssertionError("a start was drawn")
+
+    monkeypatch.setattr(campaign, "draw_start", no_drawing)
+    out = ["--out", str(tmp_path / "out")] if "--out" not in args else []
+    assert main(["campaign", "--n", "2", *out, *args]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
