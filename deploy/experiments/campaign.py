@@ -39,9 +39,8 @@ from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
 from deploy.experiments.compare.summary import format_cell, markdown_table
 from deploy.experiments.reachability import (
     MAX_VIEW_ANGLE_DEG,
-    PENETRATION_TOLERANCE_M,
+    ArmInsideScenery,
     arm_hides_hand_marker,
-    arm_penetration,
     check_scenario,
     goal_pose,
     marker_in_image,
@@ -239,12 +238,12 @@ def draw_start(dist: Distribution, base: Scenario, index: int) -> Start:
             redrawn[REDRAW_GOAL_HIDDEN] += 1
             continue
         q0 = tuple(round(float(v), 6) for v in q)
-        if arm_penetration(with_q0(scenario, q0))[0] > PENETRATION_TOLERANCE_M:
-            redrawn[REDRAW_ARM_INSIDE] += 1
-            continue
         try:
             check_scenario(with_q0(scenario, q0))
             refused = ""
+        except ArmInsideScenery:
+            redrawn[REDRAW_ARM_INSIDE] += 1
+            continue
         except ScenarioError as exc:
             refused = str(exc)
         return replace(start, q0_rad=q0, refused=refused, redrawn=dict(redrawn))

@@ -49,9 +49,8 @@ from deploy.experiments.compare.rows import CompareRow, is_on_goal
 from deploy.experiments.evaluate import RunResult
 from deploy.experiments.reachability import (
     MAX_VIEW_ANGLE_DEG,
-    PENETRATION_TOLERANCE_M,
+    ArmInsideScenery,
     arm_hides_hand_marker,
-    arm_penetration,
     check_scenario,
     marker_in_image,
     solve_goal,
@@ -234,10 +233,10 @@ def draw_domain_start(study: StudyDefinition, base: Scenario, cell: Cell, draw: 
     if arm_hides_hand_marker(solved[0], scenario):
         return refuse(REDRAW_GOAL_HIDDEN, q)
     q0 = tuple(round(float(v), 6) for v in q)
-    if arm_penetration(with_q0(scenario, q0))[0] > PENETRATION_TOLERANCE_M:
-        return refuse(REDRAW_ARM_INSIDE, q)
     try:
         check_scenario(with_q0(scenario, q0))
+    except ArmInsideScenery:
+        return refuse(REDRAW_ARM_INSIDE, q)
     except ScenarioError as exc:
         return refuse(str(exc), q)
     return start.model_copy(update={"q0_rad": q0})

@@ -32,6 +32,11 @@ GOAL_SEEDS = 80
 PENETRATION_TOLERANCE_M = 1e-4
 
 
+class ArmInsideScenery(ScenarioError):
+    """The start posture puts the arm inside the object, the table or the floor (a sampler
+    draws such a start again rather than refusing it: it is no posture at all)."""
+
+
 def marker_in_image(corners_base: np.ndarray, scenario: Scenario) -> bool:
     cam = scenario.camera
     cam_pts = (np.linalg.inv(cam.pose()) @ np.column_stack([corners_base, np.ones(4)]).T).T
@@ -123,7 +128,7 @@ def check_scenario(scenario: Scenario, seeds: int | None = None) -> np.ndarray:
         )
     depth_m, into = arm_penetration(scenario)
     if depth_m > PENETRATION_TOLERANCE_M:
-        raise ScenarioError(
+        raise ArmInsideScenery(
             f"robot.q0: the arm is {1000.0 * depth_m:.1f} mm inside the {into} at start "
             "(a posture the simulator cannot start from)"
         )

@@ -153,16 +153,17 @@ def test_a_start_posture_inside_the_scenery_is_drawn_again_and_counted(
     """No posture at all, so not a refusal: the draw is made again (the geometry itself:
     test_arm_contacts.py). Here the first posture drawn is said to be 3 mm inside the object."""
     import deploy.experiments.campaign as campaign
+    import deploy.experiments.reachability as reachability
 
     plain = draw_start(DIST, BASE, 0)
     calls: list[int] = []
-    real = campaign.arm_penetration
+    real = reachability.arm_penetration
 
     def first_inside(scenario):
         calls.append(1)
         return (0.003, "object") if len(calls) == 1 else real(scenario)
 
-    monkeypatch.setattr(campaign, "arm_penetration", first_inside)
+    monkeypatch.setattr(reachability, "arm_penetration", first_inside)
     start = draw_start(DIST, BASE, 0)
     assert start.redrawn.get(campaign.REDRAW_ARM_INSIDE) == 1 and len(calls) == 2
     assert not start.refused and start.draws > plain.draws and start.q0_rad != plain.q0_rad
