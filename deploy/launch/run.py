@@ -35,17 +35,22 @@ M = TypeVar("M", bound=BaseModel)
 log = logging.getLogger("umay.run")
 
 
-def default_listen_endpoint() -> str:
-    """The well-known endpoint if free (so ``umay status`` finds the system), else any port."""
-    host, port = DEFAULT_ENDPOINT.removeprefix("tcp/").rsplit(":", 1)
+def default_listen_endpoint(preferred: str = DEFAULT_ENDPOINT) -> str:
+    """The well-known endpoint if free (so ``umay status`` finds the system), else any port.
+
+    Free as Zenoh's listener binds it, with ``SO_REUSEADDR``: the connections of the last run
+    linger in TIME_WAIT on that port for a minute after it ends, which only a bind without the
+    option refuses, and a run right after another must still listen where status looks."""
+    host, port = preferred.removeprefix("tcp/").rsplit(":", 1)
     with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind((host, int(port)))
         except OSError:
             endpoint = free_tcp_endpoint()
-            log.warning("%s is busy; listening on %s instead", DEFAULT_ENDPOINT, endpoint)
+            log.warning("%s is busy; listening on %s instead", preferred, endpoint)
             return endpoint
-    return DEFAULT_ENDPOINT
+    return preferred
 
 
 def prepare(scenario_path: str | None, overrides: list[str]) -> Scenario:

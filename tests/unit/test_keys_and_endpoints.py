@@ -20,3 +20,24 @@ def test_endpoints_are_checked_by_zenohs_parser() -> None:
 def test_good_prefixes_pass() -> None:
     for prefix in ("umay/umay1", "test/3f2a9c", "robot-2/arm_left"):
         assert Keys(prefix).twist == f"{prefix}/controller/twist"
+
+
+def test_the_well_known_endpoint_is_kept_after_a_run_and_left_while_in_use() -> None:
+    """A run's closed connections leave its port in TIME_WAIT: the next run must still listen
+    there (where ``umay status`` looks); a port someone listens on is left for a free one."""
+    import socket
+
+    from deploy.launch.run import default_listen_endpoint
+
+    with socket.socket() as listener:
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        endpoint = f"tcp/127.0.0.1:{listener.getsockname()[1]}"
+        assert default_listen_endpoint(endpoint) != endpoint  # in use
+        with socket.create_connection(listener.getsockname()) as client:
+            accepted, _ = listener.accept()
+            accepted.close()  # the listening side closes first: its port enters TIME_WAIT
+            client.recv(1)
+    # The listener is closed; only the TIME_WAIT connection is left on the port.
+    assert default_listen_endpoint(endpoint) == endpoint
