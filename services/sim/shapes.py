@@ -15,8 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet
-from pybullet_utils.bullet_client import BulletClient
+
+from services.sim.bullet import BulletClient, pybullet
 
 FloatArray = np.ndarray
 

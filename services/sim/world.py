@@ -15,12 +15,11 @@ from typing import Any
 
 import cv2
 import numpy as np
-import pybullet
-from pybullet_utils.bullet_client import BulletClient
 
 from common import kinematics as kin
 from common.camera import CameraIntrinsics, project
 from common.config import Scenario
+from services.sim.bullet import BulletClient, pybullet
 from services.sim.events import SceneState, scene_state
 from services.sim.gl_renderer import GlRenderer, GlUnavailable
 from services.sim.scenery import HalfSpace, view_frustum, visible_box
