@@ -317,7 +317,8 @@ def report_markdown(study: Study, figures: Sequence[str], recordings: dict[str, 
 def verdict_markdown(study: Study) -> str:
     """What the evidence favours, and where, as sentences built from the study's numbers: per
     strategy its success and largest rotation at the fixed distance and its commonest failure
-    cause; per rotation band the strategy with the highest success (ties named together)."""
+    cause; per rotation band the strategy with the highest success (ties named together; a band
+    every strategy ties on, or none reaches the goal in, said so)."""
     d = study.study
     lines = []
     for mode in study_modes(study):
@@ -326,7 +327,13 @@ def verdict_markdown(study: Study) -> str:
         largest = largest_rotation_deg(study, mode)
         failures = Counter(cause_family(r.cause) for r in mine if r.outcome != "converged")
         worst = ", ".join(f"{c} ({n})" for c, n in failures.most_common(2)) or "none"
-        reach = "no rotation" if largest is None else f"up to {largest:g}°"
+        reach = (
+            "no rotation"
+            if largest is None
+            else "unturned starts only"
+            if largest == 0
+            else f"up to {largest:g}°"
+        )
         lines.append(
             f"- **{mode}**: {_rate(ok, len(mine))} on goal; in ≥ {100 * d.success_goal:.0f}% of "
             f"draws at {100 * d.fixed_distance_m:g} cm: {reach}; commonest failures: {worst}."
@@ -343,7 +350,11 @@ def verdict_markdown(study: Study) -> str:
             continue
         best = max(rates.values())
         leaders = [m for m, v in rates.items() if round(v, 3) == round(best, 3)]
-        lines.append(
-            f"- Rotations {lo:g}–{hi:g}°: best {', '.join(leaders)} ({100 * best:.0f}% on goal)."
-        )
+        if best == 0:
+            said = "no strategy reached the goal"
+        elif len(leaders) == len(rates) > 1:
+            said = f"all {len(rates)} tie ({100 * best:.0f}% on goal)"
+        else:
+            said = f"best {', '.join(leaders)} ({100 * best:.0f}% on goal)"
+        lines.append(f"- Rotations {lo:g}–{hi:g}°: {said}.")
     return "\n".join(lines)

@@ -331,8 +331,14 @@ def test_domain_blocks_say_how_to_run_the_study_until_it_is_run() -> None:
     assert "| mpj | 7 | 71% (5/7) | 15° |" in summary
     assert f"]({DOMAINS_JSON.removeprefix('docs/')})" in summary
     verdict = BLOCKS["domains-verdict"].render(Inputs(domains=study), "")
-    assert "- **dynamic**: 86% (6/7) on goal" in verdict and "up to 0°" in verdict
+    assert "- **dynamic**: 86% (6/7) on goal" in verdict and "unturned starts only" in verdict
     assert "Rotations 0–45°: best dynamic (86% on goal)" in verdict
+    for outcome, said in (("converged", "all 2 tie (100% on goal)"), ("failed", "no strategy")):
+        runs = [r.model_copy(update={"outcome": outcome}) for r in study.runs]
+        verdict = BLOCKS["domains-verdict"].render(
+            Inputs(domains=study.model_copy(update={"runs": runs})), ""
+        )
+        assert f"Rotations 0–45°: {said}" in verdict, verdict
     assert "(docs/domains/figures/domain_mpj.png)" in verdict
     bands = BLOCKS["domains-bands"].render(Inputs(domains=study), "docs")
     assert "| start pose out of reach | 1 |" in bands
