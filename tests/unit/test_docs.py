@@ -368,13 +368,15 @@ def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
 
     assert "Not run yet: `umay campaign" in BLOCKS["campaign-summary"].render(Inputs(), "")
     runs = [
-        {"start": "s1", "mode": "dynamic", "cause": "converged"},
-        {"start": "s2", "mode": "dynamic", "cause": "joint limit"},
-        {"start": "s3", "mode": "dynamic", "cause": "converged"},
+        {"start": "s1", "mode": "dynamic", "cause": "converged", "frames": 80, "path_ratio": 1.1},
+        {"start": "s2", "mode": "dynamic", "cause": "joint limit", "frames": 900},
+        {"start": "s3", "mode": "dynamic", "cause": "converged", "frames": 91, "path_ratio": 1.3},
         {"start": "s4", "mode": "dynamic", "cause": "refused at start"},
     ]
     table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs), "docs")
-    assert "| dynamic | 3 | 66.7% (2/3) | joint limit 1 |" in table
+    # medians over the runs on goal only
+    assert "| dynamic | 3 | 66.7% (2/3) | 85.5 | 1.200 | joint limit 1 |" in table
+    assert "[docs/campaign.md](campaign.md)" in table
     assert "4 starts, 1 refused at start (25.0%" in table
     assert "per_corner" not in table  # no per_corner campaign: no row
     per_corner = [
@@ -383,7 +385,7 @@ def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
         {"start": "s4", "mode": "constant", "cause": "refused at start"},
     ]
     table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs, per_corner=per_corner), "")
-    assert "| constant, per_corner depths | 2 | 50.0% (1/2) | local minimum" in table
+    assert "| constant, per_corner depths | 2 | 50.0% (1/2) | – | – | local minimum" in table
     assert "constant_per_corner/causes.json" in table
 
 
