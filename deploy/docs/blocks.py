@@ -23,7 +23,7 @@ from deploy.docs.domains_tables import (
     domains_summary,
     domains_verdict,
 )
-from deploy.docs.results_tables import results_compact, results_strategies
+from deploy.docs.results_tables import results_compact, results_strategies, suite_camera
 from deploy.docs.sources import (
     ACCURACY_JSON,
     BENCH_DIR,
@@ -32,6 +32,7 @@ from deploy.docs.sources import (
     EXECUTORS_DIR,
     PER_CORNER_JSON,
     RESULTS_JSON,
+    SUITE_CAMERA_DIR,
     Inputs,
 )
 from deploy.docs.vision_tables import vision_accuracy
@@ -46,6 +47,7 @@ class Block:
 BLOCKS: dict[str, Block] = {
     "results-compact": Block(results_compact, RESULTS_JSON),
     "results-strategies": Block(results_strategies, RESULTS_JSON),
+    "suite-camera": Block(suite_camera, f"{SUITE_CAMERA_DIR}/*/results.json"),
     "bench-headline": Block(bench_headline, f"{BENCH_DIR}/*.json"),
     "bench-runs": Block(bench_runs, f"{BENCH_DIR}/*.json"),
     "bench-commands": Block(bench_commands, f"{BENCH_DIR}/*.json"),

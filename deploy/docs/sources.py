@@ -19,6 +19,10 @@ ACCURACY_JSON = "docs/vision/accuracy.json"  # umay accuracy on the suite's targ
 CAMPAIGN_JSON = "docs/campaign/causes.json"  # the random-start campaign: one cause per run
 # The same starts with constant's matrix built from each corner's depth (per_corner).
 PER_CORNER_JSON = "docs/campaign/constant_per_corner/causes.json"
+# The suite at its own camera (480×360 at 15 Hz) and at the default's (640×480 at 30 Hz), both
+# in-process: what moving the suite to the default's camera would change (docs/scenarios.md).
+SUITE_CAMERA_DIR = "docs/results/suite_camera"
+SUITE_CAMERAS = ("480x360_15hz", "640x480_30hz")
 # The same small study through each executor (one folder each, ``umay domains --out``).
 EXECUTORS_DIR = "docs/domains/executors"
 
@@ -54,6 +58,8 @@ class Inputs:
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
     per_corner: Sequence[Mapping[str, Any]] = ()  # constant per_corner on the same starts
     accuracy: Sequence[Mapping[str, Any]] = ()  # vision's accuracy, one record per condition
+    # The suite's rows per camera (SUITE_CAMERAS), where both have been run.
+    suite_cameras: Sequence[tuple[str, Sequence[CompareRow]]] = ()
 
     def run(self, name: str) -> BenchRun:
         for r in self.bench:
@@ -87,6 +93,10 @@ def load_inputs(root: Path) -> Inputs:
         campaign = _records(root / CAMPAIGN_JSON)
         per_corner = _records(root / PER_CORNER_JSON)
         accuracy = _records(root / ACCURACY_JSON)
+        cameras = [(n, root / SUITE_CAMERA_DIR / n / "results.json") for n in SUITE_CAMERAS]
+        suite_cameras = [
+            (name, rows_from_json(path.read_text())) for name, path in cameras if path.is_file()
+        ]
     except (OSError, ValueError) as exc:
         raise DocsError(f"cannot read the sources: {exc}") from exc
     return Inputs(
@@ -97,4 +107,5 @@ def load_inputs(root: Path) -> Inputs:
         campaign=campaign,
         per_corner=per_corner,
         accuracy=accuracy,
+        suite_cameras=suite_cameras if len(suite_cameras) == len(SUITE_CAMERAS) else (),
     )

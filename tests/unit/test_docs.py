@@ -441,3 +441,23 @@ def test_the_accuracy_block_renders_each_condition_from_its_json() -> None:
         "| 94.8 % |" in table
     )
     assert "| dark, RGB | 300 | 100.0 % | 98.0 % | – | – |" in table
+
+
+def test_the_suite_camera_block_sets_each_strategy_at_both_cameras_side_by_side() -> None:
+    from deploy.docs.blocks import BLOCKS
+    from deploy.docs.sources import SUITE_CAMERA_DIR, SUITE_CAMERAS
+
+    assert "Not run yet: `umay compare" in BLOCKS["suite-camera"].render(Inputs(), "")
+    small, large = (
+        rows_from_json((REPO_ROOT / SUITE_CAMERA_DIR / n / "results.json").read_text())
+        for n in SUITE_CAMERAS
+    )
+    missed = next(i for i, r in enumerate(large) if r.mode == "dynamic")
+    large[missed] = large[missed].model_copy(update={"on_goal": False})
+    table = BLOCKS["suite-camera"].render(Inputs(suite_cameras=[("a", small), ("b", large)]), "")
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in table.splitlines()}
+    assert rows["dynamic"].startswith("| dynamic | 12/12 → 11/12 | ")
+    assert rows["pmj"].startswith("| pmj | 12/12 → 12/12 | ")
+    summed = [sum(r.wall_time_s for r in rows) for rows in (small, large)]
+    assert f"summed: {summed[0]:.0f} s → {summed[1]:.0f} s" in table
+    assert "--set camera.rgb_hz=30" in table  # how to make it again
