@@ -13,10 +13,17 @@ Each fragment writes
 - depth: Z along the optical axis in float32 metres, interpolated (perspective-correct, so
   exact for planar faces) rather than recovered from a non-linear 24-bit depth buffer;
 - id: pybullet's segmentation value (body + ((link + 1) << 24)), -1 where nothing is drawn.
+
+Scenery that never moves (the world names it: torso, table, floor) is drawn once into a
+background framebuffer, which each frame is copied from before the rest is drawn over it: on a
+CPU rasteriser the large boxes cost most of a frame. The background is drawn again whenever
+anything it depends on changes (camera, intrinsics, light, meshes, the scenery's own poses), so
+it is only ever an optimisation: the images are those of drawing the scenery first every frame.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,14 +136,24 @@ def open_context() -> object:
 
 
 @dataclass
-class _Target:
-    """Framebuffers of one size: the frame's (colour, depth) and the id image's, each with its
-    z-buffer, plus a framebuffer of the colour attachment alone, to clear it to the background."""
+class _Layers:
+    """A colour and metric-depth framebuffer with its z-buffer, and a framebuffer of its colour
+    attachment alone, to clear that to the background colour."""
 
     frame: object
-    ids: object
     clear_colour: object
+
+
+@dataclass
+class _Target:
+    """Framebuffers of one size: the frame's, the scenery drawn alone (copied into the frame
+    before the moving shapes are drawn), and the id image's."""
+
+    frame: _Layers
+    background: _Layers
+    ids: object
     shape: tuple[int, int]  # rows, columns
+    background_key: tuple = ()  # what the background was drawn for (empty: not yet)
 
 
 def _or_empty(array: np.ndarray | None, shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -167,6 +184,9 @@ class GlRenderer:
         self._meshes: list[tuple[VisualShape, object, object]] = []
         self._buffers: list[object] = []
         self._targets: dict[tuple[int, int], _Target] = {}
+        self._scenery: list[int] = []  # indices of the meshes drawn into the background
+        self._moving: list[int] = []  # ... and of those drawn every frame
+        self._meshes_version = 0  # a background of older meshes is drawn again
 
     def _make_current(self) -> None:
         # GL calls go to the thread's current context, the last one made or entered: with
@@ -181,9 +201,15 @@ class GlRenderer:
         renderer = self.ctx.info["GL_RENDERER"].lower()
         return any(name in renderer for name in ("llvmpipe", "softpipe", "swrast"))
 
-    def set_shapes(self, shapes: list[VisualShape]) -> None:
-        """Upload the meshes of ``shapes`` (replacing the previous ones)."""
+    def set_shapes(
+        self, shapes: list[VisualShape], scenery_bodies: frozenset[int] = frozenset()
+    ) -> None:
+        """Upload the meshes of ``shapes`` (replacing the previous ones). The shapes of
+        ``scenery_bodies``, bodies that do not move, are drawn into the cached background."""
         self.release_meshes()
+        self._meshes_version += 1
+        self._scenery = [i for i, shape in enumerate(shapes) if shape.body in scenery_bodies]
+        self._moving = [i for i, shape in enumerate(shapes) if shape.body not in scenery_bodies]
         self._make_current()
         for shape in shapes:
             vertices, normals = shape_mesh(shape)
@@ -207,21 +233,28 @@ class GlRenderer:
             buffer.release()
         self._meshes, self._buffers = [], []
 
+    def _layers(self, size: tuple[int, int]) -> _Layers:
+        ctx = self.ctx
+        colour = ctx.renderbuffer(size, components=4, dtype="f1")
+        depth = ctx.renderbuffer(size, components=1, dtype="f4")
+        return _Layers(
+            frame=ctx.framebuffer(
+                color_attachments=[colour, depth], depth_attachment=ctx.depth_renderbuffer(size)
+            ),
+            clear_colour=ctx.framebuffer(color_attachments=[colour]),
+        )
+
     def _target(self, k: CameraIntrinsics) -> _Target:
         size = (k.width_px, k.height_px)
         if size not in self._targets:
             ctx = self.ctx
-            colour = ctx.renderbuffer(size, components=4, dtype="f1")
-            depth = ctx.renderbuffer(size, components=1, dtype="f4")
             ids = ctx.renderbuffer(size, components=1, dtype="i4")
             self._targets[size] = _Target(
-                frame=ctx.framebuffer(
-                    color_attachments=[colour, depth], depth_attachment=ctx.depth_renderbuffer(size)
-                ),
+                frame=self._layers(size),
+                background=self._layers(size),
                 ids=ctx.framebuffer(
                     color_attachments=[ids], depth_attachment=ctx.depth_renderbuffer(size)
                 ),
-                clear_colour=ctx.framebuffer(color_attachments=[colour]),
                 shape=(k.height_px, k.width_px),
             )
         return self._targets[size]
@@ -238,30 +271,65 @@ class GlRenderer:
     ) -> _Target:
         """Draw every shape at its world pose (same order as :meth:`set_shapes`) into the
         colour and depth framebuffer of ``k``'s size, or with ``ids`` into the id image's;
-        read nothing back yet."""
-        import moderngl
-
+        read nothing back yet. Colour and depth start from the cached background (the
+        scenery), drawn again first if what it shows has changed."""
+        if len(poses) != len(self._meshes):
+            raise ValueError(f"{len(poses)} poses for {len(self._meshes)} shapes")
         self._make_current()
         target = self._target(k)
-        ctx = self.ctx
+        program = self.id_program if ids else self.program
+        program["pinhole"].value = pinhole_uniforms(k)
+        program["depth_ab"].value = depth_uniforms(near_m, far_m)
+        if ids:
+            self._clear(target.ids, None)
+            self._draw_meshes(target.ids, range(len(self._meshes)), poses, cam_from_world, ids)
+            return target
+        light = cam_from_world[:3, :3] @ np.asarray(light_direction_world, float)
+        program["light_cam"].value = tuple(light / np.linalg.norm(light))
+        frame, background = target.frame, target.background
+        if not self._scenery:
+            self._clear(frame.frame, frame.clear_colour)
+        else:
+            key = (
+                self._meshes_version, k, cam_from_world.tobytes(), near_m, far_m, light.tobytes(),
+                *(poses[i].tobytes() for i in self._scenery),
+            )  # fmt: skip
+            if target.background_key != key:
+                self._clear(background.frame, background.clear_colour)
+                self._draw_meshes(background.frame, self._scenery, poses, cam_from_world)
+                target.background_key = key
+            # Every attachment and the z-buffer: the moving shapes are depth-tested against it.
+            self.ctx.copy_framebuffer(frame.frame, background.frame)
+        self._draw_meshes(frame.frame, self._moving, poses, cam_from_world)
+        return target
+
+    @staticmethod
+    def _clear(fbo: object, clear_colour: object | None) -> None:
         # Clears, not a full-screen background quad (on a CPU rasteriser a clear costs a
         # fraction of a quad's fragments): everything to 0 (depth 0 is a Kinect's invalid, id 0
         # reads back as -1), then the colour attachment alone to the background's white.
-        fbo = target.ids if ids else target.frame
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        if ids:
-            program = self.id_program
-        else:
-            target.clear_colour.clear(*BACKGROUND_RGB, 1.0)
-            program = self.program
-            light = cam_from_world[:3, :3] @ np.asarray(light_direction_world, float)
-            program["light_cam"].value = tuple(light / np.linalg.norm(light))
+        if clear_colour is not None:
+            clear_colour.clear(*BACKGROUND_RGB, 1.0)
+
+    def _draw_meshes(
+        self,
+        fbo: object,
+        indices: Iterable[int],
+        poses: list[FloatArray],
+        cam_from_world: FloatArray,
+        ids: bool = False,
+    ) -> None:
+        """Draw the meshes ``indices`` at their ``poses`` into ``fbo``, depth-tested, with the
+        program's view uniforms as :meth:`draw` set them."""
+        import moderngl
+
+        program = self.id_program if ids else self.program
         fbo.use()
-        ctx.enable_only(moderngl.DEPTH_TEST)
-        program["pinhole"].value = pinhole_uniforms(k)
-        program["depth_ab"].value = depth_uniforms(near_m, far_m)
-        for (shape, vao, id_vao), pose in zip(self._meshes, poses, strict=True):
-            cam_from_shape = cam_from_world @ pose
+        self.ctx.enable_only(moderngl.DEPTH_TEST)
+        for i in indices:
+            shape, vao, id_vao = self._meshes[i]
+            cam_from_shape = cam_from_world @ poses[i]
             program["cam_from_shape"].write(cam_from_shape.astype(np.float32).tobytes("F"))
             if ids:
                 program["segment_id"].value = shape.segment_id
@@ -269,7 +337,6 @@ class GlRenderer:
             else:
                 program["colour"].value = shape.rgba
                 vao.render()
-        return target
 
     def read_colour_depth(
         self,
@@ -282,8 +349,8 @@ class GlRenderer:
         arrays (the caller may keep them)."""
         rgb = _or_empty(out[0], (*target.shape, 3), np.uint8)
         depth_m = _or_empty(out[1], target.shape, np.float32)
-        target.frame.read_into(rgb, components=3, attachment=0)
-        target.frame.read_into(depth_m, components=1, attachment=1, dtype="f4")
+        target.frame.frame.read_into(rgb, components=3, attachment=0)
+        target.frame.frame.read_into(depth_m, components=1, attachment=1, dtype="f4")
         return rgb, depth_m
 
     def read_ids(self, target: _Target) -> np.ndarray:

@@ -230,10 +230,15 @@ class World:
 
     ``clip_scenery=False`` draws the torso, table and floor as whole boxes instead of the parts
     of them the camera sees (:mod:`services.sim.scenery`, TinyRenderer only): the same images,
-    rendered slower; a reference for tests and measurements."""
+    rendered slower; a reference for tests and measurements. ``cache_scenery=False`` has OpenGL
+    draw every shape every frame instead of the torso, table and floor once into the background
+    each frame starts from (:mod:`services.sim.gl_renderer`): the same images, the reference."""
 
-    def __init__(self, scenario: Scenario, clip_scenery: bool = True) -> None:
+    def __init__(
+        self, scenario: Scenario, clip_scenery: bool = True, cache_scenery: bool = True
+    ) -> None:
         self.scenario = scenario
+        self.cache_scenery = cache_scenery
         self.renderer, self.renderer_detail, self._gl = open_renderer(scenario.sim.renderer)
         # OpenGL draws whole boxes (pybullet's mesh visuals cannot be read back), nor needs the cut.
         self.clip_scenery = clip_scenery and self.renderer == "tiny"
@@ -383,7 +388,9 @@ class World:
         )
         tx, ty, tz = TORSO_SIZE_M  # visual only, as the robot's own links do not collide
         torso = (tx / 2, ty / 2, tz / 2)
-        self._scenery_box(torso, np.array(TORSO_CENTRE_M), TORSO_COLOUR, frustum, collide=False)
+        self.torso_body = self._scenery_box(
+            torso, np.array(TORSO_CENTRE_M), TORSO_COLOUR, frustum, collide=False
+        )
         table = np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0])
         self.table_body = self._scenery_box((0.28, 0.02, 0.45), table, TABLE_COLOUR, frustum)
         floor = np.array([0.3, FLOOR_TOP_Y_M - 0.01, 0.0])
@@ -630,7 +637,9 @@ class World:
         bodies = body_ids(self.client)
         if bodies != self._gl_bodies:
             self._gl_shapes = visual_shapes(self.client)
-            self._gl.set_shapes(self._gl_shapes)
+            # The scenery never moves: OpenGL draws it once, into the background it starts from.
+            scenery = frozenset((self.torso_body, self.table_body, self.floor_body))
+            self._gl.set_shapes(self._gl_shapes, scenery if self.cache_scenery else frozenset())
             self._gl_bodies = bodies
         cam = self.scenario.camera
         return self._gl.draw(

@@ -146,6 +146,50 @@ def test_gl_agrees_with_tinyrenderer_on_the_accuracy_postures(gl_world: World) -
     assert compared == 4
 
 
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        [],
+        [
+            "marker.orientation_cue=true",
+            "target.yaw=0.6",
+            'events=[{at_s = 0.0, action = "occlude_hand", duration_s = 60.0}]',
+        ],
+    ],
+)
+def test_the_cached_scenery_gives_the_images_of_drawing_every_shape(overrides: list[str]) -> None:
+    """OpenGL draws the torso, table and floor once into the background each frame starts from:
+    bit for bit the images of drawing every shape every frame (the scenery last, as before
+    the cache), colour and depth, on the accuracy postures, with an orientation cue and an
+    occluding panel; and a scenery body moved after all is drawn where it is now, not where
+    the cache saw it."""
+    scenario = load_scenario(None, parse_overrides(overrides))
+    cached, every = World(scenario), World(scenario, cache_scenery=False)
+    try:
+        if cached.renderer != "gl":
+            pytest.fail(f"no OpenGL renderer on this machine: {cached.renderer_detail}")
+
+        def same_images() -> None:
+            (rgb_a, depth_a), (rgb_b, depth_b) = (
+                w.render_perfect(w.intrinsics) for w in (cached, every)
+            )
+            assert np.array_equal(rgb_a, rgb_b)
+            assert np.array_equal(depth_a.view(np.uint32), depth_b.view(np.uint32))
+
+        for q in sample_postures(scenario, 12, np.random.default_rng(3)):
+            for w in (cached, every):
+                w.reset(q)
+                w.update_scene()
+            same_images()
+        table_moved = np.array([0.45, TABLE_TOP_Y_M - 0.05, 0.02])
+        for w in (cached, every):
+            w.client.resetBasePositionAndOrientation(w.table_body, table_moved, (0, 0, 0, 1))
+        same_images()
+    finally:
+        cached.close()
+        every.close()
+
+
 def test_no_opengl_falls_back_to_tinyrenderer_and_says_why(
     monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
