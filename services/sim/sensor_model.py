@@ -105,12 +105,16 @@ def lateral_offset_probabilities(sigma_px: float) -> NDArray[np.float64]:
 
 
 def noisy_depth(
-    z_m: NDArray[np.floating], model: KinectConfig, rng: np.random.Generator
+    z_m: NDArray[np.floating],
+    model: KinectConfig,
+    rng: np.random.Generator,
+    out: NDArray[np.float32] | None = None,
 ) -> NDArray[np.float32]:
-    """Perfect depth (m, 0 = nothing) → what a Kinect v1 would report (float32, 0 = invalid)."""
+    """Perfect depth (m, 0 = nothing) → what a Kinect v1 would report (float32, 0 = invalid),
+    written into ``out`` when given (a camera frame's ring slot, say; not ``z_m``'s memory)."""
     z = np.ascontiguousarray(z_m, dtype=np.float32)
     h, w = z.shape
-    out = np.empty((h, w), np.float32)
+    out = _output(out, z, np.float32)
     lateral = model.lateral_noise_px > 0
     if not _two_bands(h, h * w):
         pieces = [(0, _uniform_u16(rng, h * w))] if lateral else []
@@ -141,11 +145,16 @@ def noisy_depth(
 
 
 def exposed_rgb(
-    rgb: NDArray[np.uint8], model: KinectConfig, rng: np.random.Generator
+    rgb: NDArray[np.uint8],
+    model: KinectConfig,
+    rng: np.random.Generator,
+    out: NDArray[np.uint8] | None = None,
 ) -> NDArray[np.uint8]:
     """Exposure, colour temperature and sensor noise on a perfect RGB image:
-    ``clip(rint(gain_c·rgb + N(0, rgb_noise_sigma)), 0, 255)`` per channel, ties to even."""
+    ``clip(rint(gain_c·rgb + N(0, rgb_noise_sigma)), 0, 255)`` per channel, ties to even;
+    written into ``out`` when given (not ``rgb``'s memory)."""
     image = np.ascontiguousarray(rgb, dtype=np.uint8)
+    out = _output(out, image, np.uint8)
     t = model.colour_temperature
     gains = (
         model.brightness * (1.0 - 0.25 * t),
@@ -154,8 +163,7 @@ def exposed_rgb(
         0.0,
     )
     if model.rgb_noise_sigma <= 0:
-        return cv2.multiply(image, gains)  # rounds to nearest (ties to even), saturates
-    out = np.empty_like(image)
+        return cv2.multiply(image, gains, dst=out)  # rounds to nearest (ties to even), saturates
     per_channel = gains[0] != gains[2] and image.ndim == 3 and image.shape[2] == 3
     h = image.shape[0]
 
@@ -275,6 +283,19 @@ def _noisy_band(
     if model.max_range_m > 100.0:  # beyond, z + 4.85·σ_z(z) can pass 2S: 0 steps become 1
         np.maximum(target, 1.0, out=target)
     np.divide(scale, target, out=target)
+
+
+def _output(out: np.ndarray | None, image: np.ndarray, dtype: type) -> np.ndarray:
+    """``out`` checked to take a model's output of ``image`` (its shape, ``dtype``,
+    C-contiguous, not sharing its memory: the model reads pixels it has already written), or a
+    fresh array."""
+    if out is None:
+        return np.empty(image.shape, dtype)
+    if out.shape != image.shape or out.dtype != dtype or not out.flags.c_contiguous:
+        raise ValueError(f"cannot write a {np.dtype(dtype)} {image.shape} image into {out.shape}")
+    if np.shares_memory(out, image):
+        raise ValueError("the sensor model cannot write over its own input")
+    return out
 
 
 def _even(n: int) -> int:

@@ -258,6 +258,7 @@ class World:
         self.occluder_body: int | None = None
         self.kinect = scenario.camera.kinect
         self._sensor_rng = np.random.default_rng(self.kinect.seed)
+        self._perfect_buffers: dict[tuple[int, int, int], np.ndarray] = {}
         self.physics_dt_s = 1.0 / scenario.sim.physics_hz
         self.sim_time_s = 0.0
         self.client = DirectClient()
@@ -532,16 +533,34 @@ class World:
         (the slots of a frame ring): the images returned are these arrays where they were,
         fresh ones otherwise."""
         same = self.depth_intrinsics == self.intrinsics
-        rgb, depth_m = self.render_perfect(self.intrinsics, (out[0], out[1] if same else None))
+        model = self.kinect if self.kinect.enabled else None
+        # With the sensor model on, the perfect images go to buffers of the world's own and the
+        # model writes what the camera reports into ``out``'s arrays (no copy into a ring slot).
+        k, k_depth = self.intrinsics, self.depth_intrinsics
+        if model is None:
+            draw = (out[0], out[1] if same else None)
+        else:
+            draw = (self._perfect_buffer(k, 3), self._perfect_buffer(k, 1))
+        rgb, depth_m = self.render_perfect(k, draw)
         if not with_depth:
             depth_m = None
         elif not same:
-            _, depth_m = self.render_perfect(self.depth_intrinsics, (None, out[1]))
-        if self.kinect.enabled:
-            rgb = exposed_rgb(rgb, self.kinect, self._sensor_rng)
+            draw_depth = out[1] if model is None else self._perfect_buffer(k_depth, 1)
+            _, depth_m = self.render_perfect(k_depth, (None, draw_depth))
+        if model is not None:
+            rgb = exposed_rgb(rgb, model, self._sensor_rng, out=out[0])
             if depth_m is not None:
-                depth_m = noisy_depth(depth_m, self.kinect, self._sensor_rng)
+                depth_m = noisy_depth(depth_m, model, self._sensor_rng, out=out[1])
         return np.ascontiguousarray(rgb), depth_m
+
+    def _perfect_buffer(self, k: CameraIntrinsics, channels: int) -> np.ndarray:
+        """A buffer of the world's own, kept between frames, for a perfect image of ``k``'s
+        size: colour (uint8, 3 channels) or depth (float32, 1) before the sensor model."""
+        key = (k.width_px, k.height_px, channels)
+        if key not in self._perfect_buffers:
+            shape = (k.height_px, k.width_px, 3) if channels == 3 else (k.height_px, k.width_px)
+            self._perfect_buffers[key] = np.empty(shape, np.uint8 if channels == 3 else np.float32)
+        return self._perfect_buffers[key]
 
     def truth(self) -> Truth:
         ee = self.ee_pose()

@@ -1,6 +1,7 @@
 """Rendering into given arrays (the frame ring's slots): OpenGL draws the very images it would
 draw into fresh arrays, into the arrays given, at the colour and the depth resolution;
-TinyRenderer leaves them alone; an array that does not fit is refused, never overrun."""
+TinyRenderer leaves them alone; with the Kinect model on, the model writes its images there
+(either renderer); an array that does not fit is refused, never overrun."""
 
 from __future__ import annotations
 
@@ -51,6 +52,34 @@ def test_opengl_draws_the_same_images_into_the_arrays_given(overrides: tuple[str
         np.testing.assert_array_equal(rgb, fresh_rgb)
     finally:
         w.close()
+
+
+@pytest.mark.parametrize("renderer", ["gl", "tiny"])
+@pytest.mark.parametrize(
+    "overrides", [(), ("camera.depth_width_px=160", "camera.depth_height_px=120")]
+)
+def test_the_kinect_model_writes_its_images_into_the_arrays_given(
+    overrides: tuple[str, ...], renderer: str
+) -> None:
+    """What the camera reports goes straight into the arrays given (a ring slot: nothing to
+    copy into it), the same images as into fresh arrays from the same seed."""
+    kinect = ("camera.kinect.enabled=true", f"sim.renderer='{renderer}'", *overrides)
+    fresh_world, slot_world = world(*kinect), world(*kinect)
+    try:
+        for with_depth in (True, False, True):
+            fresh_rgb, fresh_depth = fresh_world.render(with_depth)
+            out = slots(slot_world)
+            rgb, depth_m = slot_world.render(with_depth, (out[0], out[1] if with_depth else None))
+            assert rgb is out[0]
+            np.testing.assert_array_equal(rgb, fresh_rgb)
+            if with_depth:
+                assert depth_m is out[1]
+                np.testing.assert_array_equal(depth_m, fresh_depth)
+            else:
+                assert depth_m is None and fresh_depth is None and np.all(out[1] == -1.0)
+    finally:
+        fresh_world.close()
+        slot_world.close()
 
 
 def test_an_array_that_does_not_fit_is_refused() -> None:

@@ -272,6 +272,30 @@ def test_odd_sizes_and_successive_calls() -> None:
     assert np.array_equal(a, kept)
 
 
+def test_images_written_into_given_arrays_are_those_of_fresh_ones() -> None:
+    """``out``: the model's images written where asked (a camera frame's ring slot), the same
+    values; an array that does not fit, or the input itself, is refused."""
+    model = KinectConfig(enabled=True, colour_temperature=0.2)
+    depth = _scene(480, 640)
+    rgb = np.random.default_rng(13).integers(0, 256, (480, 640, 3), dtype=np.uint8)
+    fresh = noisy_depth(depth, model, np.random.default_rng(5))
+    depth_out = np.full(depth.shape, -1.0, np.float32)
+    assert noisy_depth(depth, model, np.random.default_rng(5), out=depth_out) is depth_out
+    assert np.array_equal(depth_out, fresh)
+    rgb_out = np.zeros_like(rgb)
+    assert exposed_rgb(rgb, model, np.random.default_rng(6), out=rgb_out) is rgb_out
+    assert np.array_equal(rgb_out, exposed_rgb(rgb, model, np.random.default_rng(6)))
+    noiseless = KinectConfig(enabled=True, rgb_noise_sigma=0.0, brightness=1.2)
+    assert exposed_rgb(rgb, noiseless, np.random.default_rng(6), out=rgb_out) is rgb_out
+    assert np.array_equal(rgb_out, exposed_rgb(rgb, noiseless, np.random.default_rng(6)))
+    with pytest.raises(ValueError, match="cannot write"):
+        noisy_depth(depth, model, np.random.default_rng(5), out=depth_out[:, :-1])
+    with pytest.raises(ValueError, match="cannot write"):
+        exposed_rgb(rgb, model, np.random.default_rng(6), out=rgb_out.astype(np.float32))
+    with pytest.raises(ValueError, match="its own input"):
+        noisy_depth(depth, model, np.random.default_rng(5), out=depth)
+
+
 def test_helper_thread_changes_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
     """Large images are shared with a helper thread; the images are the same without it."""
     import services.sim.sensor_model as sensor_model
