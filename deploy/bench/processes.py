@@ -130,6 +130,24 @@ def status_counters(session: zenoh.Session, keys: Keys) -> dict[str, ServiceCoun
     }
 
 
+def code_version() -> str | None:
+    """The commit of the code measured (``git describe --always --dirty``), so that a report
+    says which code it measured; None outside a git checkout."""
+    import subprocess
+
+    try:
+        proc = subprocess.run(
+            ["git", "describe", "--always", "--dirty", "--abbrev=10"],
+            cwd=Path(__file__).resolve().parents[2],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return proc.stdout.strip() or None if proc.returncode == 0 else None
+
+
 def zenoh_version() -> str:
     """The installed Zenoh's version, for the report's machine."""
     from importlib.metadata import PackageNotFoundError, version

@@ -15,7 +15,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    model_serializer,
+)
 
 JSON_VERSION = 1
 LATENCY_GOAL_MS = 10.0  # issue 7's goal for the p99 at 640×480: frames over it are counted
@@ -209,6 +215,15 @@ class Machine(Figures):
     zenoh: str
     load_start: list[float]  # 1, 5 and 15 min load averages
     load_end: list[float]
+    code: str | None = None  # the commit measured (git describe; "-dirty": changes on top)
+
+    @model_serializer(mode="wrap")
+    def _without_unknown_code(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # A report made before the code was recorded is written back as it was read.
+        data = handler(self)
+        if data.get("code") is None:
+            data.pop("code", None)
+        return data
 
 
 class BenchConfig(Figures):

@@ -13,7 +13,7 @@ from common.config import ClockMode, Scenario
 from common.keys import Keys
 from deploy.bench.distributed import Observer, run_distributed
 from deploy.bench.inprocess import run_inprocess
-from deploy.bench.processes import machine_load, zenoh_version
+from deploy.bench.processes import code_version, machine_load, zenoh_version
 from deploy.bench.render import REFERENCE_RENDERER, run_render_bench
 from deploy.bench.report import (
     BenchConfig,
@@ -133,6 +133,7 @@ def run_bench(
             zenoh=zenoh_version(),
             load_start=distributed.load_before,
             load_end=machine_load(),
+            code=code_version(),
         ),
         config=BenchConfig(
             width_px=cam.width_px,

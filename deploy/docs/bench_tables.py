@@ -144,7 +144,7 @@ def bench_headline(inputs: Inputs, here: str) -> str:
 
 
 def bench_runs(inputs: Inputs, here: str) -> str:
-    """Every run: what it is, its command, its machine."""
+    """Every run: what it is, its command, its machine, the code it measured."""
     body = []
     for r in inputs.bench:
         m = r.data["machine"]
@@ -155,9 +155,11 @@ def bench_runs(inputs: Inputs, here: str) -> str:
                 _runs_note(r.data),
                 f"{m['cpus']} × {m['processor']}, Python {m['python']}, zenoh {m['zenoh']}; "
                 f"load {_n((m.get('load_start') or [None])[0])}",
+                f"`{m['code']}`" if m.get("code") else "not recorded",
             ]
         )
-    return markdown_table(["run", "what", "frames", "machine"], body, right_from=4)
+    headers = ["run", "what", "frames", "machine", "code"]
+    return markdown_table(headers, body, right_from=5)
 
 
 def bench_commands(inputs: Inputs, here: str) -> str:

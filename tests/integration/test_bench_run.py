@@ -54,6 +54,10 @@ def test_bench_json_is_complete_and_sane(bench: dict) -> None:
     assert r["config"]["clock"] == "lockstep" and r["config"]["transport"] == "shm"
     assert r["config"]["renderer"] in ("gl", "tiny") and r["config"]["frames"] == FRAMES
     assert len(r["machine"]["load_start"]) == 3 and r["machine"]["cpus"] >= 1
+    described = subprocess.run(
+        ["git", "describe", "--always", "--dirty", "--abbrev=10"], capture_output=True, text=True
+    )
+    assert r["machine"]["code"] == (described.stdout.strip() or None)  # the code it measured
 
     d = r["distributed"]
     assert d["frames"] == FRAMES

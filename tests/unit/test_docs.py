@@ -207,6 +207,18 @@ def test_run_label_says_what_a_run_is() -> None:
     assert run_label(kinect) == "realtime 640×480, depth 320×240, Kinect model, TCP"
 
 
+def test_the_runs_table_names_the_code_each_run_measured() -> None:
+    from deploy.docs.sources import BenchRun
+
+    recorded, older = _bench(), _bench()
+    recorded["machine"] = {**recorded["machine"], "code": "fd2f398abc"}
+    table = BLOCKS["bench-runs"].render(
+        Inputs(bench=[BenchRun("a", recorded), BenchRun("b", older)]), ""
+    )
+    rows = [line for line in table.splitlines() if line.startswith("| [")]
+    assert rows[0].endswith("| `fd2f398abc` |") and rows[1].endswith("| not recorded |")
+
+
 def test_figures_taken_from_the_json() -> None:
     one = _bench()
     assert frame_handoff_ms(one) == pytest.approx(0.75)
