@@ -65,6 +65,19 @@ def results_strategies(inputs: Inputs, here: str) -> str:
 
 
 # --- the suite's camera ----------------------------------------------------------------------
+# The comparison's metrics set side by side for the two cameras.
+SUITE_CAMERA_METRICS = tuple(
+    m
+    for m in METRICS
+    if m[0]
+    in {
+        "median_sim_time_s",
+        "median_final_pixel_rms",
+        "median_final_position_error_m",
+        "median_path_ratio",
+        "median_peak_ee_speed_m_s",
+    }
+)
 SUITE_CAMERA_COMMANDS = (
     f"umay compare --jobs 2 --pipeline inprocess --out {SUITE_CAMERA_DIR}/{SUITE_CAMERAS[0]}",
     "umay compare --jobs 2 --pipeline inprocess --set camera.width_px=640 --set "
@@ -81,29 +94,14 @@ def suite_camera(inputs: Inputs, here: str) -> str:
         return f"*Not run yet: `{commands}`, then `umay docs`.*"
     (_, small), (_, large) = inputs.suite_cameras
     modes = _modes(small)
-    pairs = zip(summarize_modes(small, modes), summarize_modes(large, modes), strict=True)
     body = []
-    for a, b in pairs:
-
-        def both(field: str, scale: float = 1.0, fmt: str = ".3f", a=a, b=b) -> str:
-            x, y = getattr(a, field), getattr(b, field)
-            return f"{format_cell(x, scale, fmt)} → {format_cell(y, scale, fmt)}"
-
-        body.append(
-            [
-                a.mode,
-                f"{a.on_goal}/{a.runs} → {b.on_goal}/{b.runs}",
-                both("median_sim_time_s", fmt=".2f"),
-                both("median_final_pixel_rms"),
-                both("median_final_position_error_m", 1000.0, ".2f"),
-                both("median_path_ratio"),
-                both("median_peak_ee_speed_m_s"),
-            ]
-        )
-    headers = [
-        "strategy", "on goal", "time to converge (s)", "pixel RMS (px)", "position error (mm)",
-        "path ratio", "peak hand speed (m/s)",
-    ]  # fmt: skip
+    for a, b in zip(summarize_modes(small, modes), summarize_modes(large, modes), strict=True):
+        cells = [
+            f"{format_cell(getattr(a, f), scale, fmt)} → {format_cell(getattr(b, f), scale, fmt)}"
+            for f, _, scale, fmt, _ in SUITE_CAMERA_METRICS
+        ]
+        body.append([a.mode, f"{a.on_goal}/{a.runs} → {b.on_goal}/{b.runs}", *cells])
+    headers = ["strategy", "on goal", *(h for _, h, _, _, _ in SUITE_CAMERA_METRICS)]
     wall = [sum(r.wall_time_s for r in rows) for rows in (small, large)]
     sources = ", ".join(
         f"[`{n}/results.json`]({link(here, f'{SUITE_CAMERA_DIR}/{n}/results.json')})"

@@ -327,13 +327,9 @@ def verdict_markdown(study: Study) -> str:
         largest = largest_rotation_deg(study, mode)
         failures = Counter(cause_family(r.cause) for r in mine if r.outcome != "converged")
         worst = ", ".join(f"{c} ({n})" for c, n in failures.most_common(2)) or "none"
-        reach = (
-            "no rotation"
-            if largest is None
-            else "unturned starts only"
-            if largest == 0
-            else f"up to {largest:g}°"
-        )
+        reach = "no rotation" if largest is None else f"up to {largest:g}°"
+        if largest == 0:
+            reach = "unturned starts only"
         lines.append(
             f"- **{mode}**: {_rate(ok, len(mine))} on goal; in ≥ {100 * d.success_goal:.0f}% of "
             f"draws at {100 * d.fixed_distance_m:g} cm: {reach}; commonest failures: {worst}."

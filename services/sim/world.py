@@ -584,10 +584,16 @@ class World:
             contact_with=contact_with,
         )
 
+    def _scenery_names(self) -> dict[int, str]:
+        """The bodies the arm may press on or reach into, by id: the object (when the target
+        stands on one), the table and the floor."""
+        names = {self.table_body: "table", self.floor_body: "floor"}
+        return names if self.object_body is None else {self.object_body: "object", **names}
+
     def arm_contacts(self) -> tuple[float, tuple[str, ...]]:
         """Ground truth for evaluation: the summed normal force (N) of the arm's contacts
         after the last physics step, and the bodies it touches (sorted names)."""
-        names = {self.object_body: "object", self.table_body: "table", self.floor_body: "floor"}
+        names = self._scenery_names()
         force, touched = 0.0, set()
         for c in self.client.getContactPoints(bodyA=self.robot):
             force += float(c[9])
@@ -598,11 +604,8 @@ class World:
         """How deep (m) the arm reaches into the object, the table or the floor in its posture
         now, and into which (0.0 and "" when it is clear of them). A start posture inside the
         scenery cannot be simulated: the solver pushes the bodies apart at the first step."""
-        names = {self.object_body: "object", self.table_body: "table", self.floor_body: "floor"}
         deepest, into = 0.0, ""
-        for body, name in names.items():
-            if body is None:
-                continue
+        for body, name in self._scenery_names().items():
             for p in self.client.getClosestPoints(bodyA=self.robot, bodyB=body, distance=0.0):
                 if -p[8] > deepest:
                     deepest, into = -float(p[8]), name
