@@ -48,12 +48,27 @@ def zenoh_config(
     return cfg
 
 
-def _base_config(
-    config_path: str | None, connect: list[str] | None, listen: list[str] | None
-) -> zenoh.Config:
+def where_connecting(connect: list[str] | None = None, config_path: str | None = None) -> str:
+    """Where a session of :func:`zenoh_config` with these arguments looks for its peers, in
+    words: the endpoints, or the config file's own when it has no ``connect`` of ours."""
+    connect = _connect_from_env(connect)
+    if connect:
+        return ", ".join(connect)
+    path = config_path or os.environ.get(ENV_CONFIG)
+    return f"the endpoints of {path}" if path else DEFAULT_ENDPOINT
+
+
+def _connect_from_env(connect: list[str] | None) -> list[str] | None:
     if connect is None:
         env = os.environ.get(ENV_CONNECT, "")
         connect = [e for e in env.split(",") if e] or None
+    return connect
+
+
+def _base_config(
+    config_path: str | None, connect: list[str] | None, listen: list[str] | None
+) -> zenoh.Config:
+    connect = _connect_from_env(connect)
     path = config_path or os.environ.get(ENV_CONFIG)
     if path:
         try:

@@ -99,8 +99,7 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     if not getattr(session.config.option, "loadgroup", False):
         return
     if any(
-        item.get_closest_marker("xdist_group") and "@" not in item.nodeid
-        for item in session.items
+        item.get_closest_marker("xdist_group") and "@" not in item.nodeid for item in session.items
     ):
         session.config.stash[_GROUP_LOST] = (
             f"--dist loadgroup lost this test's xdist_group: pytest {pytest.__version__} with "

@@ -19,7 +19,13 @@ import zenoh
 from common.config import ClockMode, JacobianMode, Scenario, ScenarioError
 from common.keys import SERVICES, Keys, default_prefix
 from common.runtime import endpoint_argument, endpoints_argument, prefix_argument
-from common.session import DEFAULT_ENDPOINT, open_session, open_zenoh, zenoh_reason
+from common.session import (
+    DEFAULT_ENDPOINT,
+    open_session,
+    open_zenoh,
+    where_connecting,
+    zenoh_reason,
+)
 from deploy.arguments import positive_seconds
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_CONVERGED, EXIT_NOT_CONVERGED
 from deploy.paths import check_output_dir, check_output_file
@@ -266,15 +272,13 @@ def cmd_status(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.live import Live
 
-    from deploy.launch.status import as_json, collect, table
+    from deploy.launch.status import as_json, collect, table, verdict
 
     keys = Keys(args.prefix or default_prefix())
     session = open_session(connect=args.connect)
     try:
         time.sleep(0.3)  # let the session connect and learn the peers
-        if args.json:
-            print(json.dumps(as_json(collect(session, keys, args.timeout)), indent=2))
-        elif args.watch:
+        if args.watch:
             with Live(table(collect(session, keys, args.timeout), keys), console=Console()) as live:
                 try:
                     while True:
@@ -282,11 +286,18 @@ def cmd_status(args: argparse.Namespace) -> int:
                         live.update(table(collect(session, keys, args.timeout), keys))
                 except KeyboardInterrupt:
                     pass
-        else:
-            Console().print(table(collect(session, keys, args.timeout), keys))
+            return 0
+        views = collect(session, keys, args.timeout)
     finally:
         session.close()
-    return 0
+    if args.json:
+        print(json.dumps(as_json(views), indent=2))
+    else:
+        Console().print(table(views, keys))
+    code, why = verdict(views, keys, where_connecting(args.connect))
+    if why:
+        print(f"umay status: {why}", file=sys.stderr)
+    return code
 
 
 def add_run_parser(sub: argparse._SubParsersAction) -> None:

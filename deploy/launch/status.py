@@ -35,6 +35,23 @@ def collect(session: zenoh.Session, keys: Keys, timeout_s: float) -> list[Servic
     return [ServiceView(n, n in alive, statuses.get(n)) for n in names]
 
 
+def verdict(views: list[ServiceView], keys: Keys, looked_on: str) -> tuple[int, str]:
+    """``umay status``'s exit code and what to say on standard error: 0 and "" when every
+    service is alive and answering (degraded included: it answers), else 1 and which are not,
+    or that nothing answered at all where it looked (``looked_on``), for scripts and for a
+    user who started nothing or looks under another prefix."""
+    down = [v for v in views if v.status is None or not v.alive]
+    if not down:
+        return 0, ""
+    if len(down) == len(views):
+        return 1, (
+            f"no service answers under prefix {keys.prefix!r} on {looked_on}: "
+            "nothing running there? (`umay up` starts the services; --prefix and --connect "
+            "look elsewhere)"
+        )
+    return 1, "not every service is up: " + ", ".join(f"{v.name} {v.condition}" for v in down)
+
+
 def as_json(views: list[ServiceView]) -> dict:
     return {
         v.name: {

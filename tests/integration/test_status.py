@@ -181,6 +181,19 @@ def test_bad_endpoints_and_durations_are_refused_by_name(
     assert not list(tmp_path.iterdir())  # nothing written, nothing started
 
 
+def test_status_with_nothing_running_exits_1_saying_where_it_looked() -> None:
+    endpoint = free_tcp_endpoint()  # nobody listens there
+    prefix = f"test/{uuid.uuid4().hex[:12]}"
+    proc = subprocess.run(
+        [sys.executable, "-m", "deploy", "status", "--prefix", prefix, "--connect", endpoint,
+         "--timeout", "0.3"],
+        capture_output=True, text=True, timeout=30,
+    )  # fmt: skip
+    assert proc.returncode == 1, proc.stderr
+    assert "no service answers under prefix" in proc.stderr and endpoint in proc.stderr
+    assert "gone" in proc.stdout and "Traceback" not in proc.stderr
+
+
 def test_a_session_that_cannot_open_is_reported_without_a_traceback() -> None:
     # Well formed, so argparse lets it through; Zenoh refuses it when the session opens.
     proc = subprocess.run(

@@ -1,0 +1,58 @@
+"""``umay status``'s exit code and message (pure: no session), and where it says it looked."""
+
+from __future__ import annotations
+
+import pytest
+
+from common.keys import SERVICES, Keys
+from common.messages import ServiceStatus
+from common.session import DEFAULT_ENDPOINT, ENV_CONFIG, ENV_CONNECT, where_connecting
+from deploy.launch.status import ServiceView, verdict
+
+KEYS = Keys("lab/arm")
+
+
+def view(name: str, alive: bool = True, answers: bool = True, state: str = "running"):
+    status = ServiceStatus(service=name, pid=1, host="h", uptime_s=1.0, state=state)
+    return ServiceView(name, alive, status if answers else None)
+
+
+def test_every_service_up_is_0_even_degraded() -> None:
+    views = [view(n, state="degraded" if n == "vision" else "running") for n in SERVICES]
+    assert verdict(views, KEYS, DEFAULT_ENDPOINT) == (0, "")
+
+
+def test_nothing_answering_says_where_it_looked() -> None:
+    views = [view(n, alive=False, answers=False) for n in SERVICES]
+    code, why = verdict(views, KEYS, "tcp/10.0.0.2:7447")
+    assert code == 1
+    assert "no service answers under prefix 'lab/arm' on tcp/10.0.0.2:7447" in why
+    assert "umay up" in why and "--prefix" in why
+
+
+def test_some_down_are_named_with_their_condition() -> None:
+    views = [view(n) for n in SERVICES if n not in ("sim", "vision")]
+    views += [view("sim", alive=False, answers=False), view("vision", answers=False)]
+    code, why = verdict(views, KEYS, DEFAULT_ENDPOINT)
+    assert code == 1
+    assert why == "not every service is up: sim gone, vision alive, not answering"
+
+
+@pytest.mark.parametrize(
+    "connect, env, expected",
+    [
+        (None, {}, DEFAULT_ENDPOINT),
+        (["tcp/a:1", "tcp/b:2"], {}, "tcp/a:1, tcp/b:2"),
+        (None, {ENV_CONNECT: "tcp/c:3"}, "tcp/c:3"),
+        (None, {ENV_CONFIG: "client.json5"}, "the endpoints of client.json5"),
+        (["tcp/a:1"], {ENV_CONFIG: "client.json5"}, "tcp/a:1"),  # ours replace the file's
+    ],
+)
+def test_where_connecting_follows_the_session_precedence(
+    monkeypatch: pytest.MonkeyPatch, connect, env: dict, expected: str
+) -> None:
+    monkeypatch.delenv(ENV_CONNECT, raising=False)
+    monkeypatch.delenv(ENV_CONFIG, raising=False)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    assert where_connecting(connect) == expected
