@@ -70,6 +70,10 @@ class Node:
         self._started = time.monotonic()
         self._seq = 0
         self._cond = threading.Condition()
+        # Held while the status answer is built (on a Zenoh thread), and by a service around
+        # puts whose counters the answer must show together (the sim's frame: its publishers'
+        # counts and its ring's), so that one answer never shows half of a put.
+        self.counting = threading.Lock()
         # (key, message, wall-clock receive time): the time goes into the headers of what
         # handling the message publishes (Header.recv_time_s), for per-hop latency.
         self._inbox: deque[tuple[str, BaseModel, float]] = deque()
@@ -234,6 +238,10 @@ class Node:
 
     # --- status -----------------------------------------------------------------------
     def status(self) -> ServiceStatus:
+        with self.counting:
+            return self._status()
+
+    def _status(self) -> ServiceStatus:
         now = time.monotonic()
         reason = self._degraded_reason() if self.state == "running" else ""
         p50, p99 = self.processing.percentiles()

@@ -148,31 +148,24 @@ class SimService:
         self.render_ms = 1000.0 * (time.perf_counter() - started)
         capture_time_s = time.time()
         header = self.node.header(t, seq)
-        # Joint state first, so a consumer has it when the frame's features arrive; then the
-        # images, without copying their pixels (ImageData.view_of: render() gives the ring's
-        # slots or fresh arrays every frame, never changed afterwards): the publishers commit
-        # a slot drawn in place, copy anything else into the ring (or into the whole payload,
-        # without a ring).
-        messages: list[tuple[TypedPublisher, object]] = [
-            (
-                self.pub_joints,
-                JointState(header=header, position_rad=q.tolist(), velocity_rad_s=qdot.tolist()),
-            )
-        ]
+        # The images first, without copying their pixels (ImageData.view_of: render() gives the
+        # ring's slots or fresh arrays every frame, never changed afterwards): the publishers
+        # commit a slot drawn in place, copy anything else into the ring (or into the whole
+        # payload, without a ring). The depth image before the colour frame that names it, so
+        # vision has both when the colour frame arrives. The joint state after them, off the
+        # frame's path: the controller and actuation pair it with their input by frame_seq,
+        # and vision's work on the frame comes between.
+        messages: list[tuple[TypedPublisher, object]] = []
         if depth_m is not None:
             self.depth_schedule = self.depth_schedule.taken(t, seq)
-            messages.append(
-                (
-                    self.pub_depth,
-                    DepthFrame(
-                        header=self.node.header(t, seq),
-                        intrinsics=self.world.depth_intrinsics,
-                        depth_m=ImageData.view_of(depth_m),
-                    ),
-                )
+            depth_message = DepthFrame(
+                header=self.node.header(t, seq),
+                intrinsics=self.world.depth_intrinsics,
+                depth_m=ImageData.view_of(depth_m),
             )
-        for publisher, message in messages:
-            publisher.put(message)
+            with self.node.counting:
+                self.pub_depth.put(depth_message)
+            messages.append((self.pub_depth, depth_message))
         rgb_header = self.node.header(t, seq)
         rgb_message = RgbFrame(
             header=rgb_header,
@@ -180,8 +173,16 @@ class SimService:
             rgb=ImageData.view_of(rgb),
             depth_frame_seq=self.depth_schedule.depth_frame_seq,
         )
-        self.pub_rgb.put(rgb_message)
+        with self.node.counting:
+            self.pub_rgb.put(rgb_message)
         messages.append((self.pub_rgb, rgb_message))
+        joints = JointState(
+            header=self.node.header(t, seq),
+            position_rad=q.tolist(),
+            velocity_rad_s=qdot.tolist(),
+        )
+        self.pub_joints.put(joints)
+        messages.append((self.pub_joints, joints))
         # Ground truth (evaluation only) after the frame, off the loop's critical path.
         truth = truth_message(self.world.truth(), header, q)
         self.pub_truth.put(truth)
@@ -207,7 +208,8 @@ class SimService:
         """The last frame's messages again, unchanged (a lockstep resend)."""
         self.resends += 1
         for publisher, message in self._last_frame:
-            publisher.put(message)
+            with self.node.counting:
+                publisher.put(message)
 
     def apply(self, command: JointVelocityCommand, recv_time_s: float) -> None:
         """``recv_time_s``: when the command arrived (wall clock), for :class:`SimTiming`."""
