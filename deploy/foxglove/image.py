@@ -25,7 +25,8 @@ from common.messages import DepthFrame, Features, MarkerFeatures, RgbFrame
 from deploy.foxglove.style import CYAN, GREEN, ORANGE, RED, WHITE, YELLOW, color
 from deploy.foxglove.topics import CAMERA
 from deploy.foxglove.transforms import stamp
-from services.controller.ibvs import choose_pairing, desired_observation, pairing_costs_px2
+from services.controller.goal import desired_observation
+from services.controller.pairing import choose_pairing, pairing_costs_px2
 
 FloatArray = np.ndarray
 
@@ -75,7 +76,7 @@ def calibration(k: CameraIntrinsics, t_s: float) -> CameraCalibration:
 
 def desired_corners_px(features: Features, approach_height_m: float) -> FloatArray | None:
     """s*: the controller's desired corners for this frame (the target's measured corners
-    raised by the approach height, :func:`services.controller.ibvs.desired_observation`), or
+    raised by the approach height, :func:`services.controller.goal.desired_observation`), or
     None while the target is not usable."""
     if not features.target.usable:
         return None

@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized
+from services.controller.interaction import interaction_matrix
 
 FloatArray = NDArray[np.float64]
 
@@ -263,11 +264,9 @@ def acquisition_twist_cam(
     towards ``goal_px`` and keeps it off the border: a translation only, ``v = λ · L_v⁺ · e``
     with ``e`` :func:`acquisition_error` and ``L_v`` the translational columns of L at the
     current points and measured depths (the eye-to-hand sign, as in
-    :mod:`services.controller.ibvs`), ``ω = 0``. A slide needs no turn, and a turn swings
+    :mod:`services.controller.interaction`), ``ω = 0``. A slide needs no turn, and a turn swings
     the square's corners, the outer ones towards the border: with all six degrees of freedom
     the law answered a corner near the border by spinning the square about the optical axis."""
-    from services.controller.ibvs import interaction_matrix
-
     s = pixel_to_normalized(np.asarray(corners_px, dtype=float), k)
     error = acquisition_error(corners_px, goal_px, k)
     l_v = interaction_matrix(s, np.asarray(depth_m, dtype=float))[:, :3]

@@ -1,170 +1,46 @@
-"""Eye-to-hand IBVS: features, interaction matrix and control law kept apart (as in ViSP).
+"""Eye-to-hand IBVS: the control law and its state, as ViSP's ``vpServo`` holds it.
 
-Sign convention (Chaumette & Hutchinson, Part II). The classic point interaction matrix ``L``
-relates feature motion to the twist of a *moving camera*. Here the camera is fixed and the
-points ride on the hand: a hand twist ``(v, ω)`` expressed in the camera frame and referenced at
-the camera origin moves a point by ``Ṗ = v + ω × P``, which is the opposite of a camera moving
-with ``(v, ω)``. Hence ``ṡ = -L · (v, ω)`` and imposing ``ė = -λ e`` gives ``(v, ω) = +λ L⁺ e``.
-The four strategies of the thesis only differ in the matrix that replaces ``L⁺``.
-
-A fifth strategy, ``points3d``, uses the depth camera further: its features are the hand
-marker's four corners as 3-D points in the camera frame (``e = P - P*``, 12 entries, metres).
-Its Jacobian comes straight from ``Ṗ = v + ω × P = [I₃  -[P]×] · (v, ω)`` with no minus sign,
-so ``ė = J · (v, ω)`` (P* is fixed) and ``ė = -λ e`` gives ``(v, ω) = -λ J⁺ e``: the opposite
-sign to the image points. Every corner is driven along its own straight line to its goal, so
-the hand follows a nearly straight 3-D path and converges in depth, not only in the image.
-Every law is written ``(v, ω) = λ · M · e``; only ``M`` and ``e`` differ.
+Each frame :class:`IbvsController` takes both markers as vision measured them and gives the
+hand's twist ``(v, ω) = λ · M · e`` in the base frame, or a hold that says why. The pieces are
+in modules of their own: the interaction matrices and each strategy's ``M``
+(:mod:`.interaction`, with the sign convention), the goal in the image (:mod:`.goal`), which
+target corner each hand corner goes to (:mod:`.pairing`), when the error counts as converged
+(:mod:`.convergence`), target acquisition (:mod:`.acquisition`), the clearance above the
+object (:mod:`.clearance`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
-from common.config import ConstantDepth, ControllerConfig, JacobianMode
-from common.kinematics import BASE_UP, cross, skew
+from common.config import ControllerConfig, JacobianMode
+from common.kinematics import BASE_UP, cross
 from common.marker import Marker
 from common.motion import MarkerMotion
 from services.controller import acquisition as acq
+from services.controller.convergence import Plateau, settled_error_px_rms
+from services.controller.goal import (
+    carried,
+    desired_observation,
+    hand_hides_target,
+    may_be_behind_the_hand,
+)
+from services.controller.interaction import (
+    USES_CURRENT,
+    USES_DESIRED,
+    constant_interaction_matrix,
+    control_matrix,
+    image_feature_rate,
+    interaction_matrix,
+    points3d_control_matrix,
+)
+from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
 
 FloatArray = NDArray[np.float64]
-
-
-def interaction_matrix(xy: FloatArray, depth_m: FloatArray) -> FloatArray:
-    """Stacked 2N×6 point interaction matrix at normalized points ``xy`` (N×2), depths Z (N,).
-
-    Row pair per point (thesis eq. 5.30):
-    ``[-1/Z, 0, x/Z, x·y, -(1+x²), y]`` and ``[0, -1/Z, y/Z, 1+y², -x·y, -x]``.
-    """
-    x, y = xy[:, 0], xy[:, 1]
-    inv_z = 1.0 / np.asarray(depth_m, dtype=float)
-    zeros = np.zeros_like(x)
-    rows_u = np.column_stack([-inv_z, zeros, x * inv_z, x * y, -(1.0 + x * x), y])
-    rows_v = np.column_stack([zeros, -inv_z, y * inv_z, 1.0 + y * y, -x * y, -x])
-    out = np.empty((2 * len(x), 6))
-    out[0::2] = rows_u
-    out[1::2] = rows_v
-    return out
-
-
-def point_feature_jacobian(points_m: FloatArray) -> FloatArray:
-    """Stacked 3N×6 Jacobian of 3-D points ``points_m`` (N×3, camera frame) riding on the hand.
-
-    For a hand twist ``(v, ω)`` in the camera frame referenced at the camera origin each point
-    moves by ``Ṗ = v + ω × P = v - [P]× ω``, hence the block ``[I₃  -[P]×]`` per point. Three
-    non-collinear points already give rank 6 (only a zero twist leaves them all still).
-    """
-    points = np.asarray(points_m, dtype=float)
-    out = np.empty((3 * len(points), 6))
-    for i, p in enumerate(points):
-        out[3 * i : 3 * i + 3, :3] = np.eye(3)
-        out[3 * i : 3 * i + 3, 3:] = -skew(p)
-    return out
-
-
-def points3d_control_matrix(points_m: FloatArray) -> FloatArray:
-    """The 6×3N matrix ``M = -J⁺`` of ``(v, ω) = λ · M · e`` for ``e = P - P*``.
-
-    ``J`` is :func:`point_feature_jacobian` at the current (measured) points: the minus sign is
-    that of ``ė = J · (v, ω) = -λ e``, not the ``+`` of the image points (see the module doc).
-    """
-    return -np.linalg.pinv(point_feature_jacobian(points_m))
-
-
-def feature_error_px_rms(s_px: FloatArray, s_star_px: FloatArray) -> float:
-    """RMS over the 2N pixel coordinates of ``s - s*``."""
-    return float(np.sqrt(np.mean((np.asarray(s_px) - np.asarray(s_star_px)) ** 2)))
-
-
-# The averaged error must fall by this share to count as progress (plateau_px / plateau_s).
-PLATEAU_PROGRESS = 0.05
-
-
-@dataclass(frozen=True)
-class Plateau:
-    """The least averaged error (px) since the error last fell by :data:`PLATEAU_PROGRESS`,
-    and the sim time (s) it fell to it."""
-
-    best_px: float
-    since_s: float
-
-    def after(self, settled_px: float, t_s: float) -> Plateau:
-        if settled_px < (1.0 - PLATEAU_PROGRESS) * self.best_px:
-            return Plateau(settled_px, t_s)
-        return self
-
-
-def settled_error_px_rms(recent_errors_px: Sequence[FloatArray]) -> float:
-    """RMS over the 2N pixel coordinates of ``s - s*`` averaged over the last frames.
-
-    Convergence is judged on it rather than on each frame's error: corners measured from
-    pixels jitter by a few tenths of a pixel from frame to frame as the hand's edges cross
-    pixel boundaries, and near the goal the law turns that jitter into a small wobble about
-    it. A goal within that jitter was otherwise never "reached" for enough consecutive frames
-    (runs held 0.3 px and 2 mm from the goal until their timeout), while the mean over a few
-    frames lies on the goal."""
-    mean = np.mean(np.asarray(recent_errors_px, dtype=float), axis=0)
-    return float(np.sqrt(np.mean(mean**2)))
-
-
-# The interaction matrices each image-point strategy is built from (the others are not needed).
-USES_CURRENT = frozenset({JacobianMode.DYNAMIC, JacobianMode.PMJ, JacobianMode.MPJ})
-USES_DESIRED = frozenset({JacobianMode.PMJ, JacobianMode.MPJ})
-
-
-def control_matrix(
-    mode: JacobianMode,
-    l_current: FloatArray | None,
-    l_desired: FloatArray | None,
-    l_constant: FloatArray | None,
-) -> FloatArray:
-    """The 6×2N matrix ``M`` of ``(v, ω) = λ · M · e`` for each image-point strategy.
-
-    - constant: ``L_c⁺`` (frozen at the desired features with one depth taken at the start);
-    - dynamic:  ``L_n⁺`` (current features, current per-point depths);
-    - pmj:      ``((L_n + L*)/2)⁺``  (Malis: pseudo-inverse of the mean);
-    - mpj:      ``(L_n⁺ + L*⁺)/2``   (mean of the pseudo-inverses).
-
-    A matrix the mode does not use may be None (:data:`USES_CURRENT`, :data:`USES_DESIRED`).
-    points3d does not use image points: its matrix is :func:`points3d_control_matrix`.
-    """
-
-    def given(matrix: FloatArray | None, name: str) -> FloatArray:
-        if matrix is None:
-            raise ValueError(f"{mode.value} needs {name}")
-        return matrix
-
-    if mode is JacobianMode.CONSTANT:
-        return np.linalg.pinv(given(l_constant, "l_constant"))
-    if mode is JacobianMode.DYNAMIC:
-        return np.linalg.pinv(given(l_current, "l_current"))
-    if mode is JacobianMode.PMJ:
-        return np.linalg.pinv(0.5 * (given(l_current, "l_current") + given(l_desired, "l_desired")))
-    if mode is JacobianMode.MPJ:
-        pinv_current = np.linalg.pinv(given(l_current, "l_current"))
-        return 0.5 * (pinv_current + np.linalg.pinv(given(l_desired, "l_desired")))
-    if mode is JacobianMode.POINTS3D:
-        raise ValueError("points3d servoes 3-D points: use points3d_control_matrix")
-    raise ValueError(f"unknown Jacobian mode {mode!r}")
-
-
-def constant_interaction_matrix(
-    desired: Marker, k: CameraIntrinsics, depth: ConstantDepth
-) -> FloatArray:
-    """The constant strategy's matrix, built once at the start at the desired features: with
-    one depth for all corners, the desired corners' mean (the thesis), or with each corner's
-    own (``per_corner``). One depth treats the target's square as facing the camera; seen
-    obliquely from the torso, its corners' depths differ by centimetres, and from some starts
-    the law then settles where ``L_c⁺ e = 0`` with ``e ≠ 0`` (docs/campaign.md)."""
-    xy = pixel_to_normalized(desired.corners_px, k)
-    depths = np.asarray(desired.depth_m, dtype=float)
-    if depth is ConstantDepth.SINGLE:
-        depths = np.full(len(xy), float(np.mean(depths)))
-    return interaction_matrix(xy, depths)
 
 
 def camera_twist_to_base_ee(
@@ -188,43 +64,6 @@ def clamp_twist(twist: FloatArray, max_linear_m_s: float, max_angular_rad_s: flo
     if ang > max_angular_rad_s:
         scale = min(scale, max_angular_rad_s / ang)
     return twist * scale
-
-
-def desired_observation(target: Marker, approach_height_m: float, k: CameraIntrinsics) -> Marker:
-    """Desired features s*: the red marker's measured 3-D corners raised by the approach
-    height along the marker's normal (pointing towards the camera), then projected.
-
-    The depth camera makes this possible: the hand stops just above the object instead of
-    having to pass through it; with a zero height s* is the red square itself.
-    """
-    if approach_height_m == 0.0:
-        return target
-    p = target.points_m
-    normal = cross(p[2] - p[0], p[3] - p[1])
-    normal /= np.linalg.norm(normal)
-    if normal @ p.mean(axis=0) > 0:  # make it face the camera (at the origin)
-        normal = -normal
-    raised = p + approach_height_m * normal
-    # Its depths come from the target's, moved by a known height: the same uncertainty.
-    return Marker.seen_at(raised, k, target.depth_sigma_m)
-
-
-def carried(last: Marker, shift_m: FloatArray, k: CameraIntrinsics) -> Marker:
-    """``last`` moved by ``shift_m`` (camera frame): where a hidden target is by now."""
-    if not np.any(shift_m):
-        return last
-    points = last.points_m + shift_m
-    return replace(
-        last, corners_px=project(points, k), depth_m=points[:, 2].copy(), points_m=points
-    )
-
-
-def image_feature_rate(xy: FloatArray, depth_m: FloatArray, velocity_m_s: FloatArray) -> FloatArray:
-    """ṡ (2N,) of normalized points at ``xy`` (N×2), depths Z (N,), all translating with
-    ``velocity_m_s`` in the camera frame: ẋ = (vx − x·vz)/Z, ẏ = (vy − y·vz)/Z."""
-    vx, vy, vz = velocity_m_s
-    rates = np.column_stack([(vx - xy[:, 0] * vz) / depth_m, (vy - xy[:, 1] * vz) / depth_m])
-    return rates.reshape(-1)
 
 
 @dataclass(frozen=True)
@@ -266,70 +105,6 @@ def describe_hold(
     since = now_s if hold_since_s is None else hold_since_s
     stuck = "stuck, " if is_stuck(hold_since_s, now_s, config.stuck_after_s) else ""
     return f"holding: {reason} ({stuck}for {now_s - since:.1f} s, since sim time {since:.2f} s)"
-
-
-def may_be_behind_the_hand(target: Marker) -> bool:
-    """Seen partly, or with something in front: what moving the hand away can uncover (a
-    target simply gone, with nothing in front of it, cannot be)."""
-    return target.state == "partial" or target.occluded
-
-
-def rolled(observation: Marker, shift: int) -> Marker:
-    """The same marker with its corners relabelled: corner i becomes corner (i + shift) % 4."""
-    if shift == 0:
-        return observation
-    return replace(
-        observation,
-        corners_px=np.roll(observation.corners_px, -shift, axis=0),
-        depth_m=np.roll(observation.depth_m, -shift, axis=0),
-        depth_sigma_m=np.roll(observation.depth_sigma_m, -shift, axis=0),
-        points_m=np.roll(observation.points_m, -shift, axis=0),
-    )
-
-
-# Another pairing of corners must cut the squared image error by this factor to replace the
-# current one (hysteresis: near a 45° relative turn two pairings are almost as good).
-CORNER_SWITCH_RATIO = 0.7
-
-
-# Row k: the target corner each hand corner i goes to in pairing k, (i + k) % 4.
-_CYCLIC_PAIRINGS = (np.arange(4)[None, :] + np.arange(4)[:, None]) % 4
-
-
-def pairing_costs_px2(hand_px: FloatArray, target_px: FloatArray) -> FloatArray:
-    """Squared shape mismatch (px²) for each of the 4 cyclic pairings of the hand's corners
-    with the target's (entry k pairs hand corner i with target corner (i + k) % 4).
-
-    The two squares look the same turned by 90°, so which target corner a hand corner must go
-    to is a choice: vision labels each marker's corners on its own. The corners are compared
-    about their centroids (the offset between the squares is the same for every pairing and
-    would drown the difference), so the least cost is the pairing that needs the least turn
-    about the optical axis; it is also the one with the least squared image error."""
-    hand = hand_px - hand_px.mean(axis=0)
-    target = target_px - target_px.mean(axis=0)
-    return np.sum((hand - target[_CYCLIC_PAIRINGS]) ** 2, axis=(1, 2))
-
-
-def choose_pairing(costs_px2: FloatArray, current: int | None) -> int:
-    """The best pairing, unless the current one is nearly as good (hysteresis)."""
-    best = int(np.argmin(costs_px2))
-    if current is None or costs_px2[best] < CORNER_SWITCH_RATIO * costs_px2[current]:
-        return best
-    return current
-
-
-# The hand counts as hiding the target when its marker's centre is within this many target
-# diagonals of where the target was last seen (the hand box and forearm are larger than the marker).
-OCCLUSION_RADIUS_DIAGONALS = 2.0
-
-
-def hand_hides_target(hand: Marker, last_target: Marker) -> bool:
-    """In eye-to-hand servoing the hand must end up in front of the target, hiding it."""
-    if not hand.usable:
-        return False
-    diagonal = np.linalg.norm(last_target.corners_px[0] - last_target.corners_px[2])
-    gap = np.linalg.norm(hand.corners_px.mean(axis=0) - last_target.corners_px.mean(axis=0))
-    return bool(gap < OCCLUSION_RADIUS_DIAGONALS * diagonal)
 
 
 @dataclass

@@ -28,7 +28,8 @@ from deploy.foxglove.channels import TOPICS
 from deploy.foxglove.client import protobuf_class
 from deploy.foxglove.layout import layout_json
 from deploy.foxglove.transforms import quaternion_xyzw, rotation_from_quaternion
-from services.controller.ibvs import desired_observation, feature_error_px_rms
+from services.controller.convergence import feature_error_px_rms
+from services.controller.goal import desired_observation
 
 
 def header(t_s: float, seq: int = 0) -> Header:

@@ -13,21 +13,18 @@ from common.config import ConstantDepth, ControllerConfig, JacobianMode
 from common.marker import Marker
 from common.messages import MarkerState
 from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
-from services.controller.ibvs import (
+from services.controller.convergence import settled_error_px_rms
+from services.controller.goal import desired_observation
+from services.controller.ibvs import IbvsController, camera_twist_to_base_ee, clamp_twist
+from services.controller.interaction import (
     USES_CURRENT,
     USES_DESIRED,
-    IbvsController,
-    camera_twist_to_base_ee,
-    choose_pairing,
-    clamp_twist,
     constant_interaction_matrix,
     control_matrix,
-    desired_observation,
     interaction_matrix,
-    pairing_costs_px2,
     point_feature_jacobian,
-    settled_error_px_rms,
 )
+from services.controller.pairing import choose_pairing, pairing_costs_px2
 from tests.twists import base_ee_twist_to_camera
 
 K = CameraIntrinsics.from_fov(640, 480, 57.0)

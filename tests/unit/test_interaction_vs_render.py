@@ -12,7 +12,7 @@ import numpy as np
 
 from common import kinematics as kin
 from common.camera import pixel_to_normalized
-from services.controller.ibvs import (
+from services.controller.interaction import (
     interaction_matrix,
     point_feature_jacobian,
 )

@@ -1,0 +1,64 @@
+"""The goal in the image: the desired features above the target, where a hidden target has
+gone, and whether the hand is what hides it. Pure."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from common.camera import CameraIntrinsics, project
+from common.kinematics import cross
+from common.marker import Marker
+
+FloatArray = NDArray[np.float64]
+
+
+def desired_observation(target: Marker, approach_height_m: float, k: CameraIntrinsics) -> Marker:
+    """Desired features s*: the red marker's measured 3-D corners raised by the approach
+    height along the marker's normal (pointing towards the camera), then projected.
+
+    The depth camera makes this possible: the hand stops just above the object instead of
+    having to pass through it; with a zero height s* is the red square itself.
+    """
+    if approach_height_m == 0.0:
+        return target
+    p = target.points_m
+    normal = cross(p[2] - p[0], p[3] - p[1])
+    normal /= np.linalg.norm(normal)
+    if normal @ p.mean(axis=0) > 0:  # make it face the camera (at the origin)
+        normal = -normal
+    raised = p + approach_height_m * normal
+    # Its depths come from the target's, moved by a known height: the same uncertainty.
+    return Marker.seen_at(raised, k, target.depth_sigma_m)
+
+
+def carried(last: Marker, shift_m: FloatArray, k: CameraIntrinsics) -> Marker:
+    """``last`` moved by ``shift_m`` (camera frame): where a hidden target is by now."""
+    if not np.any(shift_m):
+        return last
+    points = last.points_m + shift_m
+    return replace(
+        last, corners_px=project(points, k), depth_m=points[:, 2].copy(), points_m=points
+    )
+
+
+# The hand counts as hiding the target when its marker's centre is within this many target
+# diagonals of where the target was last seen (the hand box and forearm are larger than the marker).
+OCCLUSION_RADIUS_DIAGONALS = 2.0
+
+
+def hand_hides_target(hand: Marker, last_target: Marker) -> bool:
+    """In eye-to-hand servoing the hand must end up in front of the target, hiding it."""
+    if not hand.usable:
+        return False
+    diagonal = np.linalg.norm(last_target.corners_px[0] - last_target.corners_px[2])
+    gap = np.linalg.norm(hand.corners_px.mean(axis=0) - last_target.corners_px.mean(axis=0))
+    return bool(gap < OCCLUSION_RADIUS_DIAGONALS * diagonal)
+
+
+def may_be_behind_the_hand(target: Marker) -> bool:
+    """Seen partly, or with something in front: what moving the hand away can uncover (a
+    target simply gone, with nothing in front of it, cannot be)."""
+    return target.state == "partial" or target.occluded

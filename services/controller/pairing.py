@@ -1,0 +1,58 @@
+"""Which target corner each hand corner goes to: vision labels each square's corners on its own,
+and a square turned by 90° looks the same, so the pairing is chosen (the least turn), with
+hysteresis. Pure."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from common.marker import Marker
+
+FloatArray = NDArray[np.float64]
+
+
+def rolled(observation: Marker, shift: int) -> Marker:
+    """The same marker with its corners relabelled: corner i becomes corner (i + shift) % 4."""
+    if shift == 0:
+        return observation
+    return replace(
+        observation,
+        corners_px=np.roll(observation.corners_px, -shift, axis=0),
+        depth_m=np.roll(observation.depth_m, -shift, axis=0),
+        depth_sigma_m=np.roll(observation.depth_sigma_m, -shift, axis=0),
+        points_m=np.roll(observation.points_m, -shift, axis=0),
+    )
+
+
+# Another pairing of corners must cut the squared image error by this factor to replace the
+# current one (hysteresis: near a 45° relative turn two pairings are almost as good).
+CORNER_SWITCH_RATIO = 0.7
+
+
+# Row k: the target corner each hand corner i goes to in pairing k, (i + k) % 4.
+_CYCLIC_PAIRINGS = (np.arange(4)[None, :] + np.arange(4)[:, None]) % 4
+
+
+def pairing_costs_px2(hand_px: FloatArray, target_px: FloatArray) -> FloatArray:
+    """Squared shape mismatch (px²) for each of the 4 cyclic pairings of the hand's corners
+    with the target's (entry k pairs hand corner i with target corner (i + k) % 4).
+
+    The two squares look the same turned by 90°, so which target corner a hand corner must go
+    to is a choice: vision labels each marker's corners on its own. The corners are compared
+    about their centroids (the offset between the squares is the same for every pairing and
+    would drown the difference), so the least cost is the pairing that needs the least turn
+    about the optical axis; it is also the one with the least squared image error."""
+    hand = hand_px - hand_px.mean(axis=0)
+    target = target_px - target_px.mean(axis=0)
+    return np.sum((hand - target[_CYCLIC_PAIRINGS]) ** 2, axis=(1, 2))
+
+
+def choose_pairing(costs_px2: FloatArray, current: int | None) -> int:
+    """The best pairing, unless the current one is nearly as good (hysteresis)."""
+    best = int(np.argmin(costs_px2))
+    if current is None or costs_px2[best] < CORNER_SWITCH_RATIO * costs_px2[current]:
+        return best
+    return current
