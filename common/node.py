@@ -70,9 +70,9 @@ class Node:
         self._started = time.monotonic()
         self._seq = 0
         self._cond = threading.Condition()
-        # Held while the status answer is built (on a Zenoh thread), and by a service around
-        # puts whose counters the answer must show together (the sim's frame: its publishers'
-        # counts and its ring's), so that one answer never shows half of a put.
+        # Held while the status answer is built (on a Zenoh thread) and by every put of the
+        # node's publishers, so that one answer never shows half of a put (a camera frame
+        # counted by its publisher but not yet by its ring, say).
         self.counting = threading.Lock()
         # (key, message, wall-clock receive time): the time goes into the headers of what
         # handling the message publishes (Header.recv_time_s), for per-hop latency.
@@ -107,7 +107,7 @@ class Node:
         """``block``: back-pressure instead of dropping when the network is congested.
         ``frames``: camera frames, sent by reference through a shared-memory ring
         (:class:`RingPublisher`) unless shared memory is off."""
-        pub = typed_publisher(self.session, key, block, frames)
+        pub = typed_publisher(self.session, key, block, frames, self.counting)
         self._publishers[key] = pub
         return pub
 

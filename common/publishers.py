@@ -26,6 +26,7 @@ been written since, nor commits a reservation twice.
 from __future__ import annotations
 
 import logging
+import threading
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -203,6 +204,9 @@ class TypedPublisher(Generic[M]):
     frames: RingPublisher | None = None  # camera frames by reference
     # The header stamps of the last messages put, for the service's stamps queryable.
     stamps: deque[Stamp] = field(default_factory=lambda: deque(maxlen=STAMPS_KEPT))
+    # Held for the whole of a put: its counters (the meter's, the ring's) change together for
+    # whoever reads them under the same lock (Node.status, on a Zenoh thread).
+    counting: threading.Lock = field(default_factory=threading.Lock)
 
     def reserve(self, shape: tuple[int, ...], dtype: str) -> np.ndarray | None:
         """Where to draw the next camera frame's image so that it goes by reference without a
@@ -214,6 +218,10 @@ class TypedPublisher(Generic[M]):
     def put(self, message: M) -> None:
         """Encode and put ``message``; a camera frame put again whose ring slot has been
         written since raises :class:`~common.frame_ring.RingError` (its pixels are gone)."""
+        with self.counting:
+            self._put(message)
+
+    def _put(self, message: M) -> None:
         is_frame = image_field(type(message)) is not None
         if self.frames is not None and is_frame:
             payload, by_ref = self.frames.payload(message)
@@ -236,9 +244,17 @@ class TypedPublisher(Generic[M]):
 
 
 def typed_publisher(
-    session: zenoh.Session, key: str, block: bool = True, frames: bool = False
+    session: zenoh.Session,
+    key: str,
+    block: bool = True,
+    frames: bool = False,
+    counting: threading.Lock | None = None,
 ) -> TypedPublisher[Any]:
-    """A :class:`TypedPublisher` on ``key`` (see :meth:`Node.publisher` for the options)."""
+    """A :class:`TypedPublisher` on ``key`` (see :meth:`Node.publisher` for the options);
+    ``counting``: the lock its puts hold (its own when None)."""
     cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
     ring = RingPublisher(session, key) if frames and shm_enabled() else None
-    return TypedPublisher(key, session.declare_publisher(key, congestion_control=cc), frames=ring)
+    pub = TypedPublisher(key, session.declare_publisher(key, congestion_control=cc), frames=ring)
+    if counting is not None:
+        pub.counting = counting
+    return pub

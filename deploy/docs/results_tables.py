@@ -66,11 +66,8 @@ def results_strategies(inputs: Inputs, here: str) -> str:
 
 # --- the suite's camera ----------------------------------------------------------------------
 # The comparison's metrics set side by side for the two cameras.
-SUITE_CAMERA_METRICS = tuple(
-    m
-    for m in METRICS
-    if m[0]
-    in {
+SUITE_CAMERA_FIELDS = frozenset(
+    {
         "median_sim_time_s",
         "median_final_pixel_rms",
         "median_final_position_error_m",
@@ -78,6 +75,7 @@ SUITE_CAMERA_METRICS = tuple(
         "median_peak_ee_speed_m_s",
     }
 )
+SUITE_CAMERA_METRICS = tuple(m for m in METRICS if m[0] in SUITE_CAMERA_FIELDS)
 SUITE_CAMERA_COMMANDS = (
     f"umay compare --jobs 2 --pipeline inprocess --out {SUITE_CAMERA_DIR}/{SUITE_CAMERAS[0]}",
     "umay compare --jobs 2 --pipeline inprocess --set camera.width_px=640 --set "

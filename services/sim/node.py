@@ -163,8 +163,7 @@ class SimService:
                 intrinsics=self.world.depth_intrinsics,
                 depth_m=ImageData.view_of(depth_m),
             )
-            with self.node.counting:
-                self.pub_depth.put(depth_message)
+            self.pub_depth.put(depth_message)
             messages.append((self.pub_depth, depth_message))
         rgb_header = self.node.header(t, seq)
         rgb_message = RgbFrame(
@@ -173,8 +172,7 @@ class SimService:
             rgb=ImageData.view_of(rgb),
             depth_frame_seq=self.depth_schedule.depth_frame_seq,
         )
-        with self.node.counting:
-            self.pub_rgb.put(rgb_message)
+        self.pub_rgb.put(rgb_message)
         messages.append((self.pub_rgb, rgb_message))
         joints = JointState(
             header=self.node.header(t, seq),
@@ -208,8 +206,7 @@ class SimService:
         """The last frame's messages again, unchanged (a lockstep resend)."""
         self.resends += 1
         for publisher, message in self._last_frame:
-            with self.node.counting:
-                publisher.put(message)
+            publisher.put(message)
 
     def apply(self, command: JointVelocityCommand, recv_time_s: float) -> None:
         """``recv_time_s``: when the command arrived (wall clock), for :class:`SimTiming`."""
