@@ -15,10 +15,10 @@ actuation   ``sim/joint_state``,         ``actuation/joint_command``
             ``controller/twist``
 =========== ============================ ==========================
 
-Timing: ``speed=None`` ("max") is lockstep: the inputs of frame k (joint state first), then
-wait for the output of frame k, then frame k+1; deterministic, as fast as the service goes.
-A float keeps the recorded timing divided by ``speed`` (vision may then drop frames as it
-did live: it only ever works on the newest image).
+Timing: ``speed=None`` ("max") is lockstep: the inputs of frame k (joint state first, however
+they were logged), then wait for the output of frame k, then frame k+1; deterministic, as fast
+as the service goes. A float keeps the recorded timing divided by ``speed`` (vision may then
+drop frames as it did live: it only ever works on the newest image).
 
 With ``check``, only the frames the service answered in the recording are replayed (a frame it
 never processed, e.g. cut off when the run stopped, cannot be compared and would change its
@@ -175,15 +175,15 @@ def first_by_frame(payloads: Iterator[tuple[int, bytes]]) -> dict[int, bytes]:
 
 
 def lockstep_steps(inputs: list[Recorded], io: ServiceIO) -> list[list[Recorded]]:
-    """One step per trigger: the joint states of its frame not yet published, then itself."""
-    steps: list[list[Recorded]] = []
-    pending: dict[int, list[Recorded]] = {}
+    """One step per trigger, in the recorded order: the other inputs of its frame (the joint
+    states) not yet published, then itself. A frame's inputs come from different services, so
+    the recorder may log its joint state after its trigger (vision answering before the joint
+    state reached the recorder): they are grouped by frame, not by the order they were logged."""
+    others: dict[int, list[Recorded]] = {}
     for r in inputs:
-        if r.suffix == io.trigger:
-            steps.append([*pending.pop(r.frame_seq, []), r])
-        else:
-            pending.setdefault(r.frame_seq, []).append(r)
-    return steps
+        if r.suffix != io.trigger:
+            others.setdefault(r.frame_seq, []).append(r)
+    return [[*others.pop(r.frame_seq, []), r] for r in inputs if r.suffix == io.trigger]
 
 
 # --- comparison --------------------------------------------------------------------------
