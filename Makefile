@@ -7,14 +7,18 @@ STAMP := $(VENV)/.installed
 .PHONY: run test test-unit lint format docs clean
 
 # uv installs the same versions as pip in a third of the time (wheels fetched in parallel), byte-
-# code compiled as pip does (CI sets PYTHONDONTWRITEBYTECODE: no process would cache it); pip
-# remains the fallback should uv itself not install or run here.
+# code compiled as pip does (CI sets PYTHONDONTWRITEBYTECODE: no process would cache it). uv comes
+# from the machine's own pip into a folder of the venv, so the venv is made without a pip of its
+# own (ensurepip takes longer than fetching uv); should uv not install or run here, the venv gets
+# its pip after all and installs with it.
 $(STAMP): pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet uv && \
-	  $(BIN)/python -m uv pip install --quiet --compile-bytecode --python $(BIN)/python \
-	    -e '.[dev,cluster]' || \
-	  $(BIN)/python -m pip install --quiet -e '.[dev,cluster]'
+	$(PYTHON) -m venv --without-pip $(VENV)
+	( PIP_ROOT_USER_ACTION=ignore $(PYTHON) -m pip install --quiet --disable-pip-version-check \
+	    --upgrade --target $(VENV)/uv uv && \
+	  $(VENV)/uv/bin/uv pip install --quiet --compile-bytecode --python $(BIN)/python \
+	    -e '.[dev,cluster]' ) || \
+	( $(BIN)/python -m ensurepip --default-pip && \
+	  $(BIN)/python -m pip install --quiet -e '.[dev,cluster]' )
 	touch $(STAMP)
 
 # Byte-code for every process a run or the suite launches, compiled once up front: where
