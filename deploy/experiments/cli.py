@@ -13,12 +13,18 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from common.config import ScenarioError
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.domains_cli import add_domains_parser
 from deploy.paths import check_output_file
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+    from deploy.experiments.compare.plan import Plan
 
 DEFAULT_SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios" / "suite"
 # Relative difference allowed by default between float results and --reference's: lockstep runs
@@ -103,7 +109,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from deploy.experiments.compare import CompareError
     from deploy.experiments.compare.plan import Job, parse_modes, plan
     from deploy.experiments.compare.rows import CompareRow, check_against, rows_from_json
-    from deploy.experiments.compare.run import job_label, make_figures, run_all, write_outputs
+    from deploy.experiments.compare.run import job_label, run_all, write_outputs
     from deploy.experiments.compare.summary import format_cell
     from deploy.paths import OutputPathError, check_output_dir
 
@@ -186,7 +192,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             "(results of an interrupted comparison are not written)"
         )
         return EXIT_INTERRUPTED
-    figures = make_figures(the_plan, out_dir)
+    figures = draw_figures(the_plan, out_dir, console)
     note = f"Wall time {wall_s / 60:.1f} min with {args.jobs} job(s) at once."
     for path in write_outputs(the_plan, rows, out_dir, figures, note):
         print(path)
@@ -199,6 +205,23 @@ def cmd_compare(args: argparse.Namespace) -> int:
         console.print(lines[0] if same else f"[red]{lines[0]}[/]", *lines[1:], sep="\n")
         return EXIT_OK if same else EXIT_FAILED
     return EXIT_OK
+
+
+def draw_figures(plan_: Plan, out_dir: Path, console: Console) -> list[Path]:
+    """The comparison's figures (:func:`~deploy.experiments.compare.run.make_figures`) with a
+    progress bar: after the runs they take a second or two per strategy."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from deploy.experiments.compare.run import make_figures
+
+    if not any(job.record for job in plan_.jobs):
+        return []
+    columns = (
+        TextColumn("[bold]figures"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
+    )  # fmt: skip
+    with Progress(*columns, console=console, transient=True) as bar:
+        task = bar.add_task("figures", total=len(plan_.modes) + 1)  # and the overlay
+        return make_figures(plan_, out_dir, lambda _name: bar.advance(task))
 
 
 # --- umay campaign ---------------------------------------------------------------------------
@@ -248,7 +271,6 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from deploy.experiments.compare import CompareError
     from deploy.experiments.compare.plan import Job, parse_modes
     from deploy.experiments.compare.rows import CompareRow
-    from deploy.experiments.compare.run import make_figures
     from deploy.experiments.compare.summary import format_cell
     from deploy.paths import OutputPathError, check_output_dir
 
@@ -305,7 +327,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         console.print("[red]interrupted[/]: every pipeline stopped; nothing written")
         return EXIT_INTERRUPTED
     wall_s = time.monotonic() - started
-    figures = make_figures(cplan.plan, out_dir) if rows else []
+    figures = draw_figures(cplan.plan, out_dir, console) if rows else []
     note = (
         f"Random-start campaign: {len(cplan.starts)} starts, seed {cplan.distribution.seed}; "
         f"wall time {wall_s / 60:.1f} min with {args.jobs} job(s) at once."

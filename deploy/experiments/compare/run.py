@@ -173,11 +173,14 @@ def _schedule(
     return rows
 
 
-def make_figures(plan_: Plan, out_dir: Path) -> list[Path]:
+def make_figures(
+    plan_: Plan, out_dir: Path, on_drawn: Callable[[str], None] = lambda _name: None
+) -> list[Path]:
     """Per strategy, the thesis-style figures of the figures scenario's run (Figs. 5.10-5.17:
     image trajectory, end-effector velocity, plus feature error and joint velocities), and
     ``overlay.png`` of every strategy's image trajectory, error and speed. None when no run
-    was recorded (``umay campaign --no-figures``)."""
+    was recorded (``umay campaign --no-figures``). ``on_drawn(name)`` as each strategy's
+    figures, then the overlay, are written (a second or two each: a progress bar's steps)."""
     from deploy.experiments.compare.plots import write_overlay
     from deploy.recording.plots import load_series, plot_series
 
@@ -192,12 +195,14 @@ def make_figures(plan_: Plan, out_dir: Path) -> list[Path]:
         if rec.is_file():
             series[mode] = load_series(rec)  # read once: the mode's figures and the overlay
             written += plot_series(series[mode], rec.parent, converged_px, source=str(rec))
+        on_drawn(mode)
     overlay = write_overlay(
         series,
         out_dir / "figures" / "overlay.png",
         converged_px,
         title=f"All strategies, scenario {plan_.figures_scenario!r}",
     )
+    on_drawn("overlay")
     if overlay is not None:
         written.append(overlay)
     return written
