@@ -254,7 +254,5 @@ def typed_publisher(
     ``counting``: the lock its puts hold (its own when None)."""
     cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
     ring = RingPublisher(session, key) if frames and shm_enabled() else None
-    pub = TypedPublisher(key, session.declare_publisher(key, congestion_control=cc), frames=ring)
-    if counting is not None:
-        pub.counting = counting
-    return pub
+    publisher = session.declare_publisher(key, congestion_control=cc)
+    return TypedPublisher(key, publisher, frames=ring, counting=counting or threading.Lock())

@@ -54,7 +54,7 @@ def where_connecting(connect: list[str] | None = None, config_path: str | None =
     connect = _connect_from_env(connect)
     if connect:
         return ", ".join(connect)
-    path = config_path or os.environ.get(ENV_CONFIG)
+    path = _config_path(config_path)
     return f"the endpoints of {path}" if path else DEFAULT_ENDPOINT
 
 
@@ -65,11 +65,15 @@ def _connect_from_env(connect: list[str] | None) -> list[str] | None:
     return connect
 
 
+def _config_path(config_path: str | None) -> str | None:
+    return config_path or os.environ.get(ENV_CONFIG)
+
+
 def _base_config(
     config_path: str | None, connect: list[str] | None, listen: list[str] | None
 ) -> zenoh.Config:
     connect = _connect_from_env(connect)
-    path = config_path or os.environ.get(ENV_CONFIG)
+    path = _config_path(config_path)
     if path:
         try:
             cfg = zenoh.Config.from_file(path)

@@ -155,36 +155,42 @@ class SimService:
         # vision has both when the colour frame arrives. The joint state after them, off the
         # frame's path: the controller and actuation pair it with their input by frame_seq,
         # and vision's work on the frame comes between.
-        messages: list[tuple[TypedPublisher, object]] = []
+        messages: list[tuple[TypedPublisher, object]] = []  # kept for a lockstep resend
+
+        def put(publisher: TypedPublisher, message: object) -> None:
+            publisher.put(message)
+            messages.append((publisher, message))
+
         if depth_m is not None:
             self.depth_schedule = self.depth_schedule.taken(t, seq)
-            depth_message = DepthFrame(
-                header=self.node.header(t, seq),
-                intrinsics=self.world.depth_intrinsics,
-                depth_m=ImageData.view_of(depth_m),
+            put(
+                self.pub_depth,
+                DepthFrame(
+                    header=self.node.header(t, seq),
+                    intrinsics=self.world.depth_intrinsics,
+                    depth_m=ImageData.view_of(depth_m),
+                ),
             )
-            self.pub_depth.put(depth_message)
-            messages.append((self.pub_depth, depth_message))
         rgb_header = self.node.header(t, seq)
-        rgb_message = RgbFrame(
-            header=rgb_header,
-            intrinsics=self.world.intrinsics,
-            rgb=ImageData.view_of(rgb),
-            depth_frame_seq=self.depth_schedule.depth_frame_seq,
+        put(
+            self.pub_rgb,
+            RgbFrame(
+                header=rgb_header,
+                intrinsics=self.world.intrinsics,
+                rgb=ImageData.view_of(rgb),
+                depth_frame_seq=self.depth_schedule.depth_frame_seq,
+            ),
         )
-        self.pub_rgb.put(rgb_message)
-        messages.append((self.pub_rgb, rgb_message))
-        joints = JointState(
-            header=self.node.header(t, seq),
-            position_rad=q.tolist(),
-            velocity_rad_s=qdot.tolist(),
+        put(
+            self.pub_joints,
+            JointState(
+                header=self.node.header(t, seq),
+                position_rad=q.tolist(),
+                velocity_rad_s=qdot.tolist(),
+            ),
         )
-        self.pub_joints.put(joints)
-        messages.append((self.pub_joints, joints))
         # Ground truth (evaluation only) after the frame, off the loop's critical path.
-        truth = truth_message(self.world.truth(), header, q)
-        self.pub_truth.put(truth)
-        messages.append((self.pub_truth, truth))
+        put(self.pub_truth, truth_message(self.world.truth(), header, q))
         self._last_frame = messages
         # After the frame, off its path: how it was made and the commands applied before it.
         self.pub_timing.put(
