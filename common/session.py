@@ -7,6 +7,7 @@ import json
 import logging
 import os
 import socket
+import sys
 
 import zenoh
 
@@ -120,6 +121,11 @@ def open_zenoh(config: zenoh.Config) -> zenoh.Session:
     """``zenoh.open(config)``; where the host cannot give Zenoh shared memory (no writable
     ``/dev/shm``, as in some containers, where Zenoh fails to open at all) it opens without
     it, with a warning: large payloads then go over the network."""
+    unusable = _shm_unusable() if _shm_configured(config) else ""
+    if unusable:  # known before trying: no failed open (and its half-bound listeners) first
+        config.insert_json5("transport/shared_memory/enabled", "false")
+        log.warning("Zenoh session opened without shared memory (%s)", unusable)
+        return zenoh.open(config)
     try:
         return zenoh.open(config)
     except zenoh.ZError as exc:
@@ -130,10 +136,27 @@ def open_zenoh(config: zenoh.Config) -> zenoh.Session:
         config.insert_json5("transport/shared_memory/enabled", "false")
         try:
             session = zenoh.open(config)
-        except zenoh.ZError:
-            raise exc from None  # the first error is the one to report
+        except zenoh.ZError as again:
+            raise zenoh.ZError(
+                f"{zenoh_reason(exc)}; and without shared memory: {zenoh_reason(again)}"
+            ) from None
         log.warning("Zenoh session opened without shared memory (%s)", zenoh_reason(exc))
         return session
+
+
+def _shm_configured(config: zenoh.Config) -> bool:
+    try:
+        return json.loads(config.get_json("transport/shared_memory/enabled")) is True
+    except (zenoh.ZError, ValueError):
+        return False
+
+
+def _shm_unusable() -> str:
+    """Why POSIX shared memory cannot be created here ("": it may be). Linux keeps it in
+    ``/dev/shm``; elsewhere only trying tells."""
+    if sys.platform.startswith("linux") and not os.access("/dev/shm", os.W_OK):
+        return "/dev/shm is missing or not writable"
+    return ""
 
 
 def zenoh_reason(exc: zenoh.ZError) -> str:

@@ -41,3 +41,29 @@ def test_the_well_known_endpoint_is_kept_after_a_run_and_left_while_in_use() -> 
             client.recv(1)
     # The listener is closed; only the TIME_WAIT connection is left on the port.
     assert default_listen_endpoint(endpoint) == endpoint
+
+
+def test_without_writable_dev_shm_the_session_opens_once_without_shared_memory(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A read-only or missing /dev/shm is known before opening: one open, shared memory off
+    (not a failed open first, whose listeners a loaded host may not have let go of)."""
+    import zenoh
+
+    from common import session
+
+    opened: list[str] = []
+
+    def fake_open(config: zenoh.Config) -> str:
+        opened.append(config.get_json("transport/shared_memory/enabled"))
+        return "session"
+
+    monkeypatch.setattr(session.zenoh, "open", fake_open)
+    monkeypatch.setattr(session.os, "access", lambda path, mode: path != "/dev/shm")
+    assert session.open_session(connect=[]) == "session"
+    assert opened == ["false"]
+
+    opened.clear()
+    monkeypatch.setattr(session.os, "access", lambda path, mode: True)
+    session.open_session(connect=[])
+    assert opened == ["true"]  # writable: shared memory as configured
