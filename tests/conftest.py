@@ -1,8 +1,13 @@
-"""Shared fixtures: the default scenario and a pybullet world on it."""
+"""Shared fixtures: the default scenario, a pybullet world on it, and ``umay`` in this
+process for the checks it makes before it starts anything."""
 
 from __future__ import annotations
 
+import logging
 import os
+import signal
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -22,6 +27,55 @@ def world(scenario: Scenario):
     w = World(scenario)
     yield w
     w.close()
+
+
+@dataclass(frozen=True)
+class CliResult:
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@pytest.fixture()
+def umay_cli(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> Callable[..., CliResult]:
+    """``umay ARGS`` run by ``deploy.cli.main`` in this process, for bad input: what it
+    prints, and the exit code it would give (argparse's too). Starting a process or opening a
+    Zenoh session fails the test, so "nothing was launched" is checked, not assumed; the
+    signal handler and log level ``main`` sets are put back. A Python start per case would
+    cost a second of CPU each; the exit code's way out of a process is tested by the runs."""
+    import multiprocessing.util
+    import subprocess
+
+    import zenoh
+
+    from deploy.cli import main
+
+    def refuse(what: str) -> Callable[..., None]:
+        def started(*args: object, **kwargs: object) -> None:
+            raise AssertionError(f"bad input must start nothing, but it started {what}: {args}")
+
+        return started
+
+    for module, name in ((subprocess, "Popen"), (os, "fork"), (os, "posix_spawn"),
+                         (multiprocessing.util, "spawnv_passfds"), (zenoh, "open")):  # fmt: skip
+        monkeypatch.setattr(module, name, refuse(f"{module.__name__}.{name}"))
+
+    def run(*args: str) -> CliResult:
+        handler, level = signal.getsignal(signal.SIGTERM), logging.getLogger().level
+        capsys.readouterr()
+        try:
+            code = main(list(args))
+        except SystemExit as exc:  # argparse's own errors
+            code = exc.code if isinstance(exc.code, int) else 1
+        finally:
+            signal.signal(signal.SIGTERM, handler)
+            logging.getLogger().setLevel(level)
+        out = capsys.readouterr()
+        return CliResult(code, out.out, out.err)
+
+    return run
 
 
 def launch_umay_up(log_dir, clock: str, *extra: str, wrapper: tuple[str, ...] = ()):

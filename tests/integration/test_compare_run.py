@@ -10,8 +10,6 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
-
 from deploy.experiments.compare.rows import rows_from_json
 from deploy.experiments.compare.summary import summarize_modes
 from tests.conftest import processes_mentioning
@@ -21,33 +19,6 @@ from tests.unit.test_plots import PNG_SIGNATURE
 UMAY = [sys.executable, "-m", "deploy"]
 CHEAP_ARGS = [a for item in CHEAP for a in ("--set", item)]
 RUN_TIMEOUT_S = 1200
-
-
-# --- command line ---------------------------------------------------------------------------
-@pytest.mark.parametrize(
-    ("args", "message"),
-    [
-        (["--modes", "dynamic", "warp"], "unknown strategy 'warp'"),
-        (["--scenarios", "/nonexistent/suite"], "no such directory"),
-        (["--jobs", "0"], "--jobs"),
-        (["--tolerance", "-1e-4"], "--tolerance"),
-        (["--tolerance", "nan"], "--tolerance"),
-        (["--set", "controller.gain=-3"], "controller.gain"),
-        (["--out", "/proc/no-such-dir/out"], "--out /proc/no-such-dir/out: cannot write"),
-    ],
-)
-def test_bad_input_exits_2_naming_it_and_launches_nothing(
-    tmp_path: Path, args: list[str], message: str
-) -> None:
-    out = tmp_path / "out"
-    started = time.monotonic()
-    proc = subprocess.run(
-        [*UMAY, "compare", "--out", str(out), *args], capture_output=True, text=True, timeout=120
-    )
-    assert proc.returncode == 2, proc.stderr
-    assert message in proc.stderr
-    assert not out.exists()  # nothing written, nothing launched
-    assert time.monotonic() - started < 60
 
 
 def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:

@@ -323,17 +323,3 @@ def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path:
     assert proc.returncode == 1
     assert "NotADirectoryError" in proc.stderr
     assert not processes_mentioning(f"test/{tmp_path.name}")
-
-
-def test_umay_logs_shows_the_last_lines_of_a_service_log(tmp_path: Path) -> None:
-    (tmp_path / "sim.log").write_text("".join(f"line {i}\n" for i in range(10)))
-
-    def logs(*args: str) -> subprocess.CompletedProcess:
-        argv = [sys.executable, "-m", "deploy", "logs", "sim", "--log-dir", str(tmp_path), *args]
-        return subprocess.run(argv, capture_output=True, text=True, timeout=30)
-
-    assert logs("-n", "3").stdout.splitlines() == ["line 7", "line 8", "line 9"]
-    none = logs("-n", "0")
-    assert none.returncode == 0 and none.stdout == ""
-    negative = logs("-n", "-5")
-    assert negative.returncode == 2 and "-n -5" in negative.stderr and negative.stdout == ""
