@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,7 @@ from deploy.experiments.reachability import (
     marker_in_image,
     view_angle_deg,
 )
+from tests.conftest import CliResult
 
 DIST, BASE_PATH = load_distribution(DEFAULT_DISTRIBUTION)
 BASE = load_scenario(BASE_PATH)
@@ -188,20 +190,20 @@ def test_starts_drawn_by_two_processes_are_the_same_and_reported_in_order() -> N
 )
 def test_bad_campaign_input_exits_2_before_any_start_is_drawn(
     monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
     tmp_path: Path,
     args: list[str],
     message: str,
+    umay_cli: Callable[..., CliResult],
 ) -> None:
     """Drawing 200 starts takes minutes: a bad option is named before it starts."""
     import deploy.experiments.campaign as campaign
-    from deploy.cli import main
 
     def no_drawing(*_args: object) -> None:
         raise AssertionError("a start was drawn")
 
     monkeypatch.setattr(campaign, "draw_start", no_drawing)
     out = ["--out", str(tmp_path / "out")] if "--out" not in args else []
-    assert main(["campaign", "--n", "2", *out, *args]) == 2
-    assert message in capsys.readouterr().err
+    refused = umay_cli("campaign", "--n", "2", *out, *args)
+    assert refused.returncode == 2, refused.stderr
+    assert message in refused.stderr
     assert not (tmp_path / "out").exists()
