@@ -130,18 +130,19 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_plot(args: argparse.Namespace) -> int:
     from deploy.recording.plots import plot_recording
-    from deploy.recording.read import NotARecordingError
+    from deploy.recording.read import NotARecordingError, RecordingReader
 
     path = Path(args.file)
     if not path.is_file():
         print(f"umay plot: {path}: no such file", file=sys.stderr)
         return EXIT_BAD_INPUT
-    check_output_dir("--out", args.out)
     try:
-        written = plot_recording(path, Path(args.out))
+        RecordingReader(path)  # a file that is not one is refused before --out is made
     except NotARecordingError as exc:
         print(f"umay plot: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    check_output_dir("--out", args.out)
+    written = plot_recording(path, Path(args.out))
     for p in written:
         print(p)
     if not written:
