@@ -159,7 +159,7 @@ def _shm_unusable() -> str:
     return ""
 
 
-def zenoh_reason(exc: zenoh.ZError) -> str:
+def zenoh_reason(exc: BaseException) -> str:
     """A Zenoh error's message without the Rust source location that ends it."""
     return str(exc).split(" at /", 1)[0]
 

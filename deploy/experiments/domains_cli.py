@@ -103,6 +103,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
     from deploy.experiments.compare.plan import parse_modes
     from deploy.experiments.domains_run import (
         ExecutorError,
+        check_cluster,
         draw_one,
         execute,
         gather,
@@ -120,6 +121,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
         chosen = parse_cells(args.cells, study.n_cells)
         if args.pipeline not in ("inprocess", "distributed"):
             resolve_runner(args.pipeline)
+        check_cluster(args.cluster)  # before --out is made
         out_dir = check_output_dir("--out", args.out)
         executor = make_executor(args.jobs, args.cluster)
     except (CompareError, OutputPathError, ExecutorError, ValueError) as exc:

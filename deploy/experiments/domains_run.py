@@ -226,17 +226,33 @@ class DaskExecutor:
 def make_executor(jobs: int, cluster: str | None) -> Executor:
     """``--cluster local:N`` (a local Dask cluster), ``--cluster ADDRESS`` (an existing one),
     else ``--jobs N`` local processes."""
+    workers = check_cluster(cluster)
     if cluster is None:
         return LocalExecutor(jobs)
-    if cluster.startswith("local:"):
-        try:
-            n = int(cluster.removeprefix("local:"))
-        except ValueError as exc:
-            raise ExecutorError(f"--cluster {cluster}: local:N, N a number of workers") from exc
-        if n < 1:
-            raise ExecutorError(f"--cluster {cluster}: at least one worker")
-        return DaskExecutor(local_workers=n)
+    if workers:
+        return DaskExecutor(local_workers=workers)
     return DaskExecutor(address=cluster)
+
+
+def check_cluster(cluster: str | None) -> int:
+    """A ``--cluster`` value checked by its form alone, before anything is made or connected
+    to: the number of workers of ``local:N``, else 0; :class:`ExecutorError` naming it."""
+    if cluster is None:
+        return 0
+    if cluster.startswith("local:"):
+        n = cluster.removeprefix("local:")
+        if not n.isdigit():
+            raise ExecutorError(f"--cluster {cluster}: local:N, N a number of workers")
+        if int(n) < 1:
+            raise ExecutorError(f"--cluster {cluster}: at least one worker")
+        return int(n)
+    host, colon, port = cluster.split("://", 1)[-1].rpartition(":")
+    if not (host and colon and port.isdigit()):
+        raise ExecutorError(
+            f"--cluster {cluster}: a scheduler's address, HOST:PORT (e.g. tcp://10.0.0.5:8786), "
+            "or local:N"
+        )
+    return 0
 
 
 def gather(

@@ -206,7 +206,7 @@ def cmd_router(args: argparse.Namespace) -> int:
         try:
             cfg = zenoh.Config.from_file(args.config)
         except Exception as exc:  # zenoh raises its own error type with the parser's message
-            print(f"umay router: {args.config}: {exc}", file=sys.stderr)
+            print(f"umay router: {args.config}: {zenoh_reason(exc)}", file=sys.stderr)
             return EXIT_BAD_INPUT
         # A credentials file named relative to the config is found wherever we run from.
         dictionary = json.loads(cfg.get_json("transport/auth/usrpwd/dictionary_file"))
