@@ -278,6 +278,14 @@ def cmd_status(args: argparse.Namespace) -> int:
     session = open_session(connect=args.connect)
     try:
         time.sleep(0.3)  # let the session connect and learn the peers
+        if args.watch and args.json:  # one JSON document a line, every second (jq, a log)
+            try:
+                while True:
+                    print(json.dumps(as_json(collect(session, keys, args.timeout))), flush=True)
+                    time.sleep(1.0)
+            except KeyboardInterrupt:
+                pass
+            return 0
         if args.watch:
             with Live(table(collect(session, keys, args.timeout), keys), console=Console()) as live:
                 try:
@@ -393,7 +401,11 @@ def add_status_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--timeout", type=positive_seconds, default=1.0, help="seconds to wait for replies"
     )
-    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="machine-readable output (with --watch: one JSON document a line, every second)",
+    )
     p.add_argument("--watch", action="store_true", help="refresh every second until Ctrl-C")
     p.set_defaults(func=cmd_status)
 

@@ -75,6 +75,20 @@ def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> N
         assert {"mode", "error_px_rms", "converged"} <= set(out["controller"]["status"]["fields"])
         assert {"deadman", "saturated_joints"} <= set(out["actuation"]["status"]["fields"])
 
+        # --watch with --json: a JSON document a line, every second, until Ctrl-C.
+        watch = subprocess.Popen(
+            [sys.executable, "-m", "deploy", "status", "--json", "--watch", "--prefix",
+             keys.prefix, "--connect", endpoint],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        assert watch.stdout is not None
+        lines = [json.loads(watch.stdout.readline()) for _ in range(2)]
+        watch.send_signal(signal.SIGINT)
+        assert watch.wait(timeout=30) == 0, watch.stderr.read() if watch.stderr else ""
+        assert all(set(line) == set(SERVICES) for line in lines)
+        uptimes = [line["sim"]["status"]["uptime_s"] for line in lines]
+        assert uptimes[1] >= uptimes[0] + 0.9, uptimes  # refreshed, not printed twice
+
         pid = sup.children["vision"].process.pid
         os.kill(pid, signal.SIGKILL)
         killed = time.monotonic()
