@@ -16,9 +16,9 @@ import zenoh
 from common.config import ScenarioError
 from common.keys import Keys, default_prefix
 from common.runtime import endpoints_argument, prefix_argument
-from common.session import open_session, zenoh_reason
+from common.session import open_session, where_connecting, zenoh_reason
 from deploy.arguments import positive_seconds
-from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_NOT_CONVERGED
+from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_NOT_CONVERGED
 from deploy.paths import check_output_dir, check_output_file
 
 
@@ -57,6 +57,14 @@ def cmd_record(args: argparse.Namespace) -> int:
     print(f"{sum(counts.values()):8d}  messages in {args.out}")
     if recorder.lost:
         print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
+    if not counts or not sum(counts.values()):  # the file is written all the same
+        print(
+            f"umay record: nothing heard on {recorder.key_expr} at "
+            f"{where_connecting(args.connect)}: nothing running there? (--prefix and --connect "
+            "look elsewhere)",
+            file=sys.stderr,
+        )
+        return EXIT_FAILED
     return 0
 
 
