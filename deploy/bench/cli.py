@@ -64,6 +64,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 command=" ".join(["umay", *sys.argv[1:]]),
                 reference_renderer=not args.no_reference,
                 view=args.view,
+                on_phase=say_phase(i, args.repeat),
             )
         except BenchError as exc:
             print(f"umay bench: {exc}", file=sys.stderr)
@@ -86,6 +87,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(f"umay bench: could not write the results: {exc}", file=sys.stderr)
         return 1
     return 0
+
+
+def say_phase(run: int, runs: int) -> Callable[[str], None]:
+    """Progress on standard error: which part of which run starts."""
+    which = f"run {run + 1} of {runs}: " if runs > 1 else ""
+    return lambda what: print(f"umay bench: {which}{what}", file=sys.stderr, flush=True)
 
 
 def add_bench_parser(sub: argparse._SubParsersAction) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import platform
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -59,9 +60,11 @@ def run_bench(
     command: str = "",
     reference_renderer: bool = True,
     view: bool = False,
+    on_phase: Callable[[str], None] = lambda _phase: None,
 ) -> BenchReport:
     """Distributed run, in-process baseline, synthetic 30 Hz source, and (``reference_renderer``)
-    the render cost and the distributed loop again with TinyRenderer."""
+    the render cost and the distributed loop again with TinyRenderer. ``on_phase(what)`` as
+    each part starts (progress, on a run of minutes)."""
     cam = scenario.camera
     synthetic_frames = frames if synthetic_frames is None else synthetic_frames
     observer: Observer | None = None
@@ -71,13 +74,16 @@ def run_bench(
         def observer(keys: Keys, endpoint: str, view_log_dir: Path):  # type: ignore[no-redef]
             return watched_by_a_view(keys, endpoint, view_log_dir, scenario_path, overrides)
 
+    on_phase(f"the four-process loop, {frames} frames after {warmup} to warm up")
     distributed = run_distributed(
         scenario_path, scenario, overrides, frames, warmup, log_dir / "distributed", shm,
         observer=observer,
     )  # fmt: skip
+    on_phase("the render and the Kinect model, per renderer")
     render = run_render_bench(scenario, min(frames, 60), reference=reference_renderer)
     reference = None
     if reference_renderer and scenario.sim.renderer != REFERENCE_RENDERER:
+        on_phase(f"the four-process loop again, with {REFERENCE_RENDERER}")
         tiny = [*overrides, f"sim.renderer='{REFERENCE_RENDERER}'"]
         loop = run_distributed(
             scenario_path, scenario, tiny, frames, warmup, log_dir / "reference", shm
@@ -91,9 +97,11 @@ def run_bench(
             dropped=loop.dropped,
         )
     keep = min(MAX_SOURCE_FRAMES, warmup + max(synthetic_frames, 0))
+    on_phase("the same steps in one process (the in-process baseline)")
     inprocess, source = run_inprocess(scenario, frames, warmup, keep)
     synthetic = None
     if synthetic_frames > 0:
+        on_phase(f"vision, controller and actuation fed at {SYNTHETIC_HZ:g} Hz")
         synthetic = run_synthetic(
             scenario_path,
             scenario,

@@ -40,6 +40,14 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> dict:
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
     assert "latency excl. render" in proc.stdout and "ratio distributed / in-process" in proc.stdout
+    # Progress on stderr, a line as each part starts, in the order they run.
+    assert [line for line in proc.stderr.splitlines() if line.startswith("umay bench: ")] == [
+        f"umay bench: the four-process loop, {FRAMES} frames after 2 to warm up",
+        "umay bench: the render and the Kinect model, per renderer",
+        "umay bench: the four-process loop again, with tiny",
+        "umay bench: the same steps in one process (the in-process baseline)",
+        "umay bench: vision, controller and actuation fed at 30 Hz",
+    ], proc.stderr
     result = json.loads(out.read_text())
     result["_figure"] = tmp / "stages.png"
     return result
