@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import zenoh
+from rich.console import Group, RenderableType
 from rich.table import Table
+from rich.text import Text
 
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
@@ -71,24 +74,20 @@ def _fmt(value: float | None, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
 
 
-def table(views: list[ServiceView], keys: Keys) -> Table:
+def table(views: list[ServiceView], keys: Keys) -> RenderableType:
+    """What ``umay status`` shows: a table of the services (a row each: liveness, traffic,
+    processing time), then each service's own fields as ``name=value`` lines that wrap to the
+    terminal, numbers to four significant digits (``--json`` has them whole). In a column of
+    the table the fields folded into an unreadable strip at 80 to 120 columns."""
     t = Table(title=f"umay status  {keys.prefix}  {time.strftime('%H:%M:%S')}")
-    for col in (
-        "service",
-        "condition",
-        "pid",
-        "up s",
-        "in (Hz, age s)",
-        "out (Hz)",
-        "rej",
-        "p50/p99 ms",
-        "fields",
-    ):
+    for col in ("service", "condition", "pid", "up s", "in (Hz, age s)", "out (Hz)", "rej"):
         t.add_column(col, overflow="fold")
+    t.add_column("p50/p99 ms", overflow="fold", no_wrap=True)
+    details: list[RenderableType] = []
     for v in views:
         s = v.status
         if s is None:
-            t.add_row(v.name, v.condition, *["-"] * 7)
+            t.add_row(v.name, v.condition, *["-"] * 6)
             continue
         received = "\n".join(
             f"{_short_key(k, keys.prefix)} {st.rate_hz:.1f} ({_fmt(st.age_s, '.2f')})"
@@ -97,9 +96,6 @@ def table(views: list[ServiceView], keys: Keys) -> Table:
         published = "\n".join(
             f"{_short_key(k, keys.prefix)} {st.rate_hz:.1f}" for k, st in s.published.items()
         )
-        fields = "\n".join(f"{k}={v}" for k, v in s.fields.items())
-        if s.degraded_reason:
-            fields = f"[yellow]{s.degraded_reason}[/]\n" + fields
         rejected = str(s.rejected) + (f"\n{s.last_rejection[:60]}" if s.rejected else "")
         t.add_row(
             v.name,
@@ -110,6 +106,21 @@ def table(views: list[ServiceView], keys: Keys) -> Table:
             published,
             rejected,
             f"{_fmt(s.processing_ms_p50, '.2f')}/{_fmt(s.processing_ms_p99, '.2f')}",
-            fields,
         )
-    return t
+        line = Text.assemble((f"{v.name}: ", "bold"))
+        if s.degraded_reason:
+            line.append(f"{s.degraded_reason}  ", style="yellow")
+        line.append("  ".join(f"{k}={field_text(value)}" for k, value in s.fields.items()))
+        details.append(line)
+    return Group(t, *details)
+
+
+def field_text(value: Any) -> str:
+    """A status field for people: floats to four significant digits, in lists and maps too."""
+    if isinstance(value, float):
+        return format(value, ".4g")
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(field_text(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {field_text(v)}" for k, v in value.items()) + "}"
+    return str(value)

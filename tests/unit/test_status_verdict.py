@@ -1,4 +1,5 @@
-"""``umay status``'s exit code and message (pure: no session), and where it says it looked."""
+"""``umay status``'s exit code and message (pure: no session), where it says it looked, and
+its display."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import pytest
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
 from common.session import DEFAULT_ENDPOINT, ENV_CONFIG, ENV_CONNECT, where_connecting
-from deploy.launch.status import ServiceView, verdict
+from deploy.launch.status import ServiceView, field_text, table, verdict
 
 KEYS = Keys("lab/arm")
 
@@ -56,3 +57,25 @@ def test_where_connecting_follows_the_session_precedence(
     for name, value in env.items():
         monkeypatch.setenv(name, value)
     assert where_connecting(connect) == expected
+
+
+def test_the_display_fits_80_columns_and_rounds_the_fields() -> None:
+    """The services' table, then each one's fields as lines that wrap: at 80 columns no line
+    is cut, every field is there, numbers to four significant digits."""
+    import io
+
+    from rich.console import Console
+
+    views = [view(n) for n in SERVICES]
+    views[0].status.fields.update(
+        manipulability=0.0137295287779395, saturated_joints=[1, 2], gains={"a": 1.23456789}
+    )
+    views[1].status.degraded_reason = "marker not usable (target: lost, no blob)"
+    out = io.StringIO()
+    Console(file=out, width=80, color_system=None).print(table(views, KEYS))
+    text = out.getvalue()
+    assert max(len(line) for line in text.splitlines()) <= 80
+    assert "manipulability=0.01373" in text and "saturated_joints=[1, 2]" in text
+    assert "gains={a: 1.235}" in text
+    assert f"{views[1].name}: marker not usable (target: lost, no blob)" in text
+    assert field_text(2.0) == "2" and field_text(True) == "True" and field_text("") == ""
