@@ -19,29 +19,35 @@ from common.session import zenoh_reason
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED
 from deploy.paths import OutputPathError
 
-# `umay --help`'s description (kept as it has always read).
-DESCRIPTION = "The ``umay`` command: run, up, service, status, view, export."
+# `umay --help`: what the command is, where to start.
+DESCRIPTION = (
+    "Image-based visual servoing of the UMay arm with a depth camera, as four services over "
+    "Zenoh (sim, vision, controller, actuation). Start with `umay run` (one run to "
+    "convergence, then a summary), or `umay up` and `umay status` in another terminal."
+)
+EPILOG = "Each command's options: umay COMMAND --help. The manual: README.md and docs/."
 
-# The order `umay --help` lists the commands in; a command not named here comes after them.
+# The order `umay --help` lists the commands in: the README's table's. A command not named
+# here comes after them.
 HELP_ORDER = (
     "run",
     "up",
-    "view",
-    "export",
-    "plot",
-    "accuracy",
-    "bench",
-    "docs",
-    "compare",
-    "campaign",
-    "domains",
-    "router",
-    "logs",
     "service",
     "status",
+    "logs",
     "record",
     "info",
     "replay",
+    "plot",
+    "compare",
+    "campaign",
+    "domains",
+    "accuracy",
+    "view",
+    "export",
+    "bench",
+    "docs",
+    "router",
 )
 
 
@@ -63,7 +69,7 @@ def commands() -> dict[str, Callable[[argparse._SubParsersAction], None]]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="umay", description=DESCRIPTION)
+    parser = argparse.ArgumentParser(prog="umay", description=DESCRIPTION, epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True)
     found = commands()
     rank = {name: i for i, name in enumerate(HELP_ORDER)}
