@@ -200,6 +200,8 @@ def run_once(
         session.close()
         if live is not None:
             live.stop()
+            if not live.console.is_terminal:  # a log or a pipe: its last line ends here
+                live.console.line()
     wall = time.monotonic() - started
     return run_result(scenario, reason, detail, monitor.end, monitor.truths, monitor.twists, wall)
 
