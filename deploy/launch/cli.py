@@ -44,8 +44,15 @@ def _scenario_options(p: argparse.ArgumentParser, clock_default: str) -> None:
         default=None,
         help="Zenoh endpoint the services connect to",
     )
-    p.add_argument("--log-dir", default="out/logs", help="per-service log files")
-    p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.add_argument("--log-dir", default="out/logs", help="per-service log files (out/logs)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="TABLE.FIELD=VALUE",
+        help="change one scenario field, the value in TOML (controller.gain=2.0, "
+        "camera.kinect.enabled=true); repeatable; fields: docs/scenarios.md",
+    )
 
 
 def _overrides(args: argparse.Namespace) -> list[str]:
@@ -310,7 +317,13 @@ def cmd_status(args: argparse.Namespace) -> int:
 
 def add_run_parser(sub: argparse._SubParsersAction) -> None:
     """``umay run``: one bounded run."""
-    p = sub.add_parser("run", help="bounded run: servo until converged or timeout, then report")
+    p = sub.add_parser(
+        "run",
+        help="bounded run: servo until converged or timeout, then report",
+        description="Launch the four services, servo until the run ends (converged, the "
+        "timeout, or a named failure), print a summary, write the result JSON, stop them. "
+        "Exit 0 converged, 1 not converged, 2 bad input (nothing launched), 130 interrupted.",
+    )
     _scenario_options(p, clock_default=None)
     p.add_argument("--timeout", type=float, default=None, help="simulated seconds")
     p.add_argument("--result", default=None, help="write the result JSON here")
@@ -331,7 +344,13 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
 
 def add_up_parser(sub: argparse._SubParsersAction) -> None:
     """``umay up``: the four services, kept running."""
-    p = sub.add_parser("up", help="launch the four services and keep them running")
+    p = sub.add_parser(
+        "up",
+        help="launch the four services and keep them running",
+        description="Launch the four services and keep them running (servoing, then holding "
+        "on the target) until Ctrl-C or SIGTERM; a service that dies or hangs is restarted. "
+        "Watch it with `umay status --watch` or `umay view`.",
+    )
     _scenario_options(p, clock_default="realtime")
     p.add_argument(
         "--connect",
