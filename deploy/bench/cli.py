@@ -97,7 +97,13 @@ def say_phase(run: int, runs: int) -> Callable[[str], None]:
 
 def add_bench_parser(sub: argparse._SubParsersAction) -> None:
     """``umay bench``: the loop's latency and throughput."""
-    p = sub.add_parser("bench", help="loop latency and throughput per stage, vs in-process")
+    p = sub.add_parser(
+        "bench",
+        help="loop latency and throughput per stage, vs in-process",
+        description="Run the four services and split every camera frame's way round the loop "
+        "into stages, against the same functions in one process; also the render and Kinect "
+        "model cost, the loop with TinyRenderer, and a 30 Hz source (docs/performance.md).",
+    )
     p.add_argument("--frames", type=int, default=100, help="measured frames (after warm-up)")
     p.add_argument("--warmup", type=int, default=5, help="frames left out at the start")
     p.add_argument("--size", default="640x480", help="colour image WxH (default 640x480)")

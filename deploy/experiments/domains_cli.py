@@ -22,6 +22,11 @@ def add_domains_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "domains",
         help="convergence domains: every strategy over a grid of large initial displacements",
+        description="Every strategy over a grid of starts (turn about the optical axis, "
+        "distance, depth; deploy/domains/study.toml) with seeded draws per cell: heat maps, "
+        "success by band and one named cause per failure, on --jobs processes or a Dask "
+        "cluster. An "
+        "interrupted study resumes with --resume (docs/domains.md).",
     )
     p.add_argument(
         "--study",

@@ -207,7 +207,12 @@ def add_plot_parser(sub: argparse._SubParsersAction) -> None:
 
 def add_record_parser(sub: argparse._SubParsersAction) -> None:
     """``umay record``: the running system's messages to MCAP."""
-    p = sub.add_parser("record", help="record the running system's messages to an MCAP file")
+    p = sub.add_parser(
+        "record",
+        help="record the running system's messages to an MCAP file",
+        description="Record every data message under the prefix (or --keys) to MCAP, camera "
+        "frames whole, until --duration or Ctrl-C. Exit 1 when it heard nothing.",
+    )
     p.add_argument("out", metavar="OUT.mcap")
     p.add_argument("--keys", default=None, help="key expression (default: <prefix>/**)")
     p.add_argument(
@@ -234,7 +239,13 @@ def add_info_parser(sub: argparse._SubParsersAction) -> None:
 
 def add_replay_parser(sub: argparse._SubParsersAction) -> None:
     """``umay replay``: one service re-run on a recording."""
-    p = sub.add_parser("replay", help="re-run one service on a recording's inputs, compare")
+    p = sub.add_parser(
+        "replay",
+        help="re-run one service on a recording's inputs, compare",
+        description="Run one service (vision, controller or actuation) as its own process on "
+        "the inputs a recording holds, as fast as it answers or at --speed; --check compares "
+        "what it publishes with the recorded outputs, frame by frame (exit 1 on a difference).",
+    )
     p.add_argument("file", metavar="FILE.mcap")
     p.add_argument("--service", required=True, help="vision|controller|actuation")
     p.add_argument("--speed", default="max", help="playback speed factor, or max (lockstep)")
