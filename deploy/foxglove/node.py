@@ -50,6 +50,24 @@ log = logging.getLogger("umay.view")
 
 STATUS_PERIOD_S = 1.0
 FRAME_KEYS = (RGB, DEPTH)
+SILENT_AFTER_S = 10.0  # no message on any viewed key for this long from the start: say so
+
+
+def listening_note(
+    heard: int, listening_s: float, warned: bool, prefix: str, looked_on: str
+) -> str | None:
+    """What to tell a user about what the view hears (``heard`` messages in ``listening_s``
+    seconds), or None: after :data:`SILENT_AFTER_S` of nothing, that nothing seems to run
+    where it listens; once it has said so (``warned``), that it hears the system after all (a
+    slow start)."""
+    if warned:
+        return f"hearing {prefix} now" if heard else None
+    if heard or listening_s < SILENT_AFTER_S:
+        return None
+    return (
+        f"nothing heard under {prefix} at {looked_on} for {listening_s:.0f} s: nothing running "
+        "there? (`umay up` starts it; --prefix and --connect look elsewhere)"
+    )
 
 
 class PortInUseError(OSError):
@@ -93,8 +111,11 @@ class ViewNode:
         image_hz: float,
         depth_hz: float,
         jpeg_quality: int,
+        looked_on: str = "",
     ) -> None:
         self.state = convert.ViewState(scenario)
+        self.looked_on = looked_on  # where the session looks for the system, in words
+        self.heard = 0  # samples on the viewed keys, wanted or not
         self.keys = keys
         self.session = session
         self.server = server
@@ -135,6 +156,7 @@ class ViewNode:
         max_bytes = FRAME_MAX_BYTES if suffix in FRAME_KEYS else DEFAULT_MAX_BYTES
 
         def on_sample(sample: Any) -> None:
+            self.heard += 1
             now = time.monotonic()
             if now - self._accepted_s[suffix] < period_s or not self._wanted(suffix):
                 self.dropped[suffix] += 1  # before the copy and the decode: costs nothing
@@ -166,8 +188,18 @@ class ViewNode:
 
     def poll_status(self, stop: threading.Event) -> None:
         """Every second: the services' status as log lines (a thread of its own: a query
-        waits for answers)."""
+        waits for answers); on stderr, :func:`listening_note`'s notes."""
+        started, warned, settled = time.monotonic(), False, False
         while not stop.wait(STATUS_PERIOD_S):
+            if not settled:
+                heard = self.heard
+                note = listening_note(
+                    heard, time.monotonic() - started, warned, self.keys.prefix, self.looked_on
+                )
+                if note is not None:
+                    print(f"umay view: {note}", file=sys.stderr, flush=True)
+                warned = warned or note is not None
+                settled = heard > 0
             if not self.channels.wanted(topics.LOG):
                 continue
             try:
@@ -204,7 +236,7 @@ def serve(args: argparse.Namespace) -> int:
     from common.config import ScenarioError, load_scenario
     from common.keys import default_prefix
     from common.runtime import parse_overrides
-    from common.session import open_session
+    from common.session import open_session, where_connecting
 
     problem = check_view_options(args)
     if problem is not None:
@@ -231,6 +263,7 @@ def serve(args: argparse.Namespace) -> int:
         view = ViewNode(
             scenario, keys, session, server, channels,
             args.rate_hz, args.image_hz, args.depth_hz, args.jpeg_quality,
+            looked_on=where_connecting(args.connect),
         )  # fmt: skip
         print(
             f"umay view: Foxglove WebSocket at ws://{args.host}:{server.port} for {keys.prefix}; "
