@@ -101,6 +101,13 @@ class Node:
         """Subscriptions are in place: announce liveliness and report ``running``."""
         self.state = "running"
         self._token = self.session.liveliness().declare_token(self.keys.alive(self.service))
+        log.info(
+            "%s running under %s; in: %s; out: %s",
+            self.service,
+            self.keys.prefix,
+            ", ".join(self.keys.relative(k) for k in self.received) or "-",
+            ", ".join(self.keys.relative(k) for k in self._publishers) or "-",
+        )
 
     # --- publishing -------------------------------------------------------------------
     def publisher(self, key: str, block: bool = True, frames: bool = False) -> TypedPublisher[Any]:

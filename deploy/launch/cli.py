@@ -7,6 +7,8 @@ import argparse
 import contextlib
 import importlib
 import json
+import logging
+import os
 import signal
 import sys
 import threading
@@ -271,6 +273,8 @@ def cmd_logs(args: argparse.Namespace) -> int:
 
 
 def cmd_service(args: argparse.Namespace) -> int:
+    # A service's own level (its log says what it runs and waits for), not the command's.
+    logging.getLogger().setLevel(os.environ.get("UMAY_LOG_LEVEL", "INFO"))
     module = importlib.import_module(f"services.{args.name}.node")
     return int(module.main(args.rest))
 

@@ -74,6 +74,14 @@ def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> N
         assert vision_fields["frames_overwritten"] == 0
         assert {"mode", "error_px_rms", "converged"} <= set(out["controller"]["status"]["fields"])
         assert {"deadman", "saturated_joints"} <= set(out["actuation"]["status"]["fields"])
+        # Each log starts with what the service runs on: its prefix, inputs and outputs.
+        vision_log = (tmp_path / "logs" / "vision.log").read_text()
+        assert f"vision running under {keys.prefix}; in: sim/rgb, sim/depth; out: " in vision_log
+        for name in SERVICES:
+            assert (
+                f"{name} running under {keys.prefix}"
+                in (tmp_path / "logs" / f"{name}.log").read_text()
+            )
 
         # --watch with --json: a JSON document a line, every second, until Ctrl-C.
         watch = subprocess.Popen(
