@@ -107,10 +107,14 @@ def table(views: list[ServiceView], keys: Keys) -> RenderableType:
             rejected,
             f"{_fmt(s.processing_ms_p50, '.2f')}/{_fmt(s.processing_ms_p99, '.2f')}",
         )
+        fields = dict(s.fields)
+        children = fields.pop("children", None) if v.name == "supervisor" else None
         line = Text.assemble((f"{v.name}: ", "bold"))
         if s.degraded_reason:
             line.append(f"{s.degraded_reason}  ", style="yellow")
-        line.append("  ".join(f"{k}={field_text(value)}" for k, value in s.fields.items()))
+        line.append("  ".join(f"{k}={field_text(value)}" for k, value in fields.items()))
+        if isinstance(children, dict):
+            line.append(children_text(children))
         details.append(line)
     return Group(t, *details)
 
@@ -124,3 +128,22 @@ def field_text(value: Any) -> str:
     if isinstance(value, dict):
         return "{" + ", ".join(f"{k}: {field_text(v)}" for k, v in value.items()) + "}"
     return str(value)
+
+
+def children_text(children: dict[str, dict[str, Any]]) -> str:
+    """The supervisor's children, a clause each: pid, running or not, restarts, and what went
+    wrong where something did (its ``--json`` has every field, the log paths too)."""
+    clauses = []
+    for name, c in children.items():
+        words = [f"pid {c.get('pid')}", "running" if c.get("running") else "not running"]
+        words.append(f"restarts {c.get('restarts', 0)}")
+        if c.get("policy", "always") != "always":
+            words.append(f"restart policy {c['policy']}")
+        if c.get("given_up"):
+            words.append("given up")
+        if c.get("hang_kills"):
+            words.append(f"killed hanging {c['hang_kills']}× (last: {c.get('last_hang')})")
+        if c.get("last_exit_codes"):
+            words.append(f"exit codes {field_text(c['last_exit_codes'])}")
+        clauses.append(f"{name} " + ", ".join(words))
+    return "; ".join(clauses)

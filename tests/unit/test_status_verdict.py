@@ -79,3 +79,25 @@ def test_the_display_fits_80_columns_and_rounds_the_fields() -> None:
     assert "gains={a: 1.235}" in text
     assert f"{views[1].name}: marker not usable (target: lost, no blob)" in text
     assert field_text(2.0) == "2" and field_text(True) == "True" and field_text("") == ""
+
+
+def test_the_supervisors_children_read_as_a_clause_each() -> None:
+    import io
+
+    from rich.console import Console
+
+    sup = view("supervisor")
+    child = {
+        "pid": 12, "running": True, "restarts": 0, "last_exit_codes": [], "policy": "always",
+        "given_up": False, "hang_kills": 0, "last_hang": "", "log": "out/logs/sim.log",
+    }  # fmt: skip
+    gone = {
+        **child, "pid": None, "running": False, "restarts": 3, "last_exit_codes": [1, -9],
+        "given_up": True,
+    }  # fmt: skip
+    sup.status.fields["children"] = {"sim": child, "vision": gone}
+    out = io.StringIO()
+    Console(file=out, width=200, color_system=None).print(table([sup], KEYS))
+    text = out.getvalue()
+    assert "supervisor: sim pid 12, running, restarts 0; vision pid None, not running, " in text
+    assert "restarts 3, given up, exit codes [1, -9]" in text and "sim.log" not in text
