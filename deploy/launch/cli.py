@@ -280,10 +280,10 @@ def cmd_service(args: argparse.Namespace) -> int:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from rich.console import Console
+    from rich.console import Console, RenderableType
     from rich.live import Live
 
-    from deploy.launch.status import as_json, collect, table, verdict
+    from deploy.launch.status import as_json, collect, status_display, verdict
 
     keys = Keys(args.prefix or default_prefix())
     session = open_session(connect=args.connect)
@@ -298,11 +298,15 @@ def cmd_status(args: argparse.Namespace) -> int:
                 pass
             return 0
         if args.watch:
-            with Live(table(collect(session, keys, args.timeout), keys), console=Console()) as live:
+
+            def now() -> RenderableType:
+                return status_display(collect(session, keys, args.timeout), keys)
+
+            with Live(now(), console=Console()) as live:
                 try:
                     while True:
                         time.sleep(1.0)
-                        live.update(table(collect(session, keys, args.timeout), keys))
+                        live.update(now())
                 except KeyboardInterrupt:
                     pass
             return 0
@@ -312,7 +316,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(as_json(views), indent=2))
     else:
-        Console().print(table(views, keys))
+        Console().print(status_display(views, keys))
     code, why = verdict(views, keys, where_connecting(args.connect))
     if why:
         print(f"umay status: {why}", file=sys.stderr)

@@ -74,11 +74,11 @@ def _fmt(value: float | None, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
 
 
-def table(views: list[ServiceView], keys: Keys) -> RenderableType:
+def status_display(views: list[ServiceView], keys: Keys) -> RenderableType:
     """What ``umay status`` shows: a table of the services (a row each: liveness, traffic,
     processing time), then each service's own fields as ``name=value`` lines that wrap to the
-    terminal, numbers to four significant digits (``--json`` has them whole). In a column of
-    the table the fields folded into an unreadable strip at 80 to 120 columns."""
+    terminal, numbers to four significant digits (``--json`` has them whole); not a column of
+    the table, which at 80 to 120 columns folds them into a strip."""
     t = Table(title=f"umay status  {keys.prefix}  {time.strftime('%H:%M:%S')}")
     for col in ("service", "condition", "pid", "up s", "in (Hz, age s)", "out (Hz)", "rej"):
         t.add_column(col, overflow="fold")

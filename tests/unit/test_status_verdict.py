@@ -8,7 +8,7 @@ import pytest
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
 from common.session import DEFAULT_ENDPOINT, ENV_CONFIG, ENV_CONNECT, where_connecting
-from deploy.launch.status import ServiceView, field_text, table, verdict
+from deploy.launch.status import ServiceView, field_text, status_display, verdict
 
 KEYS = Keys("lab/arm")
 
@@ -72,7 +72,7 @@ def test_the_display_fits_80_columns_and_rounds_the_fields() -> None:
     )
     views[1].status.degraded_reason = "marker not usable (target: lost, no blob)"
     out = io.StringIO()
-    Console(file=out, width=80, color_system=None).print(table(views, KEYS))
+    Console(file=out, width=80, color_system=None).print(status_display(views, KEYS))
     text = out.getvalue()
     assert max(len(line) for line in text.splitlines()) <= 80
     assert "manipulability=0.01373" in text and "saturated_joints=[1, 2]" in text
@@ -97,7 +97,7 @@ def test_the_supervisors_children_read_as_a_clause_each() -> None:
     }  # fmt: skip
     sup.status.fields["children"] = {"sim": child, "vision": gone}
     out = io.StringIO()
-    Console(file=out, width=200, color_system=None).print(table([sup], KEYS))
+    Console(file=out, width=200, color_system=None).print(status_display([sup], KEYS))
     text = out.getvalue()
     assert "supervisor: sim pid 12, running, restarts 0; vision pid None, not running, " in text
     assert "restarts 3, given up, exit codes [1, -9]" in text and "sim.log" not in text
