@@ -29,7 +29,12 @@ from common.session import (
     zenoh_reason,
 )
 from deploy.arguments import positive_seconds
-from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_CONVERGED, EXIT_NOT_CONVERGED
+from deploy.exit_codes import (
+    EXIT_BAD_INPUT,
+    EXIT_CONVERGED,
+    EXIT_INTERRUPTED,
+    EXIT_NOT_CONVERGED,
+)
 from deploy.paths import check_output_dir, check_output_file
 
 
@@ -112,24 +117,39 @@ def cmd_run(args: argparse.Namespace) -> int:
     check_output_dir("--log-dir", args.log_dir)
     prefix = args.prefix or default_prefix()
     listen = args.listen
-    with contextlib.ExitStack() as stack:
-        if args.view:
-            from deploy.launch.run import default_listen_endpoint
+    # Ctrl-C or SIGTERM ends the run as its end would: the services stopped, then the
+    # summary, the result (detail "interrupted") and the figures of the run so far. A second
+    # Ctrl-C while they stop interrupts as usual.
+    stop = threading.Event()
 
-            listen = listen or default_listen_endpoint()
-            if not _start_view(stack, args, "run", prefix, listen, overrides):
-                return 1
-        result = run_once(
-            args.scenario,
-            scenario,
-            overrides,
-            prefix,
-            Path(args.log_dir),
-            listen=listen,
-            quiet=args.quiet,
-            record=record,
-            record_frames=not args.record_without_frames,
-        )
+    def interrupt(*_args: object) -> None:
+        stop.set()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with contextlib.ExitStack() as stack:
+            if args.view:
+                from deploy.launch.run import default_listen_endpoint
+
+                listen = listen or default_listen_endpoint()
+                if not _start_view(stack, args, "run", prefix, listen, overrides):
+                    return 1
+            result = run_once(
+                args.scenario,
+                scenario,
+                overrides,
+                prefix,
+                Path(args.log_dir),
+                listen=listen,
+                quiet=args.quiet,
+                record=record,
+                record_frames=not args.record_without_frames,
+                stop=stop,
+            )
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     if args.quiet:
         print(format_result(result))
     else:
@@ -141,6 +161,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         for path in plot_recording(record, Path(args.plot), scenario.controller.converged_px):
             print(f"figure: {path}")
+    if stop.is_set() and result.detail == "interrupted":  # not a run that had ended already
+        print("umay run: interrupted; what it started is stopped", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return EXIT_CONVERGED if result.converged else EXIT_NOT_CONVERGED
 
 

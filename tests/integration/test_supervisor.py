@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -286,14 +287,19 @@ def _umay_run_until_services_run(tmp_path: Path, *more: str) -> tuple[subprocess
 
 
 def test_sigterm_ends_umay_run_and_its_services(tmp_path: Path) -> None:
-    """A CI timeout or `kill` stops a run as Ctrl-C does: nothing is left running. Its live
-    line, going to a pipe here (a CI log), ends before the message that says so."""
-    proc, pids = _umay_run_until_services_run(tmp_path)
+    """A CI timeout or `kill` stops a run as Ctrl-C does: nothing is left running, and the
+    run so far is reported and kept (result JSON, detail "interrupted"). Its live line, going
+    to a pipe here (a CI log), ends before the message that says so."""
+    result = tmp_path / "result.json"
+    proc, pids = _umay_run_until_services_run(tmp_path, "--result", str(result))
     proc.send_signal(signal.SIGTERM)
-    _, stderr = proc.communicate(timeout=30)
+    stdout, stderr = proc.communicate(timeout=30)
     assert proc.returncode == 130, stderr
     assert "\numay run: interrupted; what it started is stopped\n" in stderr, stderr
     assert not any(_alive(p) for p in pids)  # stopped before umay run returned
+    assert "error (interrupted)" in stdout
+    kept = json.loads(result.read_text())
+    assert kept["detail"] == "interrupted" and not kept["converged"]
 
 
 def test_services_stop_when_their_supervisor_is_killed(tmp_path: Path) -> None:
