@@ -25,8 +25,7 @@ def add_domains_parser(sub: argparse._SubParsersAction) -> None:
         description="Every strategy over a grid of starts (turn about the optical axis, "
         "distance, depth; deploy/domains/study.toml) with seeded draws per cell: heat maps, "
         "success by band and one named cause per failure, on --jobs processes or a Dask "
-        "cluster. An "
-        "interrupted study resumes with --resume (docs/domains.md).",
+        "cluster. An interrupted study resumes with --resume (docs/domains.md).",
     )
     p.add_argument(
         "--study",

@@ -45,6 +45,7 @@ from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from deploy.foxglove import convert, topics, transforms
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_arguments
+from deploy.launch.status import NOTHING_RUNNING_THERE
 
 log = logging.getLogger("umay.view")
 
@@ -64,9 +65,8 @@ def listening_note(
         return f"hearing {prefix} now" if heard else None
     if heard or listening_s < SILENT_AFTER_S:
         return None
-    return (
-        f"nothing heard under {prefix} at {looked_on} for {listening_s:.0f} s: nothing running "
-        "there? (`umay up` starts it; --prefix and --connect look elsewhere)"
+    return f"nothing heard under {prefix} at {looked_on} for {listening_s:.0f} s: " + (
+        NOTHING_RUNNING_THERE
     )
 
 

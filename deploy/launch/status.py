@@ -38,6 +38,12 @@ def collect(session: zenoh.Session, keys: Keys, timeout_s: float) -> list[Servic
     return [ServiceView(n, n in alive, statuses.get(n)) for n in names]
 
 
+# What a tool that hears nothing says after where it looked (status, record, view).
+NOTHING_RUNNING_THERE = (
+    "nothing running there? (`umay up` starts the services; --prefix and --connect look elsewhere)"
+)
+
+
 def verdict(views: list[ServiceView], keys: Keys, looked_on: str) -> tuple[int, str]:
     """``umay status``'s exit code and what to say on standard error: 0 and "" when every
     service is alive and answering (degraded included: it answers), else 1 and which are not,
@@ -49,8 +55,7 @@ def verdict(views: list[ServiceView], keys: Keys, looked_on: str) -> tuple[int, 
     if len(down) == len(views):
         return 1, (
             f"no service answers under prefix {keys.prefix!r} on {looked_on}: "
-            "nothing running there? (`umay up` starts the services; --prefix and --connect "
-            "look elsewhere)"
+            + NOTHING_RUNNING_THERE
         )
     return 1, "not every service is up: " + ", ".join(f"{v.name} {v.condition}" for v in down)
 
@@ -113,7 +118,7 @@ def status_display(views: list[ServiceView], keys: Keys) -> RenderableType:
         if s.degraded_reason:
             line.append(f"{s.degraded_reason}  ", style="yellow")
         line.append("  ".join(f"{k}={field_text(value)}" for k, value in fields.items()))
-        if isinstance(children, dict):
+        if children:
             line.append(children_text(children))
         details.append(line)
     return Group(t, *details)

@@ -19,6 +19,7 @@ from common.runtime import endpoints_argument, prefix_argument
 from common.session import open_session, where_connecting, zenoh_reason
 from deploy.arguments import positive_seconds
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_NOT_CONVERGED
+from deploy.launch.status import NOTHING_RUNNING_THERE
 from deploy.paths import check_output_dir, check_output_file
 
 
@@ -54,14 +55,15 @@ def cmd_record(args: argparse.Namespace) -> int:
         session.close()
     for key, n in sorted(counts.items()):
         print(f"{n:8d}  {key}")
-    print(f"{sum(counts.values()):8d}  messages in {args.out}")
+    total = sum(counts.values())
+    print(f"{total:8d}  messages in {args.out}")
     if recorder.lost:
         print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
-    if not counts or not sum(counts.values()):  # the file is written all the same
+    if not total:  # the file is written all the same
+        where = where_connecting(args.connect)
         print(
-            f"umay record: nothing heard on {recorder.key_expr} at "
-            f"{where_connecting(args.connect)}: nothing running there? (--prefix and --connect "
-            "look elsewhere)",
+            f"umay record: nothing heard on {recorder.key_expr} at {where}: "
+            + NOTHING_RUNNING_THERE,
             file=sys.stderr,
         )
         return EXIT_FAILED
