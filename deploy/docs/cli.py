@@ -12,22 +12,28 @@ from deploy.exit_codes import EXIT_BAD_INPUT
 
 
 def cmd_docs(args: argparse.Namespace) -> int:
-    from deploy.docs.documents import update
+    from deploy.docs.documents import update, update_figures
     from deploy.docs.sources import REPO_ROOT, DocsError
 
+    root = Path(args.root) if args.root else REPO_ROOT
     try:
-        outdated = update(Path(args.root) if args.root else REPO_ROOT, check=args.check)
+        outdated = update(root, check=args.check)
+        figures = [] if args.check else update_figures(root)
     except DocsError as exc:
         print(f"umay docs: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     for o in outdated:
         print(o if args.check else f"rewrote {o.document}: {o.block}", file=sys.stderr)
+    for f in figures:
+        print(f"redrew {f}", file=sys.stderr)
     return 1 if args.check and outdated else 0
 
 
 def add_docs_parser(sub: argparse._SubParsersAction) -> None:
     """``umay docs``: the docs' generated tables."""
-    p = sub.add_parser("docs", help="rewrite the docs' tables from the JSON they come from")
+    p = sub.add_parser(
+        "docs", help="rewrite the docs' tables (and redraw their figures) from their JSON"
+    )
     p.add_argument("--check", action="store_true", help="change nothing; exit 1 if out of date")
     p.add_argument("--root", default=None, help="the repository (default: this one)")
     p.set_defaults(func=cmd_docs)

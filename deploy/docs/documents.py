@@ -97,3 +97,11 @@ def update(root: Path, check: bool = False) -> list[Outdated]:
         if changed and not check:
             path.write_text(new)
     return out
+
+
+def update_figures(root: Path) -> list[str]:
+    """Redraw the docs' figures from their JSON (:mod:`deploy.docs.figures`); the figures
+    rewritten, relative to ``root``."""
+    from deploy.docs.figures import redraw
+
+    return redraw(root, load_inputs(root))

@@ -21,6 +21,7 @@ Usage: ``umay plot RUN.mcap --out DIR`` (:func:`deploy.recording.cli.cmd_plot`).
 
 from __future__ import annotations
 
+import io
 import logging
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -484,6 +485,17 @@ def bench_figure(result: dict) -> Figure | None:
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     _style_axes(ax)
     return fig
+
+
+def bench_png(result: dict) -> bytes | None:
+    """:func:`bench_figure` as PNG bytes (what ``umay docs`` compares with the file it keeps);
+    None when there is nothing to draw."""
+    fig = bench_figure(result)
+    if fig is None:
+        return None
+    out = io.BytesIO()
+    fig.savefig(out, format="png", dpi=DPI)
+    return out.getvalue()
 
 
 def write_bench_figure(result: dict, path: Path) -> bool:

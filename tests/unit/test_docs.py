@@ -473,3 +473,22 @@ def test_the_suite_camera_block_sets_each_strategy_at_both_cameras_side_by_side(
     summed = [sum(r.wall_time_s for r in rows) for rows in (small, large)]
     assert f"summed: {summed[0]:.0f} s → {summed[1]:.0f} s" in table
     assert "--set camera.rgb_hz=30" in table  # how to make it again
+
+
+def test_umay_docs_redraws_the_bench_figure_from_its_json_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from deploy.docs.figures import BENCH_STAGES_PNG
+
+    (tmp_path / "docs" / "results").mkdir(parents=True)
+    shutil.copy(REPO_ROOT / RESULTS_JSON, tmp_path / RESULTS_JSON)
+    (tmp_path / "docs" / "bench").mkdir()
+    shutil.copy(REPO_ROOT / f"docs/bench/{LOCKSTEP_RUN}.json", tmp_path / "docs" / "bench")
+    assert main(["docs", "--check", "--root", str(tmp_path)]) == 0
+    assert not (tmp_path / BENCH_STAGES_PNG).exists()  # --check changes nothing
+    assert main(["docs", "--root", str(tmp_path)]) == 0
+    assert f"redrew {BENCH_STAGES_PNG}" in capsys.readouterr().err
+    png = (tmp_path / BENCH_STAGES_PNG).read_bytes()
+    assert png.startswith(b"\x89PNG") and png == (REPO_ROOT / BENCH_STAGES_PNG).read_bytes()
+    assert main(["docs", "--root", str(tmp_path)]) == 0
+    assert "redrew" not in capsys.readouterr().err  # the same JSON draws the same bytes
