@@ -1,12 +1,65 @@
-"""The simulator's ground truth in the wire format. For evaluation only: nothing in vision or
-control may read it. The sim node publishes it; the in-process pipeline (services/pipeline.py)
-hands it to the run's judge the same way."""
+"""The simulator's ground truth: the markers' poses and image corners, the arm's contacts, how
+much of each marker the camera sees, and all of it in the wire format. For evaluation only:
+nothing in vision or control may read it. The world (:mod:`services.sim.world`) measures it,
+the sim node publishes it; the in-process pipeline (services/pipeline.py) hands it to the run's
+judge the same way."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
 from common.kinematics import FloatArray
 from common.messages import Header, SimTruth
-from services.sim.world import Truth
+
+
+@dataclass(frozen=True)
+class MarkerView:
+    """What the camera sees of a marker (ground truth, for evaluation): the fraction of its
+    square showing the marker itself (0 outside the image or hidden, 1 wholly in view), and
+    whether another part of the robot or the image border touches its outline (within a few
+    pixels: a depth camera's invalid band along edges and its lateral noise hide whether it
+    overlaps; a blob at the border may go on beyond it), where a measurement may fairly refuse
+    it."""
+
+    fraction: float
+    touched: bool
+
+
+def square_pixels(
+    corners_px: FloatArray, grow_px: float, shape: tuple[int, ...]
+) -> tuple[np.ndarray, int]:
+    """Mask (of ``shape``) of the pixels of a convex quadrilateral grown (or, negative, shrunk)
+    by about ``grow_px``, and how many pixels it has in all, outside the image included."""
+    centre = corners_px.mean(axis=0)
+    radius = max(float(np.linalg.norm(corners_px - centre, axis=1).min()), 2.0)
+    quad = centre + (corners_px - centre) * (1.0 + grow_px / radius)
+    lo = np.floor(quad.min(axis=0)).astype(int) - 1
+    hi = np.ceil(quad.max(axis=0)).astype(int) + 2
+    box = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
+    cv2.fillConvexPoly(box, np.round((quad - lo) * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+    mask = np.zeros(shape[:2], bool)
+    r0, c0 = max(lo[1], 0), max(lo[0], 0)
+    r1, c1 = min(hi[1], shape[0]), min(hi[0], shape[1])
+    if r1 > r0 and c1 > c0:
+        mask[r0:r1, c0:c1] = box[r0 - lo[1] : r1 - lo[1], c0 - lo[0] : c1 - lo[0]] > 0
+    return mask, int(np.count_nonzero(box))
+
+
+@dataclass(frozen=True)
+class Truth:
+    hand_marker_pose: FloatArray
+    target_marker_pose: FloatArray
+    hand_corners_px: FloatArray
+    target_corners_px: FloatArray
+    ee_position_m: FloatArray
+    # What the arm touches after the last physics step: the summed normal force (N) and the
+    # bodies ("object", "table", "floor"), for naming a collision; the robot's own links do
+    # not collide with each other.
+    contact_n: float = 0.0
+    contact_with: tuple[str, ...] = ()
 
 
 def truth_message(truth: Truth, header: Header, q_rad: FloatArray) -> SimTruth:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,10 +20,17 @@ from common.camera import CameraIntrinsics, project
 from common.config import Scenario
 from services.sim.bullet import BulletClient, pybullet
 from services.sim.events import SceneState, scene_state
-from services.sim.gl_renderer import GlRenderer, GlUnavailable
+from services.sim.projection import (
+    LIGHT_DIRECTION,
+    depth_buffer_to_metres,
+    opengl_projection_matrix,
+    opengl_view_matrix,
+)
+from services.sim.renderers import close_renderer, open_renderer
 from services.sim.scenery import HalfSpace, view_frustum, visible_box
 from services.sim.sensor_model import exposed_rgb, noisy_depth
 from services.sim.shapes import VisualShape, body_ids, shape_poses, visual_shapes
+from services.sim.truth import MarkerView, Truth, square_pixels
 from services.sim.urdf import (
     CUE_RGBA,
     TORSO_CENTRE_M,
@@ -50,59 +56,6 @@ HIDDEN_POSITION_M = (0.0, -50.0, 0.0)  # where a hidden body is parked (far belo
 MOTOR_FORCE_N_M = 200.0
 
 
-def opengl_view_matrix(t_base_cam: FloatArray) -> list[float]:
-    """pybullet view matrix (column-major) for an optical-frame camera pose.
-
-    OpenGL's camera looks down its -z with y up; the optical frame looks down +z with y down.
-    """
-    flip = np.diag([1.0, -1.0, -1.0, 1.0])
-    view = flip @ np.linalg.inv(t_base_cam)
-    return view.flatten(order="F").tolist()
-
-
-# Where TinyRenderer samples pixel (row i, column j) in the frustum it is given, as the shift
-# (du, dv) of the principal point that lines its pixels up with the pinhole model. Measured
-# against projected truth: TinyRenderer samples (j - 0.5, i + 0.5).
-TINY_PIXEL_SHIFT_PX = (0.0, 1.0)
-LIGHT_DIRECTION = (0.4, -0.3, 1.0)  # towards the light, world frame (pybullet's convention)
-
-
-def opengl_projection_matrix(k: CameraIntrinsics, near_m: float, far_m: float) -> list[float]:
-    """Column-major OpenGL projection for TinyRenderer whose pixel centres match
-    ``u = fx·x + cx`` exactly.
-
-    The off-centre terms place the principal point so that rendered pixels line up with the
-    pinhole model of :mod:`common.camera` (pixel centres at integer coordinates), for
-    TinyRenderer's sampling (:data:`TINY_PIXEL_SHIFT_PX`).
-    """
-    w, h = k.width_px, k.height_px
-    du, dv = TINY_PIXEL_SHIFT_PX
-    p = np.zeros((4, 4))
-    p[0, 0] = 2.0 * k.fx_px / w
-    p[1, 1] = 2.0 * k.fy_px / h
-    p[0, 2] = -(2.0 * (k.cx_px + du) / w - 1.0)  # image x right; OpenGL looks down -z
-    p[1, 2] = 2.0 * (k.cy_px + dv) / h - 1.0  # image y down vs OpenGL y up
-    p[2, 2] = -(far_m + near_m) / (far_m - near_m)
-    p[2, 3] = -2.0 * far_m * near_m / (far_m - near_m)
-    p[3, 2] = -1.0
-    return p.flatten(order="F").tolist()
-
-
-def depth_buffer_to_metres(buffer: FloatArray, near_m: float, far_m: float) -> FloatArray:
-    """OpenGL depth buffer (0..1, non-linear) to Z along the optical axis (m), float32.
-
-    Pixels at the far plane (nothing rendered) become 0, the "invalid" value of a Kinect.
-    Computed in float32, the buffer's own type (far faster than through float64), within
-    5e-5 m of the float64 result up to 5 m (1e-5 relative), far below a depth camera's
-    millimetres.
-    """
-    b = np.asarray(buffer, dtype=np.float32)
-    far, near = np.float32(far_m), np.float32(near_m)
-    z = (far * near) / (far - (far - near) * b)
-    z[b >= 1.0] = 0.0
-    return z
-
-
 def quaternion_from_rotation(rot: FloatArray) -> list[float]:
     """pybullet (x, y, z, w) quaternion of a 3×3 rotation matrix (Shepperd's method)."""
     m = np.asarray(rot, dtype=float)
@@ -119,93 +72,6 @@ def quaternion_from_rotation(rot: FloatArray) -> list[float]:
         q[j] = (m[j, i] + m[i, j]) / s
         q[k] = (m[k, i] + m[i, k]) / s
     return [float(v) for v in q]
-
-
-@dataclass(frozen=True)
-class MarkerView:
-    """What the camera sees of a marker (ground truth, for evaluation): the fraction of its
-    square showing the marker itself (0 outside the image or hidden, 1 wholly in view), and
-    whether another part of the robot or the image border touches its outline (within a few
-    pixels: a depth camera's invalid band along edges and its lateral noise hide whether it
-    overlaps; a blob at the border may go on beyond it), where a measurement may fairly refuse
-    it."""
-
-    fraction: float
-    touched: bool
-
-
-def _square_pixels(
-    corners_px: FloatArray, grow_px: float, shape: tuple[int, ...]
-) -> tuple[np.ndarray, int]:
-    """Mask (of ``shape``) of the pixels of a convex quadrilateral grown (or, negative, shrunk)
-    by about ``grow_px``, and how many pixels it has in all, outside the image included."""
-    centre = corners_px.mean(axis=0)
-    radius = max(float(np.linalg.norm(corners_px - centre, axis=1).min()), 2.0)
-    quad = centre + (corners_px - centre) * (1.0 + grow_px / radius)
-    lo = np.floor(quad.min(axis=0)).astype(int) - 1
-    hi = np.ceil(quad.max(axis=0)).astype(int) + 2
-    box = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
-    cv2.fillConvexPoly(box, np.round((quad - lo) * 16).astype(np.int32), 1, cv2.LINE_8, 4)
-    mask = np.zeros(shape[:2], bool)
-    r0, c0 = max(lo[1], 0), max(lo[0], 0)
-    r1, c1 = min(hi[1], shape[0]), min(hi[0], shape[1])
-    if r1 > r0 and c1 > c0:
-        mask[r0:r1, c0:c1] = box[r0 - lo[1] : r1 - lo[1], c0 - lo[0] : c1 - lo[0]] > 0
-    return mask, int(np.count_nonzero(box))
-
-
-@dataclass(frozen=True)
-class Truth:
-    hand_marker_pose: FloatArray
-    target_marker_pose: FloatArray
-    hand_corners_px: FloatArray
-    target_corners_px: FloatArray
-    ee_position_m: FloatArray
-    # What the arm touches after the last physics step: the summed normal force (N) and the
-    # bodies ("object", "table", "floor"), for naming a collision; the robot's own links do
-    # not collide with each other.
-    contact_n: float = 0.0
-    contact_with: tuple[str, ...] = ()
-
-
-# OpenGL renderers of closed worlds, kept for the next world of this process: making and
-# destroying an EGL context per world leaks native memory, and a domain study opens thousands.
-_idle_gl: list[GlRenderer] = []
-_inherited_gl: list[GlRenderer] = []  # a fork's parent's: never used, never released here
-
-
-def _forget_idle_gl() -> None:  # a forked child must not draw through its parent's contexts
-    _inherited_gl.extend(_idle_gl)
-    _idle_gl.clear()
-
-
-os.register_at_fork(after_in_child=_forget_idle_gl)
-
-
-def open_renderer(requested: str) -> tuple[str, str, GlRenderer | None]:
-    """The renderer to use for ``sim.renderer = requested``: (name, detail, OpenGL renderer or
-    None). "gl" falls back to "tiny", once and loudly, where no EGL context can be made. An
-    idle OpenGL renderer of this process is reused (:func:`close_renderer`)."""
-    if requested == "tiny":
-        return "tiny", "TinyRenderer (pybullet, CPU), as configured", None
-    try:
-        gl = _idle_gl.pop() if _idle_gl else GlRenderer()
-    except GlUnavailable as exc:
-        detail = f"TinyRenderer: OpenGL unavailable: {exc}"
-        log.warning("sim.renderer = 'gl' fell back to %s", detail)
-        return "tiny", detail, None
-    kind = "software, CPU" if gl.is_software else "GPU"
-    return "gl", f"OpenGL through EGL: {gl.description} ({kind})", gl
-
-
-def close_renderer(gl: GlRenderer) -> None:
-    """Free a closed world's meshes and keep its context for the next world; a second idle
-    one (two worlds were open at once) is released."""
-    gl.release_meshes()
-    if _idle_gl:
-        gl.release()
-    else:
-        _idle_gl.append(gl)
 
 
 class DirectClient(BulletClient):
@@ -623,9 +489,9 @@ class World:
         robot = (seg >= 0) & ((seg & ((1 << 24) - 1)) == self.robot)
         out = {}
         for name, quad in corners.items():
-            inside, total = _square_pixels(quad, -1.5, seg.shape)  # its edge pixels aside
+            inside, total = square_pixels(quad, -1.5, seg.shape)  # its edge pixels aside
             seen = np.count_nonzero(np.isin(seg[inside], own[name]))
-            around, around_total = _square_pixels(quad, touch_px, seg.shape)
+            around, around_total = square_pixels(quad, touch_px, seg.shape)
             touched = np.count_nonzero(robot[around] & (seg[around] != own[name][0])) > 0
             touched |= np.count_nonzero(around) < around_total  # at the image border
             out[name] = MarkerView(seen / total if total else 0.0, bool(touched))

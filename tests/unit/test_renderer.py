@@ -12,15 +12,11 @@ import pytest
 from common.config import Scenario, load_scenario
 from common.runtime import parse_overrides
 from deploy.experiments.accuracy import WHOLE, sample_postures
-from services.sim import world as world_module
+from services.sim import renderers
 from services.sim.gl_renderer import GlUnavailable, depth_uniforms, pinhole_uniforms
+from services.sim.projection import opengl_projection_matrix
 from services.sim.shapes import box_mesh, cylinder_mesh
-from services.sim.world import (
-    FLOOR_TOP_Y_M,
-    TABLE_TOP_Y_M,
-    World,
-    opengl_projection_matrix,
-)
+from services.sim.world import FLOOR_TOP_Y_M, TABLE_TOP_Y_M, World
 from services.vision.measurement import measure_markers
 
 SIZE = ["camera.width_px=320", "camera.height_px=240"]
@@ -196,9 +192,9 @@ def test_no_opengl_falls_back_to_tinyrenderer_and_says_why(
     def refuse() -> None:
         raise GlUnavailable("no EGL OpenGL context (test: no driver)")
 
-    monkeypatch.setattr(world_module, "GlRenderer", refuse)
+    monkeypatch.setattr(renderers, "GlRenderer", refuse)
     # An idle context left by an earlier test of this worker would be reused, not made.
-    monkeypatch.setattr(world_module, "_idle_gl", [])
+    monkeypatch.setattr(renderers, "_idle_gl", [])
     with caplog.at_level(logging.WARNING):
         w = World(load_scenario(None, parse_overrides(SIZE)))
     try:

@@ -1,4 +1,4 @@
-"""One OpenGL context per process, reused world after world (services/sim/world.py): a domain
+"""One OpenGL context per process, reused world after world (services/sim/renderers.py): a domain
 study runs thousands of in-process runs in each worker, and a context made and destroyed per
 world leaks native memory."""
 
@@ -10,7 +10,7 @@ import os
 from common.config import load_scenario
 from common.runtime import parse_overrides
 from deploy.launch.run_inprocess import run_scenario_inprocess
-from services.sim import world as world_module
+from services.sim import renderers
 from services.sim.world import World
 
 SMALL = ["camera.width_px=160", "camera.height_px=120", "run.timeout_s=0.1", "sim.renderer='gl'"]
@@ -49,16 +49,16 @@ def test_a_closed_worlds_context_is_drawn_through_by_the_next_world() -> None:
     assert second._gl is not context
     first.close()
     second.close()  # one idle context is kept, the other released
-    assert world_module._idle_gl == [context]
+    assert renderers._idle_gl == [context]
     third = World(scenario)
-    assert third._gl is context and world_module._idle_gl == []
+    assert third._gl is context and renderers._idle_gl == []
     # The meshes of the first world were freed and this world's drawn: the same image.
     assert (third.render_perfect(third.intrinsics)[0] == image).all()
     third.close()
 
 
 def _child_has_no_idle_context(queue: multiprocessing.Queue) -> None:
-    queue.put(len(world_module._idle_gl))
+    queue.put(len(renderers._idle_gl))
 
 
 def test_a_forked_child_does_not_inherit_the_idle_context() -> None:
@@ -69,7 +69,7 @@ def test_a_forked_child_does_not_inherit_the_idle_context() -> None:
         target=_child_has_no_idle_context, args=(queue,)
     )
     child.start()
-    assert world_module._idle_gl  # the parent keeps its own
+    assert renderers._idle_gl  # the parent keeps its own
     assert queue.get(timeout=30) == 0
     child.join(timeout=30)
     assert child.exitcode == 0
