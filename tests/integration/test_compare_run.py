@@ -25,9 +25,13 @@ def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:
     folder = _suite_copy(tmp_path, ("01_baseline.toml",))
     out = tmp_path / "out"
     args = ["--scenarios", str(folder), "--modes", "dynamic", "mpj", "--jobs", "2"]
-    # Runs that cannot end before the interrupt: a threshold they never reach, a long timeout
-    # (a converging run took 8.6 s, less than the pipelines took to show up on a loaded CI).
-    never_done = ["--set", "controller.converged_px=0.0001", "--set", "run.timeout_s=600"]
+    # Runs that cannot end before the interrupt: a threshold they never reach, no plateau or
+    # stall to end them either, a long timeout (a converging run took 8.6 s, less than the
+    # pipelines took to show up on a loaded CI; on a fast host a stalled one ends in 2 s).
+    never_done = [
+        *("--set", "controller.converged_px=0.0001", "--set", "controller.plateau_px=0"),
+        *("--set", "controller.stall_after_s=3600", "--set", "run.timeout_s=600"),
+    ]
     proc = subprocess.Popen(
         [*UMAY, "compare", *args, "--out", str(out), *CHEAP_ARGS, *never_done],
         stdout=subprocess.PIPE,

@@ -264,9 +264,13 @@ def _alive(pid: int) -> bool:
 
 
 def _umay_run_until_services_run(tmp_path: Path, *more: str) -> tuple[subprocess.Popen, list[int]]:
-    """``umay run`` on a unique prefix (a long timeout), once its four services run."""
+    """``umay run`` on a unique prefix, once its four services run. The run must still be
+    going seconds later on any host: in real time, at a fifth of the default gain, it takes
+    tens of seconds to converge (lockstep at the default gain converges in about 2 s of wall
+    time on a fast host)."""
     prefix = f"test/{os.urandom(6).hex()}"
-    options = ["--prefix", prefix, "--listen", free_tcp_endpoint(), "--log-dir", str(tmp_path)]
+    options = ["--prefix", prefix, "--listen", free_tcp_endpoint(), "--log-dir", str(tmp_path),
+               "--clock", "realtime", "--set", "controller.gain=0.2"]  # fmt: skip
     proc = subprocess.Popen(
         [sys.executable, "-m", "deploy", "run", "--timeout", "600", *options, *more],
         stdout=subprocess.PIPE,
