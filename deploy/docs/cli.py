@@ -12,13 +12,15 @@ from deploy.exit_codes import EXIT_BAD_INPUT
 
 
 def cmd_docs(args: argparse.Namespace) -> int:
-    from deploy.docs.documents import update, update_figures
-    from deploy.docs.sources import REPO_ROOT, DocsError
+    from deploy.docs.documents import update
+    from deploy.docs.figures import redraw
+    from deploy.docs.sources import REPO_ROOT, DocsError, load_inputs
 
     root = Path(args.root) if args.root else REPO_ROOT
     try:
-        outdated = update(root, check=args.check)
-        figures = [] if args.check else update_figures(root)
+        inputs = load_inputs(root)  # once, for the tables and the figures
+        outdated = update(root, check=args.check, inputs=inputs)
+        figures = [] if args.check else redraw(root, inputs)
     except DocsError as exc:
         print(f"umay docs: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

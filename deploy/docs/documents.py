@@ -81,10 +81,11 @@ class Outdated:
         )
 
 
-def update(root: Path, check: bool = False) -> list[Outdated]:
-    """Render every block of every document under ``root``; write the documents unless
-    ``check``. Returns the blocks that differed (rewritten, unless ``check``)."""
-    inputs = load_inputs(root)
+def update(root: Path, check: bool = False, inputs: Inputs | None = None) -> list[Outdated]:
+    """Render every block of every document under ``root`` from ``inputs`` (read from
+    ``root`` when None); write the documents unless ``check``. Returns the blocks that
+    differed (rewritten, unless ``check``)."""
+    inputs = load_inputs(root) if inputs is None else inputs
     out: list[Outdated] = []
     for path in documents(root):
         rel = path.relative_to(root).as_posix()
@@ -97,11 +98,3 @@ def update(root: Path, check: bool = False) -> list[Outdated]:
         if changed and not check:
             path.write_text(new)
     return out
-
-
-def update_figures(root: Path) -> list[str]:
-    """Redraw the docs' figures from their JSON (:mod:`deploy.docs.figures`); the figures
-    rewritten, relative to ``root``."""
-    from deploy.docs.figures import redraw
-
-    return redraw(root, load_inputs(root))

@@ -17,9 +17,8 @@ def redraw(root: Path, inputs: Inputs) -> list[str]:
     figures rewritten (paths relative to ``root``)."""
     from deploy.recording.plots import bench_png  # matplotlib: only when drawing
 
-    if not any(r.name == LOCKSTEP_RUN for r in inputs.bench):
-        return []
-    runs = inputs.run(LOCKSTEP_RUN).data.get("each_run") or []
+    lockstep = next((r for r in inputs.bench if r.name == LOCKSTEP_RUN), None)
+    runs = lockstep.data.get("each_run") if lockstep else None
     png = bench_png(runs[0]) if runs else None
     path = root / BENCH_STAGES_PNG
     if png is None or (path.is_file() and path.read_bytes() == png):
