@@ -1,5 +1,5 @@
-"""argparse types that commands of more than one folder share (``umay status`` and ``umay
-record`` both take a duration)."""
+"""What commands of more than one folder share: argparse types (``umay status`` and ``umay
+record`` both take a duration) and what a tool says when it hears nothing."""
 
 from __future__ import annotations
 
@@ -16,3 +16,9 @@ def positive_seconds(value: str) -> float:
     if not (math.isfinite(seconds) and seconds > 0):
         raise argparse.ArgumentTypeError(f"{value!r}: seconds, a finite number above 0")
     return seconds
+
+
+# What a tool that hears nothing says after where it looked (status, record, view).
+NOTHING_RUNNING_THERE = (
+    "nothing running there? (`umay up` starts the services; --prefix and --connect look elsewhere)"
+)

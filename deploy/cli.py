@@ -1,7 +1,7 @@
 """The ``umay`` command: builds the top parser from the commands each folder registers
-(:mod:`deploy.launch.cli`, :mod:`deploy.recording.cli`, :mod:`deploy.experiments.cli`,
-:mod:`deploy.bench.cli`, :mod:`deploy.docs.cli`) and dispatches, turning the errors every
-command can meet into its exit code."""
+(:mod:`deploy.launch.cli`, :mod:`deploy.recording.cli`, :mod:`deploy.foxglove.cli`,
+:mod:`deploy.experiments.cli`, :mod:`deploy.bench.cli`, :mod:`deploy.docs.cli`) and dispatches,
+turning the errors every command can meet into its exit code."""
 
 from __future__ import annotations
 
@@ -56,11 +56,12 @@ def commands() -> dict[str, Callable[[argparse._SubParsersAction], None]]:
     from deploy.bench import cli as bench_cli
     from deploy.docs import cli as docs_cli
     from deploy.experiments import cli as experiments
+    from deploy.foxglove import cli as foxglove_cli
     from deploy.launch import cli as launch
     from deploy.recording import cli as recording
 
     found: dict[str, Callable[[argparse._SubParsersAction], None]] = {}
-    for module in (launch, recording, experiments, bench_cli, docs_cli):
+    for module in (launch, recording, foxglove_cli, experiments, bench_cli, docs_cli):
         for name, add in module.COMMANDS.items():
             if name in found:  # two folders claiming one name: argparse would keep the last
                 raise RuntimeError(f"umay: command {name!r} registered twice")

@@ -13,7 +13,7 @@ import numpy as np
 
 from common import kinematics as kin
 from deploy.experiments.domains import RunTask
-from deploy.experiments.evaluate import RunResult
+from deploy.launch.evaluate import RunResult
 
 KILL_DIR_ENV = "UMAY_TEST_KILL_DIR"
 

@@ -37,7 +37,7 @@ from deploy.bench.processes import (
 )
 from deploy.bench.report import DistributedRun
 from deploy.bench.trace import Trace, analyse_trace
-from deploy.launch.supervisor import Supervisor
+from deploy.supervisor import Supervisor
 
 # What ``umay bench --view`` enters once the services are up: (keys, endpoint, log_dir) → a
 # context yielding a dict it fills in when left.

@@ -15,7 +15,7 @@ from deploy.bench import BenchError
 from deploy.bench.report import KeyCounts, ServiceCounters, ServiceUsage
 from deploy.bench.stages import PIPELINE
 from deploy.bench.trace import Trace
-from deploy.launch.supervisor import Supervisor
+from deploy.supervisor import Supervisor
 
 # How often a long run collects the services' stamps while it runs: well within the
 # ``common.publishers.STAMPS_KEPT`` messages per key they keep (2 min at 30 Hz).

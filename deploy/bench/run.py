@@ -69,7 +69,7 @@ def run_bench(
     synthetic_frames = frames if synthetic_frames is None else synthetic_frames
     observer: Observer | None = None
     if view:
-        from deploy.foxglove.bench import watched_by_a_view
+        from deploy.bench.view import watched_by_a_view
 
         def observer(keys: Keys, endpoint: str, view_log_dir: Path):  # type: ignore[no-redef]
             return watched_by_a_view(keys, endpoint, view_log_dir, scenario_path, overrides)

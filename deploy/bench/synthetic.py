@@ -30,7 +30,7 @@ from deploy.bench.processes import (
 from deploy.bench.report import SyntheticRun, summary_ms
 from deploy.bench.stages import PIPELINE, SYNTHETIC_STAGES
 from deploy.bench.trace import Trace, frame_stages
-from deploy.launch.supervisor import Supervisor
+from deploy.supervisor import Supervisor
 
 SYNTHETIC_HZ = 30.0
 MAX_SOURCE_FRAMES = 60  # distinct frames kept for the source (cycled beyond)

@@ -1,1 +1,1 @@
-"""Experiments: the comparison, campaigns, domain studies, accuracy and reachability."""
+"""Experiments: the comparison, campaigns, domain studies and accuracy."""

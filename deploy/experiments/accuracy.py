@@ -26,7 +26,7 @@ from common import kinematics as kin
 from common.camera import CameraIntrinsics
 from common.config import KinectConfig, Scenario, VisionConfig
 from common.marker import Marker
-from deploy.experiments.reachability import check_scenario
+from deploy.launch.reachability import check_scenario
 from services.sim.sensor_model import axial_sigma_m, exposed_rgb, noisy_depth
 from services.sim.world import World
 from services.vision.measurement import measure_markers

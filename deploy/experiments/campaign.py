@@ -37,7 +37,7 @@ from deploy.experiments.compare import CompareError
 from deploy.experiments.compare.plan import Job, Plan, job_overrides
 from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
 from deploy.experiments.compare.summary import format_cell, markdown_table
-from deploy.experiments.reachability import (
+from deploy.launch.reachability import (
     MAX_VIEW_ANGLE_DEG,
     ArmInsideScenery,
     arm_hides_hand_marker,

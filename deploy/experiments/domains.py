@@ -6,7 +6,7 @@ line of sight × depth change along it), the draws per cell and the seed. Draw `
 ``c`` comes from its own generator, ``default_rng([seed, c, d])``: the same seed gives the
 same grid and the same starts whatever the grid's size or the order the runs are scheduled
 in. A start no motion can reach or the camera cannot see is refused with its reason (the
-checks of :mod:`~deploy.experiments.campaign` and :mod:`~deploy.experiments.reachability`);
+checks of :mod:`~deploy.experiments.campaign` and :mod:`~deploy.launch.reachability`);
 every other start is run with every strategy (:class:`RunTask`, a plain picklable value any
 executor can ship).
 
@@ -46,8 +46,8 @@ from deploy.experiments.campaign import (
 from deploy.experiments.compare import CompareError
 from deploy.experiments.compare.plan import job_overrides
 from deploy.experiments.compare.rows import CompareRow, is_on_goal
-from deploy.experiments.evaluate import RunResult
-from deploy.experiments.reachability import (
+from deploy.launch.evaluate import RunResult
+from deploy.launch.reachability import (
     MAX_VIEW_ANGLE_DEG,
     ArmInsideScenery,
     arm_hides_hand_marker,

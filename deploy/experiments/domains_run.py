@@ -16,7 +16,7 @@ own:
 The pipeline (``--pipeline``): ``inprocess`` (the lockstep loop in one process,
 :mod:`deploy.launch.run_inprocess`), ``distributed`` (the four service processes of ``umay
 run``, each run under its own Zenoh key prefix and port), or ``module:function`` (a callable
-taking the :class:`RunTask`, returning a :class:`~deploy.experiments.evaluate.RunResult`; tests
+taking the :class:`RunTask`, returning a :class:`~deploy.launch.evaluate.RunResult`; tests
 use it). Drawing the starts is spread over the same executor (:func:`draw_one`).
 """
 
@@ -41,7 +41,7 @@ from deploy.experiments.domains import (
     draw_domain_start,
     judge,
 )
-from deploy.experiments.evaluate import RunResult
+from deploy.launch.evaluate import RunResult
 
 PIPELINES = ("inprocess", "distributed")
 # A task that raised (not one whose worker died: Dask reschedules those) is tried this many

@@ -26,7 +26,7 @@ import numpy as np
 
 from common import kinematics as kin
 from common.config import Scenario, ScenarioError, load_scenario
-from deploy.experiments.reachability import check_scenario, goal_pose, marker_in_image, square_turns
+from deploy.launch.reachability import check_scenario, goal_pose, marker_in_image, square_turns
 
 SUITE_DIR = Path(__file__).resolve().parents[1] / "scenarios" / "suite"
 KINECT_RANGE_MARGIN_M = 0.03  # noisy depth: 3 cm clear of the near limit (the brief's 0.43 m)
@@ -140,7 +140,7 @@ def _nearest_range_m(pose: np.ndarray, scenario: Scenario) -> float:
 def check_start(scenario: Scenario) -> StartReport:
     """Render the start once and judge it (see the module docstring). Raises ScenarioError
     when the pre-launch check already refuses the scenario."""
-    from deploy.experiments.evaluate import square_orientation_error_deg
+    from deploy.launch.evaluate import square_orientation_error_deg
     from services.sim.world import World
 
     check_scenario(scenario)

@@ -41,11 +41,11 @@ from common.config import Scenario
 from common.keys import DEPTH, JOINT_STATE, RGB, Keys
 from common.node import Node
 from common.queries import query_status
+from deploy.arguments import NOTHING_RUNNING_THERE
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from deploy.foxglove import convert, topics, transforms
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_arguments
-from deploy.launch.status import NOTHING_RUNNING_THERE
 
 log = logging.getLogger("umay.view")
 

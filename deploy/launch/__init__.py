@@ -1,2 +1,3 @@
-"""Launch: the supervisor of the four service processes, ``umay run`` (one bounded run),
-``umay up`` (keep them running) and ``umay status`` (ask them how they are)."""
+"""Launch: ``umay run`` (one bounded run: checked before launch, judged at its end), ``umay
+up`` (keep the services running) and ``umay status`` (ask them how they are); the processes
+themselves are :mod:`deploy.supervisor`'s."""

@@ -1,4 +1,4 @@
-"""The launch commands of ``umay``: run, up, view, router, logs, service and status (their
+"""The launch commands of ``umay``: run, up, router, logs, service and status (their
 parsers and handlers; :mod:`deploy.cli` puts them together)."""
 
 from __future__ import annotations
@@ -225,12 +225,6 @@ def _view_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--view-port", type=int, default=8765, help="its WebSocket port (8765)")
 
 
-def cmd_view(args: argparse.Namespace) -> int:
-    from deploy.foxglove.node import serve
-
-    return serve(args)
-
-
 def cmd_router(args: argparse.Namespace) -> int:
     """A Zenoh router for multi-host setups, for users without zenohd."""
 
@@ -393,18 +387,6 @@ def add_up_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_up)
 
 
-def add_view_parser(sub: argparse._SubParsersAction) -> None:
-    """``umay view``: the live Foxglove view (options in :mod:`deploy.foxglove.options`)."""
-    p = sub.add_parser(
-        "view",
-        help="live Foxglove view of a running system (WebSocket, default ws://127.0.0.1:8765)",
-    )
-    from deploy.foxglove.options import add_view_arguments
-
-    add_view_arguments(p)
-    p.set_defaults(func=cmd_view)
-
-
 def add_router_parser(sub: argparse._SubParsersAction) -> None:
     """``umay router``: a Zenoh router."""
     p = sub.add_parser("router", help="run a Zenoh router (multi-host setups)")
@@ -464,7 +446,6 @@ def add_status_parser(sub: argparse._SubParsersAction) -> None:
 COMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
     "run": add_run_parser,
     "up": add_up_parser,
-    "view": add_view_parser,
     "router": add_router_parser,
     "logs": add_logs_parser,
     "service": add_service_parser,

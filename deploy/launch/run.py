@@ -25,10 +25,10 @@ from common.keys import Keys
 from common.messages import EndEffectorTwist, SimTruth
 from common.runtime import parse_overrides
 from common.session import DEFAULT_ENDPOINT, free_tcp_endpoint, open_session
-from deploy.experiments.evaluate import RunResult, pose
-from deploy.experiments.reachability import check_scenario
+from deploy.launch.evaluate import RunResult, pose
+from deploy.launch.reachability import check_scenario
 from deploy.launch.run_end import EndLimits, HoldState, RunEnd, judge_twist, run_result
-from deploy.launch.supervisor import Supervisor
+from deploy.supervisor import Supervisor
 from services.controller.ibvs import ACQUIRING
 
 M = TypeVar("M", bound=BaseModel)

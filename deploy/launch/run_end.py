@@ -9,7 +9,7 @@ than ``controller.stuck_after_s`` (sim time), or servoes an image error that has
 in a local minimum: its twist has gone to zero, or it pushes against a limit;
 :mod:`services.controller.progress`): the reasons
 ``converged``, ``timeout``, ``acquisition_failed``, ``stuck`` and ``stalled``. The result is
-judged at that frame (deploy/evaluate.py).
+judged at that frame (deploy/launch/evaluate.py).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 from common.config import EventAction, Scenario
 from common.messages import EndEffectorTwist, SimTruth
-from deploy.experiments.evaluate import RunResult, summarize
+from deploy.launch.evaluate import RunResult, summarize
 from services.controller.ibvs import ACQUISITION_FAILED
 from services.controller.progress import Progress, stall_detail
 

@@ -18,7 +18,7 @@ import time
 from common.config import ClockMode, Scenario
 from common.messages import EndEffectorTwist, SimTruth
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_CONVERGED, EXIT_NOT_CONVERGED
-from deploy.experiments.evaluate import RunResult
+from deploy.launch.evaluate import RunResult
 from deploy.launch.run_end import EndLimits, HoldState, RunEnd, judge_twist, run_result
 from services.pipeline import Pipeline
 

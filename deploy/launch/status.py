@@ -14,6 +14,7 @@ from rich.text import Text
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
 from common.queries import alive_services, query_status
+from deploy.arguments import NOTHING_RUNNING_THERE
 
 
 @dataclass(frozen=True)
@@ -36,12 +37,6 @@ def collect(session: zenoh.Session, keys: Keys, timeout_s: float) -> list[Servic
     alive = alive_services(session, keys, timeout_s)
     names = sorted(set(SERVICES) | set(statuses) | alive)
     return [ServiceView(n, n in alive, statuses.get(n)) for n in names]
-
-
-# What a tool that hears nothing says after where it looked (status, record, view).
-NOTHING_RUNNING_THERE = (
-    "nothing running there? (`umay up` starts the services; --prefix and --connect look elsewhere)"
-)
 
 
 def verdict(views: list[ServiceView], keys: Keys, looked_on: str) -> tuple[int, str]:

@@ -18,7 +18,7 @@ from common.node import Node
 from common.queries import alive_services
 from common.session import open_session
 from deploy.exit_codes import EXIT_ALREADY_RUNNING
-from deploy.launch.supervisor import Supervisor
+from deploy.supervisor import Supervisor
 
 
 def run_up(

@@ -1,4 +1,4 @@
-"""The recording commands of ``umay``: record, info, replay, plot and export (their parsers
+"""The recording commands of ``umay``: record, info, replay and plot (their parsers
 and handlers; :mod:`deploy.cli` puts them together)."""
 
 from __future__ import annotations
@@ -17,9 +17,8 @@ from common.config import ScenarioError
 from common.keys import Keys, default_prefix
 from common.runtime import endpoints_argument, prefix_argument
 from common.session import open_session, where_connecting, zenoh_reason
-from deploy.arguments import positive_seconds
+from deploy.arguments import NOTHING_RUNNING_THERE, positive_seconds
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_NOT_CONVERGED
-from deploy.launch.status import NOTHING_RUNNING_THERE
 from deploy.paths import check_output_dir, check_output_file
 
 
@@ -161,44 +160,6 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_export(args: argparse.Namespace) -> int:
-    from deploy.foxglove.export import export_foxglove
-    from deploy.recording.read import NotARecordingError
-
-    if not Path(args.file).is_file():
-        print(f"umay export: {args.file}: no such file", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if not args.foxglove:
-        print("umay export: say what to write: --foxglove OUT.mcap", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    check_output_file("--foxglove", args.foxglove)
-    if Path(args.foxglove).resolve() == Path(args.file).resolve():
-        print("umay export: --foxglove must not overwrite the recording", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    try:
-        report = export_foxglove(args.file, args.foxglove, args.jpeg_quality)
-    except (NotARecordingError, ScenarioError) as exc:
-        print(f"umay export: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    for topic, n in sorted(report.written.items()):
-        print(f"{n:8d}  {topic}")
-    print(f"{sum(report.written.values()):8d}  messages in {args.foxglove}")
-    for note in report.notes:
-        print(f"note: {note}", file=sys.stderr)
-    if report.rejected:
-        print(f"note: {report.rejected} recorded payloads did not decode", file=sys.stderr)
-    return 0 if report.written else EXIT_NOT_CONVERGED
-
-
-def add_export_parser(sub: argparse._SubParsersAction) -> None:
-    """``umay export``: a recording as an MCAP file Foxglove shows."""
-    p = sub.add_parser("export", help="a recording as an MCAP file Foxglove shows")
-    p.add_argument("file", metavar="RUN.mcap")
-    p.add_argument("--foxglove", default=None, metavar="OUT.mcap", help="write it here")
-    p.add_argument("--jpeg-quality", type=int, default=85, help="colour images' JPEG quality")
-    p.set_defaults(func=cmd_export)
-
-
 def add_plot_parser(sub: argparse._SubParsersAction) -> None:
     """``umay plot``: the figures of a recording."""
     p = sub.add_parser("plot", help="figures of a recorded run (PNG)")
@@ -266,7 +227,6 @@ def add_replay_parser(sub: argparse._SubParsersAction) -> None:
 
 # Command name -> what adds its parser; deploy.cli puts them in the help's order.
 COMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
-    "export": add_export_parser,
     "plot": add_plot_parser,
     "record": add_record_parser,
     "info": add_info_parser,

@@ -55,10 +55,10 @@ from common.keys import Keys
 from common.queries import alive_services
 from common.runtime import parse_overrides
 from common.session import free_tcp_endpoint, open_session
-from deploy.launch.supervisor import Supervisor
 from deploy.paths import check_output_dir
 from deploy.recording.channels import split_data_key
 from deploy.recording.read import NotARecordingError, RecordingReader
+from deploy.supervisor import Supervisor
 
 JOINT_STATE = "sim/joint_state"
 # Wall-clock stamps and counters differ from run to run by nature.

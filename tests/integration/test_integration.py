@@ -24,7 +24,7 @@ from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, Header, JointState, MarkerFeatures
 from common.queries import query_status
 from common.session import ENV_SHM, free_tcp_endpoint, open_session
-from deploy.experiments.evaluate import RunResult
+from deploy.launch.evaluate import RunResult
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from tests.conftest import launch_umay_up, views_once_controller
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.experiments.evaluate import RunResult
+from deploy.launch.evaluate import RunResult
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from tests.unit.test_pipeline import short
 

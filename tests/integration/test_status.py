@@ -16,7 +16,7 @@ import pytest
 from common.keys import SERVICES, Keys
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
-from deploy.launch.supervisor import Supervisor
+from deploy.supervisor import Supervisor
 from tests.conftest import launch_umay_up
 
 

@@ -23,7 +23,7 @@ from common.messages import ServiceStatus
 from common.node import Node
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
-from deploy.launch.supervisor import Supervisor
+from deploy.supervisor import Supervisor
 from tests.conftest import launch_umay_up, processes_mentioning
 
 

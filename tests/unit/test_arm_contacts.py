@@ -11,8 +11,8 @@ import pytest
 from common.config import ScenarioError, load_scenario
 from common.messages import Header, SimTruth
 from common.runtime import parse_overrides
-from deploy.experiments.evaluate import CONTACT_MIN_N, first_contact
-from deploy.experiments.reachability import (
+from deploy.launch.evaluate import CONTACT_MIN_N, first_contact
+from deploy.launch.reachability import (
     PENETRATION_TOLERANCE_M,
     arm_penetration,
     check_scenario,

@@ -21,7 +21,7 @@ from deploy.experiments.campaign import (
     waited_for,
 )
 from deploy.experiments.compare.rows import CompareRow
-from deploy.experiments.reachability import (
+from deploy.launch.reachability import (
     check_scenario,
     goal_pose,
     marker_in_image,
@@ -155,7 +155,7 @@ def test_a_start_posture_inside_the_scenery_is_drawn_again_and_counted(
     """No posture at all, so not a refusal: the draw is made again (the geometry itself:
     test_arm_contacts.py). Here the first posture drawn is said to be 3 mm inside the object."""
     import deploy.experiments.campaign as campaign
-    import deploy.experiments.reachability as reachability
+    import deploy.launch.reachability as reachability
 
     plain = draw_start(DIST, BASE, 0)
     calls: list[int] = []

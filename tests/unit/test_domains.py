@@ -38,8 +38,8 @@ from deploy.experiments.domains_report import (
     summary_table,
     write_heatmaps,
 )
-from deploy.experiments.evaluate import RunResult
-from deploy.experiments.reachability import goal_pose, square_turns
+from deploy.launch.evaluate import RunResult
+from deploy.launch.reachability import goal_pose, square_turns
 
 STUDY, BASE_PATH = load_study(DEFAULT_STUDY)
 BASE = load_scenario(BASE_PATH)

@@ -1,11 +1,11 @@
-"""deploy.experiments.evaluate: how a run's end is judged against the ground truth."""
+"""deploy.launch.evaluate: how a run's end is judged against the ground truth."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from common import kinematics as kin
-from deploy.experiments.evaluate import square_orientation_error_deg
+from deploy.launch.evaluate import square_orientation_error_deg
 
 
 def test_a_half_turned_square_is_on_goal_unless_its_corner_is_marked() -> None:

@@ -12,7 +12,7 @@ import pytest
 
 from common import kinematics as kin
 from common.config import Scenario, load_scenario
-from deploy.experiments.reachability import solve_goal
+from deploy.launch.reachability import solve_goal
 from services.sim.urdf import robot_urdf
 from services.sim.world import World
 from services.vision.cue import cue_mask

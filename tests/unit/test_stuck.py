@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from common.codec import encode
 from common.messages import EndEffectorTwist, Header
-from deploy.experiments.evaluate import summarize
+from deploy.launch.evaluate import summarize
 from deploy.launch.run import RunMonitor, twist_phase
 from deploy.launch.run_end import EndLimits, stuck_detail
 from services.controller.progress import Progress, describe_stall, stall_detail

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from common.config import RestartPolicy, SupervisorConfig
 from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
-from deploy.launch.supervisor import Heard, backoff_s, hang_reason, wants_restart
+from deploy.supervisor import Heard, backoff_s, hang_reason, wants_restart
 
 
 def test_restart_policy_and_backoff() -> None:

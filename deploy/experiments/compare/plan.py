@@ -79,9 +79,9 @@ def plan(
 ) -> Plan:
     """Every (scenario, mode) job, scenario-major, after validating each scenario with each
     mode (pydantic) and once with the pre-launch check
-    (:func:`deploy.experiments.reachability.check_scenario`). Raises :class:`CompareError`
+    (:func:`deploy.launch.reachability.check_scenario`). Raises :class:`CompareError`
     naming the file and the reason."""
-    from deploy.experiments.reachability import check_scenario as check
+    from deploy.launch.reachability import check_scenario as check
 
     files = scenario_files(directory)
     jobs: list[Job] = []

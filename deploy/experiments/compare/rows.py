@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from deploy.experiments.compare.plan import Job, moves_target
-from deploy.experiments.evaluate import RunResult
+from deploy.launch.evaluate import RunResult
 
 # What two lockstep comparisons of the same scenarios may disagree on: the wall time, and
 # where the scenario files were (a subset copied elsewhere is checked against the suite).

@@ -20,7 +20,7 @@ from pathlib import Path
 from deploy.experiments.compare.plan import Job, Plan
 from deploy.experiments.compare.rows import CompareRow, make_row, rows_csv, rows_json
 from deploy.experiments.compare.summary import summary_markdown
-from deploy.experiments.evaluate import RunResult
+from deploy.launch.evaluate import RunResult
 
 
 # --- running -----------------------------------------------------------------------------------
