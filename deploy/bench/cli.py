@@ -78,7 +78,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.json:
             write_json(result, args.json)
         if args.figure:
-            from deploy.recording.plots import write_bench_figure
+            from deploy.bench.figure import write_bench_figure
 
             # frame by frame: the first run
             write_bench_figure(runs[0].to_json(), Path(args.figure))

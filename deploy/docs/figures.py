@@ -15,7 +15,7 @@ BENCH_STAGES_PNG = "docs/figures/bench_stages.png"
 def redraw(root: Path, inputs: Inputs) -> list[str]:
     """Draw every figure whose JSON is there; write those whose bytes changed. Returns the
     figures rewritten (paths relative to ``root``)."""
-    from deploy.recording.plots import bench_png  # matplotlib: only when drawing
+    from deploy.bench.figure import bench_png  # matplotlib: only when drawing
 
     lockstep = next((r for r in inputs.bench if r.name == LOCKSTEP_RUN), None)
     runs = lockstep.data.get("each_run") if lockstep else None

@@ -21,7 +21,6 @@ Usage: ``umay plot RUN.mcap --out DIR`` (:func:`deploy.recording.cli.cmd_plot`).
 
 from __future__ import annotations
 
-import io
 import logging
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -30,7 +29,6 @@ from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
-from matplotlib import colormaps
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -224,7 +222,7 @@ def load_series(path: Path) -> RunSeries:
 
 
 # --- figures ---------------------------------------------------------------------------------
-def _new_figure(width_in: float, height_in: float, nrows: int = 1) -> tuple[Figure, list[Axes]]:
+def new_figure(width_in: float, height_in: float, nrows: int = 1) -> tuple[Figure, list[Axes]]:
     fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, 1, sharex=True, squeeze=False)[:, 0]
@@ -235,7 +233,7 @@ def _title(base: str, series: RunSeries) -> str:
     return f"{base} — mode: {series.mode_label}" if series.mode_label else base
 
 
-def _style_axes(ax: Axes) -> None:
+def style_axes(ax: Axes) -> None:
     ax.grid(True, which="major", alpha=0.35, linewidth=0.6)
     ax.grid(True, which="minor", alpha=0.15, linewidth=0.4)
     ax.minorticks_on()
@@ -252,7 +250,7 @@ def image_trajectory_figure(series: RunSeries) -> Figure | None:
         return None
     width, height = series.image_size_px
     hand = series.hand_px[series.hand_visible]
-    fig, (ax,) = _new_figure(7.2, 6.0)
+    fig, (ax,) = new_figure(7.2, 6.0)
     for i, colour in enumerate(CORNER_COLOURS):
         ax.plot(
             hand[:, i, 0],
@@ -311,7 +309,7 @@ def image_trajectory_figure(series: RunSeries) -> Figure | None:
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
     ax.set_title(_title(f"Image-plane trajectory ({width}×{height} px)", series))
-    _style_axes(ax)
+    style_axes(ax)
     ax.legend(loc="best", fontsize=8, framealpha=0.9)
     return fig
 
@@ -323,7 +321,7 @@ def _plot_vector(ax: Axes, t: np.ndarray, values: np.ndarray, symbol: str, unit:
     ax.plot(t, norm, color=NORM_COLOUR, linewidth=1.6, linestyle="--", label=rf"$\|{symbol}\|$")
     ax.axhline(0.0, color="0.4", linewidth=0.6)
     ax.set_ylabel(f"{unit}")
-    _style_axes(ax)
+    style_axes(ax)
     ax.legend(loc="upper right", fontsize=8, ncols=4, framealpha=0.9)
 
 
@@ -331,7 +329,7 @@ def ee_velocity_figure(series: RunSeries) -> Figure | None:
     """Commanded end-effector linear (m/s) and angular (rad/s) velocity over time."""
     if not series.twist_t_s.size:
         return None
-    fig, (ax_v, ax_w) = _new_figure(7.2, 5.6, nrows=2)
+    fig, (ax_v, ax_w) = new_figure(7.2, 5.6, nrows=2)
     _plot_vector(ax_v, series.twist_t_s, series.linear_m_s, "v", "linear velocity (m/s)")
     _plot_vector(
         ax_w, series.twist_t_s, series.angular_rad_s, r"\omega", "angular velocity (rad/s)"
@@ -358,7 +356,7 @@ def feature_error_figure(
     if not valid.any():
         return None
     error = np.where(valid, series.error_px_rms, np.nan)  # NaN: a gap while holding
-    fig, (ax,) = _new_figure(7.2, 4.2)
+    fig, (ax,) = new_figure(7.2, 4.2)
     ax.semilogy(
         series.twist_t_s,
         error,
@@ -380,7 +378,7 @@ def feature_error_figure(
     ax.set_xlabel("simulated time (s)")
     ax.set_ylabel(r"RMS of $e = s - s^*$ (px)")
     ax.set_title(_title("Feature error", series))
-    _style_axes(ax)
+    style_axes(ax)
     ax.legend(loc="upper right", fontsize=8, framealpha=0.9)
     return fig
 
@@ -389,7 +387,7 @@ def joint_velocities_figure(series: RunSeries) -> Figure | None:
     """The six commanded joint velocities (deadman stops excluded) over time."""
     if not series.cmd_t_s.size:
         return None
-    fig, (ax,) = _new_figure(7.2, 4.2)
+    fig, (ax,) = new_figure(7.2, 4.2)
     for j, colour in enumerate(JOINT_COLOURS):
         ax.plot(
             series.cmd_t_s,
@@ -402,7 +400,7 @@ def joint_velocities_figure(series: RunSeries) -> Figure | None:
     ax.set_xlabel("simulated time (s)")
     ax.set_ylabel("joint velocity (rad/s)")
     ax.set_title(_title("Commanded joint velocities", series))
-    _style_axes(ax)
+    style_axes(ax)
     ax.legend(loc="upper right", fontsize=8, ncols=3, framealpha=0.9)
     return fig
 
@@ -440,69 +438,3 @@ def plot_series(
         fig.savefig(target, dpi=DPI)
         written.append(target)
     return written
-
-
-def bench_figure(result: dict) -> Figure | None:
-    """``umay bench``'s frames one by one: the distributed latency (frame captured → command
-    applied) as a stack of its stages, and the in-process functions' time on the same frames
-    as a line (lockstep only: a realtime run's frames are not the baseline's). None when the
-    result has no frame rows (e.g. a medians-of-runs result)."""
-    frames = result.get("distributed", {}).get("frames_ms") or []
-    if not frames:
-        return None
-    fig, (ax,) = _new_figure(9.0, 4.2)
-    seqs = np.array([f["frame_seq"] for f in frames])
-    # The rows hold the stages in loop order; the render is not part of the latency.
-    stages = [k for k in frames[0] if k not in ("frame_seq", "latency_ms", "render")]
-    colours = colormaps["tab10"].colors
-    bottom = np.zeros(len(frames))
-    for i, stage in enumerate(stages):
-        height = np.array([f.get(stage, 0.0) for f in frames])
-        label = stage.replace("_", " ")
-        ax.bar(seqs, height, bottom=bottom, width=0.85, color=colours[i % 10], label=label)
-        bottom += height
-    cfg = result.get("config", {})
-    lockstep = cfg.get("clock") == "lockstep"  # else the baseline's frames are other frames
-    ratio = result.get("ratio", {}).get("p50") if lockstep else None
-    inprocess = result["inprocess"].get("frames_ms", [])  # in frame order
-    if inprocess and lockstep:
-        ax.plot(
-            [f["frame_seq"] for f in inprocess],
-            [f["latency_ms"] for f in inprocess],
-            color="black",
-            linewidth=1.4,
-            marker=".",
-            label="in-process functions",
-        )
-    ax.set_title(
-        "frame captured → command applied, render excluded\n"
-        f"{cfg.get('width_px')}×{cfg.get('height_px')} {cfg.get('clock')}, {cfg.get('transport')}"
-        + ("" if ratio is None else f"; distributed / in-process p50 {ratio:.2f}"),
-        fontsize=10,
-    )
-    ax.set_xlabel("camera frame")
-    ax.set_ylabel("ms")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-    _style_axes(ax)
-    return fig
-
-
-def bench_png(result: dict) -> bytes | None:
-    """:func:`bench_figure` as PNG bytes (what ``umay docs`` compares with the file it keeps);
-    None when there is nothing to draw."""
-    fig = bench_figure(result)
-    if fig is None:
-        return None
-    out = io.BytesIO()
-    fig.savefig(out, format="png", dpi=DPI)
-    return out.getvalue()
-
-
-def write_bench_figure(result: dict, path: Path) -> bool:
-    """:func:`bench_figure` as a PNG at ``path``; False when there is nothing to draw."""
-    fig = bench_figure(result)
-    if fig is None:
-        return False
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI)
-    return True

@@ -11,12 +11,12 @@ import pytest
 
 from common.codec import encode
 from common.messages import AppliedCommand, Header, PublishedStamps, SimTiming
+from deploy.bench.figure import bench_figure
 from deploy.bench.report import BenchReport, load_json, median_of_runs, summary_ms
 from deploy.bench.run import same_commands_max_abs_diff
 from deploy.bench.stages import LATENCY_STAGES
 from deploy.bench.text import format_report
 from deploy.bench.trace import HopStamp, Trace, analyse_trace
-from deploy.recording.plots import bench_figure
 
 BENCH_JSON = sorted((Path(__file__).parents[2] / "docs" / "bench").glob("*.json"))
 

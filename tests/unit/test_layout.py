@@ -22,7 +22,8 @@ DEPLOY_LAYERS: list[set[str]] = [
     {"foxglove"},
     {"launch"},
     {"experiments"},
-    {"bench", "docs"},
+    {"bench"},
+    {"docs"},
     {"cli"},
     {"__main__"},
 ]
