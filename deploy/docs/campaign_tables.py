@@ -11,7 +11,7 @@ from typing import Any
 
 from deploy.docs.bench_tables import link
 from deploy.docs.sources import CAMPAIGN_JSON, PER_CORNER_JSON, RESULTS_JSON, Inputs
-from deploy.experiments.campaign import CAUSES, cause_family
+from deploy.experiments.campaign.causes import CAUSES, cause_family
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.compare.summary import markdown_table
 

@@ -233,7 +233,7 @@ def draw_figures(plan_: Plan, out_dir: Path, console: Console) -> list[Path]:
 # --- umay campaign ---------------------------------------------------------------------------
 def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
     """The ``campaign`` subcommand: random starts, every strategy, a failure taxonomy."""
-    from deploy.experiments.campaign import DEFAULT_DISTRIBUTION
+    from deploy.experiments.campaign.starts import DEFAULT_DISTRIBUTION
 
     p = sub.add_parser(
         "campaign",
@@ -271,9 +271,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from deploy.experiments.campaign import (
+    from deploy.experiments.campaign.causes import failure_cause
+    from deploy.experiments.campaign.run import (
         campaign_inputs,
-        failure_cause,
         plan_campaign,
         run_campaign,
         write_campaign,

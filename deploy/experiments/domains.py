@@ -6,12 +6,12 @@ line of sight × depth change along it), the draws per cell and the seed. Draw `
 ``c`` comes from its own generator, ``default_rng([seed, c, d])``: the same seed gives the
 same grid and the same starts whatever the grid's size or the order the runs are scheduled
 in. A start no motion can reach or the camera cannot see is refused with its reason (the
-checks of :mod:`~deploy.experiments.campaign` and :mod:`~deploy.launch.reachability`);
+checks of :mod:`~deploy.experiments.campaign.starts` and :mod:`~deploy.launch.reachability`);
 every other start is run with every strategy (:class:`RunTask`, a plain picklable value any
 executor can ship).
 
 Every run is judged into one :class:`DomainRecord` with one named cause
-(:func:`deploy.experiments.campaign.failure_cause`).
+(:func:`deploy.experiments.campaign.causes.failure_cause`).
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from common import kinematics as kin
 from common.config import Scenario, ScenarioError, load_scenario
 from common.runtime import parse_overrides
-from deploy.experiments.campaign import (
+from deploy.experiments.campaign.causes import failure_cause
+from deploy.experiments.campaign.starts import (
     REDRAW_ARM_INSIDE,
     REDRAW_GOAL_HIDDEN,
     REDRAW_HAND_FACING_AWAY,
@@ -36,7 +37,6 @@ from deploy.experiments.campaign import (
     REDRAW_HAND_OUTSIDE,
     REDRAW_START_OUT_OF_REACH,
     REDRAW_TARGET_OUTSIDE,
-    failure_cause,
     load_definition,
     start_overrides,
     walk_to_start,
@@ -300,7 +300,7 @@ class DomainRecord(BaseModel):
     start: str
     mode: str
     outcome: str  # "converged" (on its goal) or "failed"
-    cause: str  # deploy.experiments.campaign.failure_cause
+    cause: str  # deploy.experiments.campaign.causes.failure_cause
     frames: int
     final_pixel_rms: float | None
     final_position_error_m: float | None

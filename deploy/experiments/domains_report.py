@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from deploy.experiments.campaign import cause_family
+from deploy.experiments.campaign.causes import cause_family
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.compare.summary import markdown_table
 from deploy.experiments.domains import DomainRecord, DomainStart, StudyDefinition

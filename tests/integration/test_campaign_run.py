@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from deploy.experiments.campaign import CAUSES, cause_family
+from deploy.experiments.campaign.causes import CAUSES, cause_family
 from deploy.experiments.compare.rows import differences, rows_from_json
 
 CHEAP = ["camera.width_px=320", "camera.height_px=240", "run.timeout_s=15.0"]

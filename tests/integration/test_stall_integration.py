@@ -10,7 +10,7 @@ import signal
 from pathlib import Path
 
 from common.session import open_session
-from deploy.experiments.campaign import start_overrides
+from deploy.experiments.campaign.starts import start_overrides
 from tests.conftest import launch_umay_up, views_once_controller
 from tests.integration.test_integration import umay_run
 

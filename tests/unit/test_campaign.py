@@ -10,16 +10,9 @@ import pytest
 
 from common import kinematics as kin
 from common.config import load_scenario
-from deploy.experiments.campaign import (
-    CAUSES,
-    DEFAULT_DISTRIBUTION,
-    cause_family,
-    draw_start,
-    failure_cause,
-    load_distribution,
-    taxonomy_markdown,
-    waited_for,
-)
+from deploy.experiments.campaign.causes import CAUSES, cause_family, failure_cause, waited_for
+from deploy.experiments.campaign.report import taxonomy_markdown
+from deploy.experiments.campaign.starts import DEFAULT_DISTRIBUTION, draw_start, load_distribution
 from deploy.experiments.compare.rows import CompareRow
 from deploy.launch.reachability import (
     check_scenario,
@@ -135,7 +128,7 @@ def test_taxonomy_counts_every_start_and_run() -> None:
 def test_the_first_starts_runs_are_recorded_for_the_figures_unless_none_are_wanted(
     tmp_path: Path,
 ) -> None:
-    from deploy.experiments.campaign import plan_campaign
+    from deploy.experiments.campaign.run import plan_campaign
     from deploy.experiments.compare.run import make_figures
 
     with_figures = plan_campaign(2, ["dynamic", "mpj"])
@@ -154,7 +147,7 @@ def test_a_start_posture_inside_the_scenery_is_drawn_again_and_counted(
 ) -> None:
     """No posture at all, so not a refusal: the draw is made again (the geometry itself:
     test_arm_contacts.py). Here the first posture drawn is said to be 3 mm inside the object."""
-    import deploy.experiments.campaign as campaign
+    import deploy.experiments.campaign.starts as campaign
     import deploy.launch.reachability as reachability
 
     plain = draw_start(DIST, BASE, 0)
@@ -172,7 +165,7 @@ def test_a_start_posture_inside_the_scenery_is_drawn_again_and_counted(
 
 
 def test_starts_drawn_by_two_processes_are_the_same_and_reported_in_order() -> None:
-    from deploy.experiments.campaign import plan_campaign
+    from deploy.experiments.campaign.run import plan_campaign
 
     drawn: list[int] = []
     parallel = plan_campaign(3, ["dynamic"], figures=False, jobs=2, on_drawn=drawn.append)
@@ -196,7 +189,7 @@ def test_bad_campaign_input_exits_2_before_any_start_is_drawn(
     umay_cli: Callable[..., CliResult],
 ) -> None:
     """Drawing 200 starts takes minutes: a bad option is named before it starts."""
-    import deploy.experiments.campaign as campaign
+    import deploy.experiments.campaign.run as campaign
 
     def no_drawing(*_args: object) -> None:
         raise AssertionError("a start was drawn")

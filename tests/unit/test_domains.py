@@ -12,7 +12,7 @@ import pytest
 
 from common import kinematics as kin
 from common.config import load_scenario
-from deploy.experiments.campaign import rotation_about
+from deploy.experiments.campaign.starts import rotation_about
 from deploy.experiments.compare import CompareError
 from deploy.experiments.domains import (
     DEFAULT_STUDY,
@@ -269,7 +269,7 @@ def test_starts_are_drawn_on_the_scenario_the_runs_see() -> None:
     target's corner 0): the 0° start on the goal must be that one, not a quarter turn of it
     that a plain square would accept and the cue would make a real turn."""
     from common.runtime import parse_overrides
-    from deploy.experiments.campaign import with_target
+    from deploy.experiments.campaign.starts import with_target
     from deploy.experiments.domains_run import draw_one
 
     assert "marker.orientation_cue=true" in STUDY.overrides

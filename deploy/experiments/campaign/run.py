@@ -1,0 +1,142 @@
+"""A campaign from start to end: check its input, draw its starts (on ``jobs`` processes),
+plan every (start, strategy) run as compare does, run them, and write the outputs."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+
+from common.config import Scenario, ScenarioError, load_scenario
+from common.runtime import parse_overrides
+from deploy.experiments.campaign.report import campaign_rows, starts_json, taxonomy_markdown
+from deploy.experiments.campaign.starts import (
+    DEFAULT_DISTRIBUTION,
+    Distribution,
+    Start,
+    draw_start,
+    load_distribution,
+)
+from deploy.experiments.compare import CompareError
+from deploy.experiments.compare.plan import Job, Plan, job_overrides
+from deploy.experiments.compare.rows import CompareRow
+
+
+@dataclass(frozen=True)
+class CampaignPlan:
+    plan: Plan
+    starts: tuple[Start, ...]
+    distribution: Distribution
+    distribution_path: Path
+
+
+def _draw_all(
+    dist: Distribution, base: Scenario, n: int, jobs: int, on_drawn: Callable[[int], None]
+) -> Iterator[Start]:
+    """Starts 0 … n-1 in order, drawn by ``jobs`` processes (inverse kinematics and a
+    pybullet scene per draw: the slow part of planning a campaign)."""
+    if jobs <= 1 or n == 1:
+        for i in range(n):
+            yield draw_start(dist, base, i)
+            on_drawn(i)
+        return
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for i, start in enumerate(pool.map(partial(draw_start, dist, base), range(n))):
+            yield start
+            on_drawn(i)
+
+
+def campaign_inputs(
+    n: int,
+    distribution_path: Path = DEFAULT_DISTRIBUTION,
+    seed: int | None = None,
+    overrides: Sequence[str] = (),
+) -> tuple[Distribution, Path, Scenario]:
+    """The distribution (``seed`` instead of its own), its base scenario's path and the base
+    scenario with ``overrides``, validated: raises :class:`CompareError` naming the bad
+    input. Cheap, so a command checks its input with it before drawing for minutes."""
+    if n < 1:
+        raise CompareError(f"--n: at least 1 start, not {n}")
+    dist, base_path = load_distribution(distribution_path)
+    if seed is not None:
+        dist = dist.model_copy(update={"seed": seed})
+    try:
+        base = load_scenario(base_path, parse_overrides(list(overrides)))
+    except ScenarioError as exc:
+        raise CompareError(str(exc)) from exc
+    return dist, base_path, base
+
+
+def plan_campaign(
+    n: int,
+    modes: Sequence[str],
+    distribution_path: Path = DEFAULT_DISTRIBUTION,
+    seed: int | None = None,
+    overrides: Sequence[str] = (),
+    figures: bool = True,
+    jobs: int = 1,
+    on_drawn: Callable[[int], None] | None = None,
+) -> CampaignPlan:
+    """Draw ``n`` starts (``seed`` instead of the distribution's), validate every job.
+    ``figures``: the first start's runs are recorded, for the figures (False: none is).
+    ``jobs``: worker processes drawing at once (each start comes from its own generator, so
+    the same starts whatever ``jobs``); ``on_drawn(i)`` after start ``i``, in order."""
+    dist, base_path, base = campaign_inputs(n, distribution_path, seed, overrides)
+    starts = tuple(_draw_all(dist, base, n, jobs, on_drawn or (lambda _i: None)))
+    jobs: list[Job] = []
+    names: list[str] = []
+    for start in starts:
+        if start.refused:
+            continue
+        names.append(start.name)
+        for mode in modes:
+            timeout = () if dist.timeout_s is None else (f"run.timeout_s={dist.timeout_s!r}",)
+            items = job_overrides([*start.overrides(), *timeout, *overrides], mode)
+            try:
+                scenario = load_scenario(base_path, parse_overrides(list(items)))
+            except ScenarioError as exc:
+                raise CompareError(f"{start.name}: {exc}") from exc
+            record = figures and start.name == names[0]
+            jobs.append(Job(base_path, scenario, mode, items, record=record))
+    figures_start = names[0] if names and figures else ""
+    return CampaignPlan(
+        Plan(tuple(jobs), tuple(modes), tuple(names), figures_start),
+        starts,
+        dist,
+        distribution_path,
+    )
+
+
+def run_campaign(
+    cplan: CampaignPlan,
+    n_jobs: int,
+    out_dir: Path,
+    stop,
+    on_start,
+    on_done,
+    pipeline: str = "distributed",
+) -> list[CompareRow]:
+    from deploy.experiments.compare.run import run_all
+
+    return run_all(cplan.plan.jobs, n_jobs, out_dir, stop, on_start, on_done, pipeline)
+
+
+def write_campaign(
+    cplan: CampaignPlan, rows: Sequence[CompareRow], out_dir: Path, figures, note: str
+) -> list[Path]:
+    """compare's outputs, plus campaign.md (the taxonomy), causes.json and starts.json."""
+    from deploy.experiments.compare.run import write_outputs
+
+    written = write_outputs(cplan.plan, rows, out_dir, figures, note) if rows else []
+    modes = cplan.plan.modes
+    md = out_dir / "campaign.md"
+    md.write_text(taxonomy_markdown(cplan.starts, rows, modes, cplan.distribution))
+    causes = out_dir / "causes.json"
+    crows = campaign_rows(cplan.starts, rows, modes)
+    causes.write_text(json.dumps([r.model_dump() for r in crows], indent=2) + "\n")
+    starts = out_dir / "starts.json"
+    starts.write_text(starts_json(cplan.starts))
+    return [*written, md, causes, starts]
