@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from common import kinematics as kin
-from deploy.experiments.domains import RunTask
+from deploy.experiments.domains.study import RunTask
 from deploy.launch.evaluate import RunResult
 
 KILL_DIR_ENV = "UMAY_TEST_KILL_DIR"

@@ -32,21 +32,21 @@ def _domains(inputs: Inputs, here: str, render: Callable[[Any], str]) -> str:
 
 def domains_summary(inputs: Inputs, here: str) -> str:
     """Per strategy: runs, success, the largest rotation handled, the failure causes."""
-    from deploy.experiments.domains_report import summary_table
+    from deploy.experiments.domains.report import summary_table
 
     return _domains(inputs, here, summary_table)
 
 
 def domains_bands(inputs: Inputs, here: str) -> str:
     """Success per strategy by displacement band, and the starts refused per reason."""
-    from deploy.experiments.domains_report import bands_table, refusals_table
+    from deploy.experiments.domains.report import bands_table, refusals_table
 
     return _domains(inputs, here, lambda s: f"{bands_table(s)}\n\n{refusals_table(s)}")
 
 
 def domains_verdict(inputs: Inputs, here: str) -> str:
     """Per strategy and per rotation band, what the study's numbers say."""
-    from deploy.experiments.domains_report import verdict_markdown
+    from deploy.experiments.domains.report import verdict_markdown
 
     def render(study: Any) -> str:
         figure = link(here, f"{posixpath.dirname(DOMAINS_JSON)}/figures/domain_mpj.png")
@@ -68,7 +68,7 @@ def domains_executors(inputs: Inputs, here: str) -> str:
     """The same small study through each executor: wall time per run, the overhead against the
     local process pool's (the folders named ``jobs*`` first), and whether the records are the
     same."""
-    from deploy.experiments.domains import study_differences
+    from deploy.experiments.domains.study import study_differences
 
     if not inputs.executors:
         return f"*Not measured yet: `{EXECUTORS_COMMAND}`, then `umay docs`.*"

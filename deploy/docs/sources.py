@@ -53,7 +53,7 @@ class BenchRun:
 class Inputs:
     results: Sequence[CompareRow] = ()
     bench: Sequence[BenchRun] = ()  # sorted by name
-    domains: Any = None  # the domain study (deploy.experiments.domains_report.Study), if run
+    domains: Any = None  # the domain study (deploy.experiments.domains.report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
     per_corner: Sequence[Mapping[str, Any]] = ()  # constant per_corner on the same starts
@@ -81,7 +81,7 @@ def load_inputs(root: Path) -> Inputs:
             BenchRun(p.stem, json.loads(p.read_text()))
             for p in sorted((root / BENCH_DIR).glob("*.json"))
         ]
-        from deploy.experiments.domains_report import load_study_json
+        from deploy.experiments.domains.report import load_study_json
 
         domains = None
         if (root / DOMAINS_JSON).is_file():

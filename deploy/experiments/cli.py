@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 from common.config import ScenarioError
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 from deploy.experiments.compare import ALL_MODES
-from deploy.experiments.domains_cli import add_domains_parser
+from deploy.experiments.domains.cli import add_domains_parser
 from deploy.paths import check_output_file
 
 if TYPE_CHECKING:

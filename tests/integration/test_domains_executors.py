@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.experiments.domains import DEFAULT_STUDY, DomainRecord, study_differences
+from deploy.experiments.domains.study import DEFAULT_STUDY, DomainRecord, study_differences
 from tests.domains_fakes import KILL_DIR_ENV
 
 REPO = Path(__file__).resolve().parents[2]

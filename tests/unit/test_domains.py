@@ -14,7 +14,16 @@ from common import kinematics as kin
 from common.config import load_scenario
 from deploy.experiments.campaign.starts import rotation_about
 from deploy.experiments.compare import CompareError
-from deploy.experiments.domains import (
+from deploy.experiments.domains.report import (
+    Study,
+    bands_table,
+    cell_stats,
+    largest_rotation_deg,
+    report_markdown,
+    summary_table,
+    write_heatmaps,
+)
+from deploy.experiments.domains.study import (
     DEFAULT_STUDY,
     REFUSED_BELOW_BLOCK,
     REFUSED_TARGET_OUTSIDE,
@@ -28,15 +37,6 @@ from deploy.experiments.domains import (
     load_study,
     plan_tasks,
     study_differences,
-)
-from deploy.experiments.domains_report import (
-    Study,
-    bands_table,
-    cell_stats,
-    largest_rotation_deg,
-    report_markdown,
-    summary_table,
-    write_heatmaps,
 )
 from deploy.launch.evaluate import RunResult
 from deploy.launch.reachability import goal_pose, square_turns
@@ -214,7 +214,7 @@ def small_study() -> Study:
             continue
         for mode in ("dynamic", "mpj"):
             r = outcomes.get((s.name, mode), result(mode, True))
-            from deploy.experiments.domains import RunTask
+            from deploy.experiments.domains.study import RunTask
 
             runs.append(judge(RunTask(f"{s.name}_{mode}", s.name, mode, "x.toml", ()), r))
     return Study(
@@ -270,7 +270,7 @@ def test_starts_are_drawn_on_the_scenario_the_runs_see() -> None:
     that a plain square would accept and the cue would make a real turn."""
     from common.runtime import parse_overrides
     from deploy.experiments.campaign.starts import with_target
-    from deploy.experiments.domains_run import draw_one
+    from deploy.experiments.domains.run import draw_one
 
     assert "marker.orientation_cue=true" in STUDY.overrides
     cell = next(c for c in cells(STUDY) if (c.rotation_deg, c.distance_m, c.depth_m) == (0, 0, 0))

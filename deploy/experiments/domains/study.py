@@ -1,4 +1,4 @@
-"""Convergence domains (issue 30): the grid of large initial displacements and its draws. Pure.
+"""Convergence domains: the grid of large initial displacements and its draws. Pure.
 
 A study is defined in a TOML file (``deploy/domains/study.toml``, documented there): the grid
 of cells (rotation of the hand marker about the camera's optical axis × distance across the
@@ -57,7 +57,7 @@ from deploy.launch.reachability import (
     view_angle_deg,
 )
 
-DEFAULT_STUDY = Path(__file__).resolve().parent.parent / "domains" / "study.toml"
+DEFAULT_STUDY = Path(__file__).resolve().parents[2] / "domains" / "study.toml"
 # The hand marker's centre must start at least this far above the target marker: lower, the
 # hand is in the target's block (its top is the target marker) or on its way into it.
 BLOCK_CLEARANCE_M = 0.01

@@ -17,7 +17,7 @@ from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OK
 
 def add_domains_parser(sub: argparse._SubParsersAction) -> None:
     """The ``domains`` subcommand, for :func:`deploy.cli.build_parser`."""
-    from deploy.experiments.domains import DEFAULT_STUDY
+    from deploy.experiments.domains.study import DEFAULT_STUDY
 
     p = sub.add_parser(
         "domains",
@@ -102,10 +102,10 @@ def cmd_domains(args: argparse.Namespace) -> int:
         TimeRemainingColumn,
     )
 
-    from deploy.experiments import domains as dom
     from deploy.experiments.compare import CompareError
     from deploy.experiments.compare.plan import parse_modes
-    from deploy.experiments.domains_run import (
+    from deploy.experiments.domains import study as dom
+    from deploy.experiments.domains.run import (
         ExecutorError,
         check_cluster,
         draw_one,
@@ -168,7 +168,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
                 done[rec.key] = rec
         elif args.resume and published.is_file():
             # A published study keeps domains.json, not the log it was built from.
-            from deploy.experiments.domains_report import load_study_json
+            from deploy.experiments.domains.report import load_study_json
 
             kept = load_study_json(published)
             done = {rec.key: rec for rec in kept.runs}
@@ -216,7 +216,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
 def finish(
     args, study, modes, starts, tasks, runs, executor_name, wall_s, interrupted, out_dir
 ) -> int:
-    from deploy.experiments.domains_report import (
+    from deploy.experiments.domains.report import (
         Study,
         report_markdown,
         representative_failures,

@@ -1,10 +1,10 @@
 """Executors of a convergence-domain study: thousands of independent lockstep runs.
 
-A run is a plain picklable value (:class:`~deploy.experiments.domains.RunTask`) and a
+A run is a plain picklable value (:class:`~deploy.experiments.domains.study.RunTask`) and a
 module-level function (:func:`execute`): the pipeline runs inside whatever process the
 executor hands the task to, and comes back as a
-:class:`~deploy.experiments.domains.DomainRecord`. Two executors, neither a scheduler of our
-own:
+:class:`~deploy.experiments.domains.study.DomainRecord`. Two executors, neither a scheduler of
+our own:
 
 - :class:`LocalExecutor`: ``--jobs N`` processes of :class:`concurrent.futures.ProcessPoolExecutor`;
 - :class:`DaskExecutor`: a Dask distributed cluster (``--cluster ADDRESS``, or
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from deploy.experiments.domains import (
+from deploy.experiments.domains.study import (
     Cell,
     DomainRecord,
     DomainStart,
