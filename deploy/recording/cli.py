@@ -88,13 +88,8 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from deploy.recording.replay import (
-        REPLAYABLE,
-        ReplayError,
-        ReplayFailed,
-        format_report,
-        replay_service,
-    )
+    from deploy.recording.replay import REPLAYABLE, ReplayError, ReplayFailed, replay_service
+    from deploy.recording.replay_check import format_report
 
     if args.service not in REPLAYABLE:
         choices = ", ".join(REPLAYABLE)

@@ -3,13 +3,8 @@ fields it ignores and how it names the ones that differ; lockstep replay's steps
 
 from __future__ import annotations
 
-from deploy.recording.replay import (
-    JOINT_STATE,
-    SERVICE_IO,
-    Recorded,
-    compare_messages,
-    lockstep_steps,
-)
+from deploy.recording.replay import JOINT_STATE, SERVICE_IO, Recorded, lockstep_steps
+from deploy.recording.replay_check import compare_messages
 
 
 def test_compare_ignores_seq_and_send_time_and_names_field_paths() -> None:
