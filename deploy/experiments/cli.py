@@ -7,9 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -19,6 +17,7 @@ from common.config import ScenarioError
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.domains.cli import add_domains_parser
+from deploy.interrupts import stop_requested
 from deploy.paths import check_output_file
 
 if TYPE_CHECKING:
@@ -144,15 +143,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     except (CompareError, ScenarioError, OutputPathError) as exc:
         return bad(str(exc))
 
-    stop = threading.Event()
-
-    def interrupt(_signum: int, _frame: object) -> None:
-        # Only set the event: an exception raised at an arbitrary point of the main thread
-        # (inside concurrent.futures.wait, holding a future's lock) could deadlock the pool.
-        stop.set()
-
     # Ctrl-C and SIGTERM: the running pipelines are stopped, nothing is left behind.
-    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     started = time.monotonic()
     columns = (
         TextColumn("[bold]{task.description}"),
@@ -164,7 +155,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
     rows: list[CompareRow] = []
     running: set[str] = set()
-    with Progress(*columns, console=console, transient=False) as bar:
+    with stop_requested() as stop, Progress(*columns, console=console, transient=False) as bar:
         task = bar.add_task("compare", total=len(the_plan.jobs))
 
         def on_start(job: Job) -> None:
@@ -183,13 +174,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             )
             bar.update(task, advance=1, description=", ".join(sorted(running)) or "done")
 
-        try:
-            rows = run_all(
-                the_plan.jobs, args.jobs, out_dir, stop, on_start, on_done, args.pipeline
-            )
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
+        rows = run_all(the_plan.jobs, args.jobs, out_dir, stop, on_start, on_done, args.pipeline)
         interrupted = stop.is_set()
     wall_s = time.monotonic() - started
     if interrupted:
@@ -309,11 +294,6 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     )
     for s in refused:
         console.print(f"{s.name} refused: {s.refused}")
-    stop = threading.Event()
-    previous = {
-        sig: signal.signal(sig, lambda _s, _f: stop.set())
-        for sig in (signal.SIGINT, signal.SIGTERM)
-    }
     started = time.monotonic()
     done = [0]
 
@@ -326,13 +306,11 @@ def cmd_campaign(args: argparse.Namespace) -> int:
             f"{row.wall_time_s:5.1f} s"
         )
 
-    try:
+    # Ctrl-C and SIGTERM: the running pipelines are stopped, nothing is written.
+    with stop_requested() as stop:
         rows = run_campaign(
             cplan, args.jobs, out_dir, stop, lambda _job: None, on_done, args.pipeline
         )
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     if stop.is_set():
         console.print("[red]interrupted[/]: every pipeline stopped; nothing written")
         return EXIT_INTERRUPTED

@@ -35,6 +35,7 @@ from deploy.exit_codes import (
     EXIT_INTERRUPTED,
     EXIT_NOT_CONVERGED,
 )
+from deploy.interrupts import stop_requested
 from deploy.paths import check_output_dir, check_output_file
 
 
@@ -120,36 +121,25 @@ def cmd_run(args: argparse.Namespace) -> int:
     # Ctrl-C or SIGTERM ends the run as its end would: the services stopped, then the
     # summary, the result (detail "interrupted") and the figures of the run so far. A second
     # Ctrl-C while they stop interrupts as usual.
-    stop = threading.Event()
+    with stop_requested(second_interrupts=True) as stop, contextlib.ExitStack() as stack:
+        if args.view:
+            from deploy.launch.run import default_listen_endpoint
 
-    def interrupt(*_args: object) -> None:
-        stop.set()
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-
-    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        with contextlib.ExitStack() as stack:
-            if args.view:
-                from deploy.launch.run import default_listen_endpoint
-
-                listen = listen or default_listen_endpoint()
-                if not _start_view(stack, args, "run", prefix, listen, overrides):
-                    return 1
-            result = run_once(
-                args.scenario,
-                scenario,
-                overrides,
-                prefix,
-                Path(args.log_dir),
-                listen=listen,
-                quiet=args.quiet,
-                record=record,
-                record_frames=not args.record_without_frames,
-                stop=stop,
-            )
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+            listen = listen or default_listen_endpoint()
+            if not _start_view(stack, args, "run", prefix, listen, overrides):
+                return 1
+        result = run_once(
+            args.scenario,
+            scenario,
+            overrides,
+            prefix,
+            Path(args.log_dir),
+            listen=listen,
+            quiet=args.quiet,
+            record=record,
+            record_frames=not args.record_without_frames,
+            stop=stop,
+        )
     if args.quiet:
         print(format_result(result))
     else:

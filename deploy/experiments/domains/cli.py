@@ -5,14 +5,14 @@ through an executor, write the study (``domains.json``, ``runs.jsonl`` as runs f
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
-import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OK
+from deploy.interrupts import stop_requested
 
 
 def add_domains_parser(sub: argparse._SubParsersAction) -> None:
@@ -132,11 +132,6 @@ def cmd_domains(args: argparse.Namespace) -> int:
         print(f"umay domains: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
-    stop = threading.Event()
-    previous = {
-        sig: signal.signal(sig, lambda _s, _f: stop.set())
-        for sig in (signal.SIGINT, signal.SIGTERM)
-    }
     columns = (
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -147,7 +142,8 @@ def cmd_domains(args: argparse.Namespace) -> int:
     )
     started = time.monotonic()
     jsonl = out_dir / "runs.jsonl"
-    try:
+    # Ctrl-C and SIGTERM: the runs stop; those finished are kept in runs.jsonl.
+    with stop_requested() as stop, contextlib.closing(executor):
         cells = [c for c in dom.cells(study) if c.index in chosen]
         items = [
             (study, str(base_path), c, d, tuple(args.set))
@@ -200,10 +196,6 @@ def cmd_domains(args: argparse.Namespace) -> int:
 
             if not stop.is_set():
                 gather(executor, execute, [(t, args.pipeline) for t in todo], stop, on_done)
-    finally:
-        executor.close()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     wall_s = earlier_wall_s + time.monotonic() - started
     order = {t.key: i for i, t in enumerate(tasks)}
     runs = sorted((r for r in done.values() if r.key in order), key=lambda r: order[r.key])
