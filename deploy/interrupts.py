@@ -1,5 +1,7 @@
 """Ctrl-C and SIGTERM as a request to stop, for the commands that run work and must stop it
-cleanly (``umay run``, ``compare``, ``campaign``, ``domains``)."""
+cleanly (``umay run``, ``compare``, ``campaign``, ``domains``) or run until told to stop
+(``record``, ``view``, ``router``). ``umay up`` sets its own (it may run off the main thread,
+where handlers cannot be installed)."""
 
 from __future__ import annotations
 

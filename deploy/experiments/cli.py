@@ -143,7 +143,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     except (CompareError, ScenarioError, OutputPathError) as exc:
         return bad(str(exc))
 
-    # Ctrl-C and SIGTERM: the running pipelines are stopped, nothing is left behind.
     started = time.monotonic()
     columns = (
         TextColumn("[bold]{task.description}"),
@@ -155,6 +154,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )
     rows: list[CompareRow] = []
     running: set[str] = set()
+    # Ctrl-C and SIGTERM: the running pipelines are stopped, nothing is left behind.
     with stop_requested() as stop, Progress(*columns, console=console, transient=False) as bar:
         task = bar.add_task("compare", total=len(the_plan.jobs))
 

@@ -23,7 +23,6 @@ import argparse
 import contextlib
 import logging
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -46,6 +45,7 @@ from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from deploy.foxglove import convert, topics, transforms
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_arguments
+from deploy.interrupts import stop_requested
 
 log = logging.getLogger("umay.view")
 
@@ -255,24 +255,22 @@ def serve(args: argparse.Namespace) -> int:
     except PortInUseError as exc:
         print(f"umay view: {exc}", file=sys.stderr)
         return EXIT_FAILED
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    try:
-        session = open_session(connect=args.connect)
-        view = ViewNode(
-            scenario, keys, session, server, channels,
-            args.rate_hz, args.image_hz, args.depth_hz, args.jpeg_quality,
-            looked_on=where_connecting(args.connect),
-        )  # fmt: skip
-        print(
-            f"umay view: Foxglove WebSocket at ws://{args.host}:{server.port} for {keys.prefix}; "
-            f"layout {LAYOUT_PATH}",
-            flush=True,
-        )
-        view.run(stop)  # closes the session on the way out
-    finally:
-        server.stop()
+    with stop_requested() as stop:
+        try:
+            session = open_session(connect=args.connect)
+            view = ViewNode(
+                scenario, keys, session, server, channels,
+                args.rate_hz, args.image_hz, args.depth_hz, args.jpeg_quality,
+                looked_on=where_connecting(args.connect),
+            )  # fmt: skip
+            print(
+                f"umay view: Foxglove WebSocket at ws://{args.host}:{server.port} for "
+                f"{keys.prefix}; layout {LAYOUT_PATH}",
+                flush=True,
+            )
+            view.run(stop)  # closes the session on the way out
+        finally:
+            server.stop()
     return EXIT_OK
 
 

@@ -9,9 +9,7 @@ import importlib
 import json
 import logging
 import os
-import signal
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -236,20 +234,18 @@ def cmd_router(args: argparse.Namespace) -> int:
     listen = args.listen or (None if args.config else ["tcp/0.0.0.0:7447"])
     if listen:
         cfg.insert_json5("listen/endpoints", json.dumps(listen))
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    try:
-        session = open_zenoh(cfg)
-    except Exception as exc:
-        print(f"umay router: cannot start: {zenoh_reason(exc)}", file=sys.stderr)
-        return 1
-    endpoints = ",".join(listen or json.loads(cfg.get_json("listen/endpoints")))
-    print(f"umay router: listening on {endpoints}", flush=True)
-    try:
-        stop.wait()
-    finally:
-        session.close()
+    with stop_requested() as stop:
+        try:
+            session = open_zenoh(cfg)
+        except Exception as exc:
+            print(f"umay router: cannot start: {zenoh_reason(exc)}", file=sys.stderr)
+            return 1
+        endpoints = ",".join(listen or json.loads(cfg.get_json("listen/endpoints")))
+        print(f"umay router: listening on {endpoints}", flush=True)
+        try:
+            stop.wait()
+        finally:
+            session.close()
     return 0
 
 

@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
-import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -19,6 +17,7 @@ from common.runtime import endpoints_argument, prefix_argument
 from common.session import open_session, where_connecting, zenoh_reason
 from deploy.arguments import NOTHING_RUNNING_THERE, positive_seconds
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_NOT_CONVERGED
+from deploy.interrupts import stop_requested
 from deploy.paths import check_output_dir, check_output_file
 
 
@@ -41,17 +40,16 @@ def cmd_record(args: argparse.Namespace) -> int:
         except OSError as exc:
             print(f"umay record: {args.scenario}: {exc.strerror}", file=sys.stderr)
             return EXIT_BAD_INPUT
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    session = open_session(connect=args.connect)
-    try:
-        with Recorder(args.out, session, keys, args.keys, metadata) as recorder:
-            print(f"recording {recorder.key_expr} to {args.out} (Ctrl-C to stop)", file=sys.stderr)
-            stop.wait(args.duration)
-        counts = recorder.message_counts()
-    finally:
-        session.close()
+    with stop_requested() as stop:
+        session = open_session(connect=args.connect)
+        try:
+            with Recorder(args.out, session, keys, args.keys, metadata) as recorder:
+                what = f"{recorder.key_expr} to {args.out}"
+                print(f"recording {what} (Ctrl-C to stop)", file=sys.stderr)
+                stop.wait(args.duration)
+            counts = recorder.message_counts()
+        finally:
+            session.close()
     for key, n in sorted(counts.items()):
         print(f"{n:8d}  {key}")
     total = sum(counts.values())
