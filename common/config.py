@@ -393,6 +393,15 @@ class SupervisorConfig(_Strict):
         description="a service whose event loop is stuck in one step, or that stops answering "
         "status queries, this long is killed (then restarted by its policy); 0: never",
     )
+    cpu_wakeup_latency_us: int | None = Field(
+        None,
+        ge=0,
+        le=100_000,
+        description="while the services run, ask Linux for CPU wake-up latencies at most this "
+        "long (PM QoS, /dev/cpu_dma_latency: needs write access); 0: idle CPUs poll instead of "
+        "halting, so each hop's wake-up is fast but a core stays busy while idle; None: leave "
+        "the host's power management alone",
+    )
 
     def policy(self, service: str) -> RestartPolicy:
         return self.restart.get(service, self.default_restart)  # type: ignore[call-overload]

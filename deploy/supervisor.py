@@ -12,6 +12,9 @@ A process can also hang without exiting: a deadlock, a native call that never re
 and kills (SIGKILL) a child whose event loop has been busy in one step, or that has not
 answered, for ``hang_timeout_s``; its restart policy then applies as to any other death.
 A child is judged only once it has answered, so a slow start is never taken for a hang.
+
+With ``cpu_wakeup_latency_us`` set, the supervisor holds that CPU wake-up latency request
+(:mod:`deploy.cpu_latency`) from :meth:`Supervisor.start` to :meth:`Supervisor.stop`.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from common.keys import SERVICES, Keys
 from common.queries import status_from_reply
 from common.runtime import ENV_SUPERVISOR_PID
 from common.session import ENV_CONFIG, ENV_CONNECT
+from deploy.cpu_latency import CpuWakeupLatency
 
 log = logging.getLogger("umay.supervisor")
 
@@ -124,6 +128,7 @@ class Supervisor:
         self.zenoh_config = zenoh_config
         self.config = config or SupervisorConfig()
         self.log_dir = log_dir
+        self.cpu_wakeup = CpuWakeupLatency(None)  # the request is made by start()
         common_args = ["--prefix", prefix]
         if scenario_path:
             common_args += ["--scenario", str(scenario_path)]
@@ -162,6 +167,8 @@ class Supervisor:
         # Here, not in __init__: callers open their Zenoh session before making the
         # supervisor and start it inside the try that closes the session again.
         self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.cpu_wakeup.release()  # a start after a stop asks again
+        self.cpu_wakeup = CpuWakeupLatency(self.config.cpu_wakeup_latency_us)
         for child in self.children.values():
             self.start_child(child)
 
@@ -262,6 +269,7 @@ class Supervisor:
             child.exit_codes.append(child.process.returncode)
             self._ended(child.process)
             child.process = None
+        self.cpu_wakeup.release()
 
     @staticmethod
     def _ended(process: subprocess.Popen) -> None:

@@ -68,7 +68,10 @@ def run_distributed(
     session = open_session(connect=[], listen=[endpoint])
     trace = Trace()
     subs = [session.declare_subscriber(keys.timing, trace.on_timing)]
-    sup = Supervisor(scenario_path, keys.prefix, endpoint, log_dir, overrides, env=env)
+    sup = Supervisor(
+        scenario_path, keys.prefix, endpoint, log_dir, overrides, env=env,
+        config=scenario.supervisor,
+    )  # fmt: skip
     realtime = scenario.run.clock is ClockMode.REALTIME
     load_before = machine_load()
     bench_cpu0 = time.process_time()
@@ -76,6 +79,7 @@ def run_distributed(
     stack = contextlib.ExitStack()
     try:
         sup.start()
+        cpu_wakeup = sup.cpu_wakeup.state  # what the run had (stop() withdraws it)
         wait_for_services(session, keys, sup, SERVICES, startup_timeout_s)
         if observer is not None:
             observed = stack.enter_context(observer(keys, endpoint, log_dir))
@@ -139,5 +143,6 @@ def run_distributed(
         load_before=load_before,
         load_after=machine_load(),
         observer=observed,
+        cpu_wakeup_latency=cpu_wakeup,
         velocities={k: trace.velocities.get(k) for k in window},
     )

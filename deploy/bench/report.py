@@ -138,6 +138,8 @@ class DistributedRun(TraceAnalysis):
     load_before: list[float]
     load_after: list[float]
     observer: dict[str, Any] | None  # the live view's client counts (``--view``)
+    # The supervisor's CPU wake-up latency request (deploy.cpu_latency): held, refused, none.
+    cpu_wakeup_latency: str | None = _omitted_when_absent()
     pooled: Pooled | None = _omitted_when_absent()  # medians of runs only
     velocities: Velocities = Field(default_factory=dict, exclude=True)  # as the sim applied
 

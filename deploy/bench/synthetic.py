@@ -109,6 +109,7 @@ def run_synthetic(
         [*overrides, "run.clock='realtime'"],
         services=PIPELINE,
         env=env,
+        config=scenario.supervisor,
     )
     rgb_sent: dict[int, float] = {}
     late = 0

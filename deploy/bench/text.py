@@ -83,6 +83,8 @@ def format_report(r: BenchReport) -> str:
         f"{d.frames_by_ref}/{d.frames_received_by_vision}",
         "dropped: " + ", ".join(f"{k} {v}" for k, v in d.dropped.items()),
     ]
+    if d.cpu_wakeup_latency is not None:
+        lines.append(f"CPU wake-up latency request: {d.cpu_wakeup_latency}")
     if i.same_commands_max_abs_diff_rad_s is not None:
         lines.append(
             "in-process commands vs distributed: max |Δ| "

@@ -39,7 +39,8 @@ def kinect_on(data: Mapping[str, Any]) -> bool:
 
 
 def run_label(data: Mapping[str, Any]) -> str:
-    """What a run is: clock, size, depth size when it differs, Kinect model, transport."""
+    """What a run is: clock, size, depth size when it differs, Kinect model, transport, a CPU
+    wake-up latency request held."""
     c = data["config"]
     parts = [f"{c['clock']} {c['width_px']}×{c['height_px']}"]
     if (c["depth_width_px"], c["depth_height_px"]) != (c["width_px"], c["height_px"]):
@@ -48,6 +49,9 @@ def run_label(data: Mapping[str, Any]) -> str:
         parts.append("Kinect model")
     if c.get("transport") == "tcp":
         parts.append("TCP")
+    held = data["distributed"].get("cpu_wakeup_latency") or ""
+    if held.startswith("held: "):
+        parts.append(f"CPU wake-up latency {held.removeprefix('held: ')}")
     return ", ".join(parts)
 
 

@@ -1,8 +1,9 @@
 """``umay up``: keep the four services running until Ctrl-C / SIGTERM.
 
 The supervisor is itself a Zenoh node: it answers ``<prefix>/supervisor/status`` (children,
-pids, restarts, last exit codes) and holds ``<prefix>/alive/supervisor``, which is also how a
-second ``umay up`` on the same prefix sees that it must not start.
+pids, restarts, last exit codes, the CPU wake-up latency request it holds) and holds
+``<prefix>/alive/supervisor``, which is also how a second ``umay up`` on the same prefix sees
+that it must not start.
 """
 
 from __future__ import annotations
@@ -41,7 +42,12 @@ def run_up(
         scenario_path, prefix, listen, log_dir, overrides, config=scenario.supervisor,
         session=session,
     )  # fmt: skip
-    node = Node("supervisor", keys, session, lambda: {"children": sup.summary()})
+    node = Node(
+        "supervisor",
+        keys,
+        session,
+        lambda: {"cpu_wakeup_latency": sup.cpu_wakeup.state, "children": sup.summary()},
+    )
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
