@@ -114,7 +114,7 @@ def status_display(views: list[ServiceView], keys: Keys) -> RenderableType:
             line.append(f"{s.degraded_reason}  ", style="yellow")
         line.append("  ".join(f"{k}={field_text(value)}" for k, value in fields.items()))
         if children:
-            line.append(children_text(children))
+            line.append(("  " if fields else "") + children_text(children))
         details.append(line)
     return Group(t, *details)
 

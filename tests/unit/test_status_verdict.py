@@ -101,3 +101,8 @@ def test_the_supervisors_children_read_as_a_clause_each() -> None:
     text = out.getvalue()
     assert "supervisor: sim pid 12, running, restarts 0; vision pid None, not running, " in text
     assert "restarts 3, given up, exit codes [1, -9]" in text and "sim.log" not in text
+    # Its own fields come first, set apart from the children's clauses.
+    sup.status.fields = {"cpu_wakeup_latency": "held: 0 µs", **sup.status.fields}
+    out = io.StringIO()
+    Console(file=out, width=200, color_system=None).print(status_display([sup], KEYS))
+    assert "supervisor: cpu_wakeup_latency=held: 0 µs  sim pid 12, running" in out.getvalue()
