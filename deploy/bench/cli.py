@@ -7,16 +7,19 @@ import argparse
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from common.config import ClockMode, ScenarioError
+from common.config import ClockMode, Scenario, ScenarioError
 from deploy.exit_codes import EXIT_BAD_INPUT
 from deploy.paths import FIGURE_SUFFIXES, check_output_dir, check_output_file
+
+if TYPE_CHECKING:
+    from deploy.bench.report import BenchReport
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from deploy.bench import BenchError
     from deploy.bench.report import median_of_runs, write_json
-    from deploy.bench.run import run_bench
     from deploy.bench.text import format_report
     from deploy.launch.run import prepare
 
@@ -27,9 +30,22 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.mode not in {c.value for c in ClockMode}:
         print(f"umay bench: --mode {args.mode!r}: lockstep or realtime", file=sys.stderr)
         return EXIT_BAD_INPUT
-    if args.frames < 2 or args.warmup < 0 or (args.synthetic_frames or 0) < 0 or args.repeat < 1:
+    if (
+        args.frames < 2
+        or args.warmup < 0
+        or (args.synthetic_frames or 0) < 0
+        or args.repeat < 1
+        or args.pairs < 1
+    ):
         print(
-            "umay bench: --frames >= 2, --repeat >= 1, --warmup and --synthetic-frames >= 0",
+            "umay bench: --frames >= 2, --repeat and --pairs >= 1, --warmup and "
+            "--synthetic-frames >= 0",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
+    if args.alternate is not None and (args.figure or args.view):
+        print(
+            "umay bench: --alternate compares headline figures: no --figure or --view with it",
             file=sys.stderr,
         )
         return EXIT_BAD_INPUT
@@ -41,6 +57,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     ]
     try:
         scenario = prepare(args.scenario, overrides)
+        if args.alternate is not None:  # the changed side too, before anything runs
+            prepare(args.scenario, [*overrides, args.alternate])
     except ScenarioError as exc:
         print(f"umay bench: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -49,29 +67,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.figure:
         check_output_file("--figure", args.figure, FIGURE_SUFFIXES)
     check_output_dir("--log-dir", args.log_dir)
-    runs = []
-    for i in range(args.repeat):
-        try:
-            result = run_bench(
-                args.scenario,
-                scenario,
-                overrides,
-                args.frames,
-                args.warmup,
-                Path(args.log_dir),
-                shm=not args.no_shm,
-                synthetic_frames=args.synthetic_frames,
-                command=" ".join(["umay", *sys.argv[1:]]),
-                reference_renderer=not args.no_reference,
-                view=args.view,
-                on_phase=say_phase(i, args.repeat),
-            )
-        except BenchError as exc:
-            print(f"umay bench: {exc}", file=sys.stderr)
-            return 1
-        runs.append(result)
-        if args.repeat > 1:
-            print(f"--- run {i + 1} of {args.repeat}\n{format_report(result)}\n", flush=True)
+    if args.alternate is not None:
+        return alternate(args, scenario, overrides)
+    try:
+        runs = repeated_runs(args, scenario, overrides)
+    except BenchError as exc:
+        print(f"umay bench: {exc}", file=sys.stderr)
+        return 1
     result = runs[0] if len(runs) == 1 else median_of_runs(runs)
     print(format_report(result))
     try:  # checked before the runs; this fails only if the disk changed since (full, say)
@@ -89,9 +91,88 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def say_phase(run: int, runs: int) -> Callable[[str], None]:
-    """Progress on standard error: which part of which run starts."""
-    which = f"run {run + 1} of {runs}: " if runs > 1 else ""
+def repeated_runs(
+    args: argparse.Namespace, scenario: Scenario, overrides: list[str], label: str = ""
+) -> list[BenchReport]:
+    """``--repeat`` benchmark runs of ``scenario``, each printed when there are several.
+    Raises BenchError."""
+    from deploy.bench.run import run_bench
+    from deploy.bench.text import format_report
+
+    runs = []
+    for i in range(args.repeat):
+        result = run_bench(
+            args.scenario,
+            scenario,
+            overrides,
+            args.frames,
+            args.warmup,
+            Path(args.log_dir),
+            shm=not args.no_shm,
+            synthetic_frames=args.synthetic_frames,
+            command=" ".join(["umay", *sys.argv[1:]]),
+            reference_renderer=not args.no_reference,
+            view=args.view,
+            on_phase=say_phase(i, args.repeat, label),
+        )
+        runs.append(result)
+        if args.repeat > 1:
+            print(f"--- {label}run {i + 1} of {args.repeat}\n{format_report(result)}\n", flush=True)
+    return runs
+
+
+def alternate(args: argparse.Namespace, scenario: Scenario, overrides: list[str]) -> int:
+    """``--pairs`` pairs of the bench: without, then with ``--alternate``'s change."""
+    from deploy.bench import BenchError
+    from deploy.bench.alternate import (
+        AlternationReport,
+        Pair,
+        format_alternation,
+        side_figures,
+        write_alternation,
+    )
+    from deploy.bench.report import median_of_runs
+    from deploy.launch.run import prepare
+
+    changed_overrides = [*overrides, args.alternate]
+    changed = prepare(args.scenario, changed_overrides)  # checked by cmd_bench already
+    pairs: list[Pair] = []
+    machine = None
+    try:
+        for i in range(args.pairs):
+            sides = []
+            for label, sc, ov in (
+                ("without", scenario, overrides),
+                (f"with {args.alternate}", changed, changed_overrides),
+            ):
+                runs = repeated_runs(args, sc, ov, f"pair {i + 1} of {args.pairs}, {label}: ")
+                report = runs[0] if len(runs) == 1 else median_of_runs(runs)
+                machine = machine or report.machine
+                sides.append(side_figures(report))
+            pairs.append(Pair(without=sides[0], with_change=sides[1]))
+    except BenchError as exc:
+        print(f"umay bench: {exc}", file=sys.stderr)
+        return 1
+    assert machine is not None  # --pairs >= 1
+    report = AlternationReport(
+        command=" ".join(["umay", *sys.argv[1:]]),
+        change=args.alternate,
+        machine=machine,
+        pairs=pairs,
+    )
+    print(format_alternation(report))
+    if args.json:
+        try:
+            write_alternation(report, args.json)
+        except OSError as exc:
+            print(f"umay bench: could not write the results: {exc}", file=sys.stderr)
+            return 1
+    return 0
+
+
+def say_phase(run: int, runs: int, label: str = "") -> Callable[[str], None]:
+    """Progress on standard error: which part of which run (of which pair) starts."""
+    which = label + (f"run {run + 1} of {runs}: " if runs > 1 else "")
     return lambda what: print(f"umay bench: {which}{what}", file=sys.stderr, flush=True)
 
 
@@ -140,6 +221,14 @@ def add_bench_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
     p.add_argument("--log-dir", default="out/logs/bench", help="the services' log files")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
+    p.add_argument(
+        "--alternate",
+        default=None,
+        metavar="TABLE.FIELD=VALUE",
+        help="judge one change: run the bench without and with this --set item in turns "
+        "(--pairs pairs) and compare their headline figures; --json writes the pairs",
+    )
+    p.add_argument("--pairs", type=int, default=3, help="pairs of runs with --alternate")
     p.set_defaults(func=cmd_bench)
 
 

@@ -7,6 +7,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from deploy.docs.sources import (
+    ALTERNATIONS_DIR,
     KINECT_LOCKSTEP_RUN,
     KINECT_REALTIME_RUN,
     LOCKSTEP_RUN,
@@ -323,3 +324,24 @@ def bench_dropped(inputs: Inputs, here: str) -> str:
         "synthetic 30 Hz source: the same",
     ]
     return markdown_table(headers, body) + "\n\n" + _sources(here, inputs.bench)
+
+
+def bench_alternations(inputs: Inputs, here: str) -> str:
+    """Each change judged by ``umay bench --alternate``: a figure per row, its value in every
+    pair without and with the change, and how many pairs moved it the same way."""
+    from deploy.bench.alternate import comparison_rows
+
+    parts = []
+    for name, report in inputs.alternations:
+        path = f"{ALTERNATIONS_DIR}/{name}.json"
+        m = report.machine
+        parts.append(
+            f"[`{name}`]({link(here, path)}): `{report.command}`; {m.cpus} × {m.processor}, "
+            f"load {_n((m.load_start or [None])[0])}, code `{m.code or 'not recorded'}`.\n\n"
+            + markdown_table(
+                ["figure", "without", f"with `{report.change}`", "pairs"],
+                comparison_rows(report),
+                right_from=1,
+            )
+        )
+    return "\n\n".join(parts) or "*No alternation has been run.*"

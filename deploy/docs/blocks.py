@@ -6,6 +6,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from deploy.docs.bench_tables import (
+    bench_alternations,
     bench_commands,
     bench_distribution,
     bench_dropped,
@@ -26,6 +27,7 @@ from deploy.docs.domains_tables import (
 from deploy.docs.results_tables import results_compact, results_strategies, suite_camera
 from deploy.docs.sources import (
     ACCURACY_JSON,
+    ALTERNATIONS_DIR,
     BENCH_DIR,
     CAMPAIGN_JSON,
     DOMAINS_JSON,
@@ -57,6 +59,7 @@ BLOCKS: dict[str, Block] = {
     "bench-distribution": Block(bench_distribution, f"{BENCH_DIR}/*.json"),
     "bench-services": Block(bench_services, f"{BENCH_DIR}/*.json"),
     "bench-dropped": Block(bench_dropped, f"{BENCH_DIR}/*.json"),
+    "bench-alternations": Block(bench_alternations, f"{ALTERNATIONS_DIR}/*.json"),
     "campaign-summary": Block(campaign_summary, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}"),
     "campaign-taxonomy": Block(campaign_taxonomy, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}"),
     "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}, {RESULTS_JSON}"),

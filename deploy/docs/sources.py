@@ -14,6 +14,8 @@ from deploy.experiments.compare.rows import CompareRow, rows_from_json
 REPO_ROOT = Path(__file__).resolve().parents[2]
 RESULTS_JSON = "docs/results/results.json"
 BENCH_DIR = "docs/bench"
+# umay bench --alternate: one change judged by pairs of runs without and with it.
+ALTERNATIONS_DIR = "docs/bench/alternations"
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
 ACCURACY_JSON = "docs/vision/accuracy.json"  # umay accuracy on the suite's target placements
 CAMPAIGN_JSON = "docs/campaign/causes.json"  # the random-start campaign: one cause per run
@@ -53,6 +55,7 @@ class BenchRun:
 class Inputs:
     results: Sequence[CompareRow] = ()
     bench: Sequence[BenchRun] = ()  # sorted by name
+    alternations: Sequence[tuple[str, Any]] = ()  # (file stem, AlternationReport), by name
     domains: Any = None  # the domain study (deploy.experiments.domains.report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
@@ -81,7 +84,13 @@ def load_inputs(root: Path) -> Inputs:
             BenchRun(p.stem, json.loads(p.read_text()))
             for p in sorted((root / BENCH_DIR).glob("*.json"))
         ]
+        from deploy.bench.alternate import load_alternation
         from deploy.experiments.domains.report import load_study_json
+
+        alternations = [
+            (p.stem, load_alternation(json.loads(p.read_text())))
+            for p in sorted((root / ALTERNATIONS_DIR).glob("*.json"))
+        ]
 
         domains = None
         if (root / DOMAINS_JSON).is_file():
@@ -102,6 +111,7 @@ def load_inputs(root: Path) -> Inputs:
     return Inputs(
         results=results,
         bench=bench,
+        alternations=alternations,
         domains=domains,
         executors=executors,
         campaign=campaign,

@@ -205,6 +205,12 @@ def test_run_label_says_what_a_run_is() -> None:
         overrides=["camera.kinect.enabled=true"],
     )
     assert run_label(kinect) == "realtime 640×480, depth 320×240, Kinect model, TCP"
+    held = _bench()
+    held["distributed"] = {**held["distributed"], "cpu_wakeup_latency": "held: 0 µs"}
+    assert run_label(held) == "lockstep 640×480, CPU wake-up latency 0 µs"
+    refused = _bench()
+    refused["distributed"] = {**refused["distributed"], "cpu_wakeup_latency": "refused: x"}
+    assert run_label(refused) == "lockstep 640×480"  # what the run had, not what it asked
 
 
 def test_the_runs_table_names_the_code_each_run_measured() -> None:
