@@ -40,14 +40,14 @@ class CpuWakeupLatency:
             fd = os.open(self.device, os.O_WRONLY)
         except OSError as exc:
             self.state = f"refused: {self.device}: {exc.strerror or exc} (needs write access)"
-            log.warning("CPU wake-up latency of %d µs not requested: %s", latency_us, self.state)
+            log.warning("CPU wake-up latency request of %d µs %s", latency_us, self.state)
             return
         try:
             os.write(fd, struct.pack("i", latency_us))  # the kernel's s32, in µs
         except OSError as exc:
             os.close(fd)
             self.state = f"refused: writing {self.device}: {exc.strerror or exc}"
-            log.warning("CPU wake-up latency of %d µs not requested: %s", latency_us, self.state)
+            log.warning("CPU wake-up latency request of %d µs %s", latency_us, self.state)
             return
         self._fd = fd
         self.state = f"held: {latency_us} µs"
