@@ -32,6 +32,8 @@ EXECUTORS_DIR = "docs/domains/executors"
 LOCKSTEP_RUN = "lockstep_640x480"
 KINECT_LOCKSTEP_RUN = "lockstep_640x480_kinect_depth320x240"
 KINECT_REALTIME_RUN = "realtime_640x480_kinect"
+# The lockstep run again with idle CPUs kept awake (supervisor.cpu_wakeup_latency_us = 0).
+CPU_WAKEUP_RUN = "lockstep_640x480_cpu_wakeup0"
 
 
 class DocsError(ValueError):
@@ -65,10 +67,15 @@ class Inputs:
     suite_cameras: Sequence[tuple[str, Sequence[CompareRow]]] = ()
 
     def run(self, name: str) -> BenchRun:
-        for r in self.bench:
-            if r.name == name:
-                return r
-        raise DocsError(f"{BENCH_DIR}/{name}.json is missing (run the command in performance.md)")
+        found = self.optional_run(name)
+        if found is None:
+            raise DocsError(
+                f"{BENCH_DIR}/{name}.json is missing (run the command in performance.md)"
+            )
+        return found
+
+    def optional_run(self, name: str) -> BenchRun | None:
+        return next((r for r in self.bench if r.name == name), None)
 
 
 def _records(path: Path) -> list[Mapping[str, Any]]:

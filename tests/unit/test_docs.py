@@ -27,6 +27,7 @@ from deploy.docs.blocks import BLOCKS
 from deploy.docs.documents import END, Outdated, documents, find_blocks, rewrite, update
 from deploy.docs.results_tables import results_compact
 from deploy.docs.sources import (
+    CPU_WAKEUP_RUN,
     KINECT_LOCKSTEP_RUN,
     KINECT_REALTIME_RUN,
     LOCKSTEP_RUN,
@@ -289,6 +290,15 @@ def test_headline_against_the_goals() -> None:
     assert "| 0.75 ms | ≤ 0.5 ms |" in out
     assert "| 6.00 / 12.00 ms |" in out and "| 2.00 ms | ≤ 2.0 ms |" in out
     assert "| 290 MiB |" in out
+    assert "idle CPUs kept awake" not in out  # no such run: no row
+    awake = _bench()
+    awake["distributed"]["latency_ms"] = _stage(5.5)
+    awake["distribution_adds_ms"] = {"p50": 1.75, "parts_p50": {}}
+    out = BLOCKS["bench-headline"].render(
+        Inputs(bench=[*runs, BenchRun(CPU_WAKEUP_RUN, awake)]), ""
+    )
+    assert "| 0.75 ms; 5.50 / 11.00 ms; 1.75 ms | ≤ 0.5 ms; ≤ 6 / ≤ 9 ms; ≤ 2.0 ms |" in out
+    assert f"[`{CPU_WAKEUP_RUN}.json`]" in out
 
 
 def test_a_missing_headline_run_is_named() -> None:
