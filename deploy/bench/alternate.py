@@ -110,9 +110,18 @@ def comparison_rows(report: AlternationReport) -> list[list[str]]:
     ]
 
 
+def format_side(side: SideFigures) -> str:
+    """One side of a pair on a line, as it ends (progress of a long comparison)."""
+    return ", ".join(
+        f"{words} {'–' if getattr(side, field) is None else format(getattr(side, field), fmt)}"
+        for field, words, fmt in COMPARED
+    )
+
+
 def format_alternation(report: AlternationReport) -> str:
     """The printed comparison: a line per figure."""
-    lines = [f"{len(report.pairs)} pairs, each without then with {report.change}:"]
+    n = len(report.pairs)
+    lines = [f"{n} pair{'s' if n != 1 else ''}, each without then with {report.change}:"]
     for words, without, with_change, moved in comparison_rows(report):
         lines.append(f"  {words}: {without}  ->  {with_change}   ({moved})")
     return "\n".join(lines)

@@ -92,10 +92,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def repeated_runs(
-    args: argparse.Namespace, scenario: Scenario, overrides: list[str], label: str = ""
+    args: argparse.Namespace,
+    scenario: Scenario,
+    overrides: list[str],
+    label: str = "",
+    print_each: bool = True,
 ) -> list[BenchReport]:
-    """``--repeat`` benchmark runs of ``scenario``, each printed when there are several.
-    Raises BenchError."""
+    """``--repeat`` benchmark runs of ``scenario``, each printed when there are several
+    (and ``print_each``). Raises BenchError."""
     from deploy.bench.run import run_bench
     from deploy.bench.text import format_report
 
@@ -116,7 +120,7 @@ def repeated_runs(
             on_phase=say_phase(i, args.repeat, label),
         )
         runs.append(result)
-        if args.repeat > 1:
+        if args.repeat > 1 and print_each:
             print(f"--- {label}run {i + 1} of {args.repeat}\n{format_report(result)}\n", flush=True)
     return runs
 
@@ -128,6 +132,7 @@ def alternate(args: argparse.Namespace, scenario: Scenario, overrides: list[str]
         AlternationReport,
         Pair,
         format_alternation,
+        format_side,
         side_figures,
         write_alternation,
     )
@@ -145,10 +150,12 @@ def alternate(args: argparse.Namespace, scenario: Scenario, overrides: list[str]
                 ("without", scenario, overrides),
                 (f"with {args.alternate}", changed, changed_overrides),
             ):
-                runs = repeated_runs(args, sc, ov, f"pair {i + 1} of {args.pairs}, {label}: ")
+                which = f"pair {i + 1} of {args.pairs}, {label}"
+                runs = repeated_runs(args, sc, ov, f"{which}: ", print_each=False)
                 report = runs[0] if len(runs) == 1 else median_of_runs(runs)
                 machine = machine or report.machine
                 sides.append(side_figures(report))
+                print(f"{which}: {format_side(sides[-1])}", flush=True)
             pairs.append(Pair(without=sides[0], with_change=sides[1]))
     except BenchError as exc:
         print(f"umay bench: {exc}", file=sys.stderr)

@@ -14,6 +14,7 @@ from deploy.bench.alternate import (
     SideFigures,
     comparison_rows,
     format_alternation,
+    format_side,
     load_alternation,
     same_way,
     side_figures,
@@ -76,6 +77,9 @@ def test_pairs_are_counted_by_the_way_each_moved() -> None:
     text = format_alternation(r)
     assert text.startswith("3 pairs, each without then with supervisor.cpu_wakeup_latency_us=0")
     assert "6.50 / 7.00 / 6.60  ->  6.20 / 6.30 / 6.70   (2 of 3 down)" in text
+    line = format_side(side(6.5, 3.3, handoff=None))
+    assert line.startswith("latency p50, all frames (ms) 6.50, latency p99, all frames (ms) 8.50")
+    assert "frame publish + transport p50 (ms) –" in line
 
 
 def test_the_report_round_trips_and_the_docs_block_renders_it(tmp_path: Path) -> None:
