@@ -397,10 +397,11 @@ class SupervisorConfig(_Strict):
         None,
         ge=0,
         le=100_000,
-        description="while the services run, ask Linux for CPU wake-up latencies at most this "
-        "long (PM QoS, /dev/cpu_dma_latency: needs write access); 0: idle CPUs poll instead of "
-        "halting, so each hop's wake-up is fast but a core stays busy while idle; None: leave "
-        "the host's power management alone",
+        description="while the supervisor runs the services (not in in-process runs, which "
+        "have no hops), ask Linux for CPU wake-up latencies at most this long (PM QoS, "
+        "/dev/cpu_dma_latency: needs write access); 0: idle CPUs poll instead of halting, so "
+        "each hop's wake-up is fast but a core stays busy while idle; None: leave the host's "
+        "power management alone",
     )
 
     def policy(self, service: str) -> RestartPolicy:
