@@ -80,11 +80,16 @@ def values(report: AlternationReport, field: str, side: str) -> list[float | Non
     return [getattr(getattr(p, side), field) for p in report.pairs]
 
 
-def same_way(report: AlternationReport, field: str) -> str:
+def same_way(report: AlternationReport, field: str, fmt: str = ".2f") -> str:
     """How many pairs moved ``field`` the way most did with the change: "4 of 4 down" (a pair
-    missing the figure on either side does not count)."""
+    missing the figure on either side does not count). Values are compared as ``fmt`` shows
+    them: a move too small to show (a realtime run's real-time factor) is no move."""
     pairs = zip(values(report, field, "without"), values(report, field, "with_change"), strict=True)
-    moves = [w - o for o, w in pairs if o is not None and w is not None]
+    moves = [
+        float(format(w, fmt)) - float(format(o, fmt))
+        for o, w in pairs
+        if o is not None and w is not None
+    ]
     down = sum(m < 0 for m in moves)
     up = sum(m > 0 for m in moves)
     if not down and not up:
@@ -104,7 +109,7 @@ def comparison_rows(report: AlternationReport) -> list[list[str]]:
             words,
             joined(values(report, field, "without"), fmt),
             joined(values(report, field, "with_change"), fmt),
-            same_way(report, field),
+            same_way(report, field, fmt),
         ]
         for field, words, fmt in COMPARED
     ]

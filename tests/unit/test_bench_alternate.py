@@ -70,6 +70,9 @@ def test_pairs_are_counted_by_the_way_each_moved() -> None:
     assert same_way(r, "latency_p50") == "2 of 3 down"
     assert same_way(r, "distribution_adds_p50") == "3 of 3 down"
     assert same_way(r, "frame_handoff_p50") == "none of 2 moved"  # a missing figure: no pair
+    steady = report((side(6.5, 3.3), side(6.5001, 3.2999)))  # moves too small to show
+    assert same_way(steady, "latency_p50") == "none of 1 moved"
+    assert same_way(steady, "latency_p50", ".4f") == "1 of 1 up"
     rows = {row[0]: row for row in comparison_rows(r)}
     latency = rows["latency p50, all frames (ms)"]
     assert latency[1:] == ["6.50 / 7.00 / 6.60", "6.20 / 6.30 / 6.70", "2 of 3 down"]
