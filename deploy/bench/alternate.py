@@ -97,12 +97,17 @@ def same_way(report: AlternationReport, field: str, fmt: str = ".2f") -> str:
     return f"{max(down, up)} of {len(moves)} " + ("down" if down >= up else "up")
 
 
+def shown(value: float | None, fmt: str) -> str:
+    """A figure as the tables show it ("–": not measured)."""
+    return "–" if value is None else format(value, fmt)
+
+
 def comparison_rows(report: AlternationReport) -> list[list[str]]:
     """Per compared figure: its values without and with the change (one per pair, in run
     order) and how many pairs moved it the same way."""
 
     def joined(vs: list[float | None], fmt: str) -> str:
-        return " / ".join("–" if v is None else format(v, fmt) for v in vs)
+        return " / ".join(shown(v, fmt) for v in vs)
 
     return [
         [
@@ -118,8 +123,7 @@ def comparison_rows(report: AlternationReport) -> list[list[str]]:
 def format_side(side: SideFigures) -> str:
     """One side of a pair on a line, as it ends (progress of a long comparison)."""
     return ", ".join(
-        f"{words} {'–' if getattr(side, field) is None else format(getattr(side, field), fmt)}"
-        for field, words, fmt in COMPARED
+        f"{words} {shown(getattr(side, field), fmt)}" for field, words, fmt in COMPARED
     )
 
 

@@ -57,8 +57,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     ]
     try:
         scenario = prepare(args.scenario, overrides)
-        if args.alternate is not None:  # the changed side too, before anything runs
-            prepare(args.scenario, [*overrides, args.alternate])
+        changed = None  # the changed side of --alternate, checked before anything runs
+        if args.alternate is not None:
+            changed = prepare(args.scenario, [*overrides, args.alternate])
     except ScenarioError as exc:
         print(f"umay bench: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -67,8 +68,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.figure:
         check_output_file("--figure", args.figure, FIGURE_SUFFIXES)
     check_output_dir("--log-dir", args.log_dir)
-    if args.alternate is not None:
-        return alternate(args, scenario, overrides)
+    if changed is not None:
+        return alternate(args, scenario, changed, overrides)
     try:
         runs = repeated_runs(args, scenario, overrides)
     except BenchError as exc:
@@ -125,8 +126,11 @@ def repeated_runs(
     return runs
 
 
-def alternate(args: argparse.Namespace, scenario: Scenario, overrides: list[str]) -> int:
-    """``--pairs`` pairs of the bench: without, then with ``--alternate``'s change."""
+def alternate(
+    args: argparse.Namespace, scenario: Scenario, changed: Scenario, overrides: list[str]
+) -> int:
+    """``--pairs`` pairs of the bench: ``scenario`` without, then ``changed`` with
+    ``--alternate``'s change."""
     from deploy.bench import BenchError
     from deploy.bench.alternate import (
         AlternationReport,
@@ -137,10 +141,8 @@ def alternate(args: argparse.Namespace, scenario: Scenario, overrides: list[str]
         write_alternation,
     )
     from deploy.bench.report import median_of_runs
-    from deploy.launch.run import prepare
 
     changed_overrides = [*overrides, args.alternate]
-    changed = prepare(args.scenario, changed_overrides)  # checked by cmd_bench already
     pairs: list[Pair] = []
     machine = None
     try:

@@ -112,7 +112,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     from common.config import ScenarioError
     from deploy.experiments.compare import CompareError
-    from deploy.experiments.compare.plan import Job, parse_modes, plan
+    from deploy.experiments.compare.plan import Job, check_jobs, parse_modes, plan
     from deploy.experiments.compare.rows import CompareRow, check_against, rows_from_json
     from deploy.experiments.compare.run import job_label, run_all, write_outputs
     from deploy.experiments.compare.summary import format_cell
@@ -126,8 +126,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     try:
         modes = parse_modes(args.modes)
-        if args.jobs < 1:
-            raise CompareError(f"--jobs: must be at least 1, not {args.jobs}")
+        check_jobs(args.jobs)
         if not 0.0 <= args.tolerance < 1.0:  # also refuses nan
             raise CompareError(
                 f"--tolerance: a relative difference in [0, 1), not {args.tolerance}"
@@ -264,7 +263,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         write_campaign,
     )
     from deploy.experiments.compare import CompareError
-    from deploy.experiments.compare.plan import Job, parse_modes
+    from deploy.experiments.compare.plan import Job, check_jobs, parse_modes
     from deploy.experiments.compare.rows import CompareRow
     from deploy.experiments.compare.summary import format_cell
     from deploy.paths import OutputPathError, check_output_dir
@@ -272,8 +271,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
     try:
         modes = parse_modes(args.modes)
-        if args.jobs < 1:
-            raise CompareError(f"--jobs: must be at least 1, not {args.jobs}")
+        check_jobs(args.jobs)
         # Every input checked, --out last (it creates the folder), before minutes of drawing.
         campaign_inputs(args.n, Path(args.distribution), args.seed, args.set)
         out_dir = check_output_dir("--out", args.out)

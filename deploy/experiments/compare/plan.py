@@ -49,6 +49,13 @@ def parse_modes(values: Sequence[str] | None) -> tuple[str, ...]:
     return tuple(dict.fromkeys(names))
 
 
+def check_jobs(jobs: int) -> int:
+    """``--jobs``: how many runs at once, at least one."""
+    if jobs < 1:
+        raise CompareError(f"--jobs: must be at least 1, not {jobs}")
+    return jobs
+
+
 def scenario_files(directory: Path) -> list[Path]:
     """The ``*.toml`` files of ``directory``, sorted by name (the suite's numbering)."""
     if not directory.exists():

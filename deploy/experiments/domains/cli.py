@@ -103,7 +103,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
     )
 
     from deploy.experiments.compare import CompareError
-    from deploy.experiments.compare.plan import parse_modes
+    from deploy.experiments.compare.plan import check_jobs, parse_modes
     from deploy.experiments.domains import study as dom
     from deploy.experiments.domains.run import (
         ExecutorError,
@@ -119,8 +119,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
     try:
         modes = parse_modes(args.modes)
-        if args.jobs < 1:
-            raise CompareError(f"--jobs: must be at least 1, not {args.jobs}")
+        check_jobs(args.jobs)
         study, base_path = dom.load_study(Path(args.study), seed=args.seed, draws=args.draws)
         chosen = parse_cells(args.cells, study.n_cells)
         if args.pipeline not in ("inprocess", "distributed"):
