@@ -268,6 +268,11 @@ class EndEffectorTwist(Message):
         ge=0.0, le=1e5, description="RMS of e = s - s* over the 8 coordinates"
     )
     converged: bool
+    lifted: bool = Field(
+        False,
+        description="lifted to keep the hand's box above the object's top face "
+        "(controller.keep_above_target): the law asked to lower it further",
+    )
 
 
 class JointVelocityCommand(Message):

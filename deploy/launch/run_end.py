@@ -6,8 +6,9 @@ A run ends at the first controller output (twist) that is converged once the sce
 are over, reaches the simulated timeout, reports a failed acquisition, closes a hold longer
 than ``controller.stuck_after_s`` (sim time), or servoes an image error that has not fallen by
 5 % below its best for ``controller.stall_after_s`` once the events are over (the law sits
-in a local minimum: its twist has gone to zero, or it pushes against a limit;
-:mod:`services.controller.progress`): the reasons
+in a local minimum: its twist has gone to zero, or it pushes against a limit, e.g. the
+clearance above the object, which the twists then say; :mod:`services.controller.progress`):
+the reasons
 ``converged``, ``timeout``, ``acquisition_failed``, ``stuck`` and ``stalled``. The result is
 judged at that frame (deploy/launch/evaluate.py).
 """
@@ -21,6 +22,9 @@ from common.messages import EndEffectorTwist, SimTruth
 from deploy.launch.evaluate import RunResult, summarize
 from services.controller.ibvs import ACQUISITION_FAILED
 from services.controller.progress import Progress, stall_detail
+
+# A stall whose twists have all been lifted by the clearance this long (sim s) is held there.
+HELD_BY_CLEARANCE_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,7 @@ class HoldState:
     since_s: float | None = None  # sim time the current run of holding twists began
     reason: str = ""  # of the latest holding twist
     progress: Progress = field(default_factory=Progress)
+    lifted_since_s: float | None = None  # every twist since then lifted by the clearance
 
 
 @dataclass(frozen=True)
@@ -90,8 +95,11 @@ def judge_twist(
     # Servoing: not holding, not acquiring, the scenario's events over.
     servoing = tw.valid and not tw.hold_reason and t >= limits.not_before_s
     progress = hold.progress.after(t, tw.error_px_rms, servoing)
+    lifted_since = None
+    if tw.valid and tw.lifted:
+        lifted_since = t if hold.lifted_since_s is None else hold.lifted_since_s
     if tw.valid:
-        hold = HoldState(progress=progress)
+        hold = HoldState(progress=progress, lifted_since_s=lifted_since)
     else:
         hold = HoldState(t if hold.since_s is None else hold.since_s, tw.hold_reason, progress)
     if tw.converged and t >= limits.not_before_s:
@@ -104,7 +112,11 @@ def judge_twist(
         return hold, RunEnd("stuck", stuck_detail(hold.reason, hold.since_s, t), seq)
     if progress.stalled(t, limits.stall_after_s):
         assert progress.best_px is not None
-        detail = stall_detail(tw.error_px_rms, progress.best_px, progress.best_since_s, t)
+        held = lifted_since is not None and t - lifted_since >= HELD_BY_CLEARANCE_S
+        detail = stall_detail(
+            tw.error_px_rms, progress.best_px, progress.best_since_s, t,
+            lifted_since if held else None,
+        )  # fmt: skip
         return hold, RunEnd("stalled", detail, seq)
     return hold, None
 

@@ -43,6 +43,7 @@ class ControllerService:
         self.last_output: EndEffectorTwist | None = None
         self.target_remembered = False
         self.clearance_lifts = 0  # twists lifted to keep the hand above the object
+        self.lifted = False  # the last twist was
         self.progress = Progress()  # whether servoing still brings the error down
         self.events_end_s = ctx.scenario.events_end_s  # progress counts once they are over
 
@@ -81,7 +82,7 @@ class ControllerService:
 
     def degraded(self) -> str:
         if self.stalled():
-            return describe_stall(self.error_px, self.progress, self.sim_time_s)
+            return describe_stall(self.error_px, self.progress, self.sim_time_s, self.lifted)
         if not self.holding:
             return ""
         return describe_hold(
@@ -95,6 +96,7 @@ class ControllerService:
         self.hold_reason, self.phase = out.hold_reason, out.phase
         self.hold_since_s, self.sim_time_s = out.hold_since_s, features.header.sim_time_s
         self.clearance_lifts += out.lifted
+        self.lifted = out.lifted
         # On the goal (umay up holds it there) the error has nothing left to fall by.
         servoing = out.phase == "servoing" and not out.converged
         servoing = servoing and self.sim_time_s >= self.events_end_s

@@ -39,21 +39,43 @@ class Progress:
         return stalled_s is not None and stalled_s >= stall_after_s
 
 
-def stall_detail(error_px: float, best_px: float, since_s: float, now_s: float) -> str:
-    """What a stalled run's image error did, and since when (sim time)."""
+# What a stall's detail says when the clearance above the object holds the hand where the law
+# would lower it (the campaign's causes look for it).
+HELD_BY_CLEARANCE = "the clearance above the object holds the hand"
+
+
+def stall_detail(
+    error_px: float,
+    best_px: float,
+    since_s: float,
+    now_s: float,
+    lifted_since_s: float | None = None,
+) -> str:
+    """What a stalled run's image error did, and since when (sim time); ``lifted_since_s``:
+    every twist since then was lifted by the clearance (the law would lower the hand onto the
+    object's top face), else None."""
+    why = "the law sits in a local minimum or against a limit"
+    if lifted_since_s is not None:
+        why = (
+            f"the law lowers the hand towards the object's top face and {HELD_BY_CLEARANCE} "
+            f"(every twist lifted since sim time {lifted_since_s:.2f} s)"
+        )
     return (
         f"image error {error_px:.3f} px, not below {best_px:.3f} px by "
         f"{STALL_PROGRESS:.0%} for {now_s - since_s:.2f} s (since sim time {since_s:.2f} s): "
-        "the law sits in a local minimum or against a limit"
+        f"{why}"
     )
 
 
-def describe_stall(error_px: float, progress: Progress, now_s: float) -> str:
+def describe_stall(error_px: float, progress: Progress, now_s: float, lifted: bool = False) -> str:
     """What a stalled controller's error does, for ``umay status``: ``stalled: image error
-    22.7 px, not 5 % below its best 13.5 px for 6.0 s (since sim time 1.47 s)``."""
+    22.7 px, not 5 % below its best 13.5 px for 6.0 s (since sim time 1.47 s)``, and, when its
+    last twist was ``lifted``, that the clearance holds the hand."""
     assert progress.best_px is not None
     since = progress.best_since_s
+    held = f"; {HELD_BY_CLEARANCE}" if lifted else ""
     return (
         f"stalled: image error {error_px:.1f} px, not {STALL_PROGRESS:.0%} below its best "
         f"{progress.best_px:.1f} px for {now_s - since:.1f} s (since sim time {since:.2f} s)"
+        f"{held}"
     )

@@ -73,4 +73,5 @@ def twist_message(out: ControlOutput, header: Header, mode: str) -> EndEffectorT
         mode=mode,
         error_px_rms=out.error_px_rms,
         converged=out.converged,
+        lifted=out.lifted,
     )

@@ -20,6 +20,7 @@ from deploy.launch.reachability import (
     marker_in_image,
     view_angle_deg,
 )
+from services.controller.progress import stall_detail
 from tests.conftest import CliResult
 
 DIST, BASE_PATH = load_distribution(DEFAULT_DISTRIBUTION)
@@ -92,6 +93,10 @@ def row(**fields) -> CompareRow:
         ),
         ({}, "timeout"),
         ({"reason": "stalled"}, "local minimum (image error stalled)"),
+        (  # the law would lower the hand onto the object; the clearance held it
+            {"reason": "stalled", "detail": stall_detail(22.7, 13.5, 1.5, 6.5, 0.0)},
+            "local minimum (against the clearance)",
+        ),
         ({"reason": "stalled", "final_joint_margin_deg": 4.0}, "joint limit"),  # a limit blamed
         ({"reason": "error", "detail": "service exited"}, "error"),
         (  # the arm pressed on the object: named so whatever it led to (here a joint limit)

@@ -10,6 +10,7 @@ import pytest
 from common import kinematics as kin
 from common.config import ControllerConfig, load_scenario
 from common.marker import Marker
+from common.messages import Header
 from services.controller.clearance import (
     Plane,
     hand_box_corners_ee,
@@ -18,7 +19,7 @@ from services.controller.clearance import (
     target_top_plane,
 )
 from services.controller.ibvs import ControlOutput, IbvsController
-from services.controller.step import above_the_target
+from services.controller.step import above_the_target, twist_message
 
 FLOOR = Plane(np.zeros(3), np.array([0.0, 1.0, 0.0]))  # y up, as the arm's base frame
 # A hand box lying flat, its lowest face 10 mm above the floor; the end-effector origin above it.
@@ -86,6 +87,9 @@ def test_the_controllers_twist_is_lifted_over_the_last_seen_target_and_flagged()
     down = ControlOutput(np.array([0.0, -0.1, 0.0, 0.0, 0.0, 0.0]), True, 5.0, False)
     out = above_the_target(controller, down, t_ee)
     assert out.lifted and out.twist_base_ee[1] == pytest.approx(-3.0 * (0.003 - 0.002))
+    header = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
+    assert twist_message(out, header, "dynamic").lifted  # the run's end reads it
+    assert not twist_message(down, header, "dynamic").lifted
     held = replace(down, valid=False)
     assert above_the_target(controller, held, t_ee) is held
     controller.config = ControllerConfig(keep_above_target=False)

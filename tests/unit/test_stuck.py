@@ -9,7 +9,12 @@ from common.messages import EndEffectorTwist, Header
 from deploy.launch.evaluate import summarize
 from deploy.launch.run import RunMonitor, twist_phase
 from deploy.launch.run_end import EndLimits, stuck_detail
-from services.controller.progress import Progress, describe_stall, stall_detail
+from services.controller.progress import (
+    HELD_BY_CLEARANCE,
+    Progress,
+    describe_stall,
+    stall_detail,
+)
 
 PERIOD_S = 1 / 30
 
@@ -27,7 +32,9 @@ class Sample:
     payload: Payload
 
 
-def twist(seq: int, valid: bool, reason: str = "", error_px: float = 3.0) -> EndEffectorTwist:
+def twist(
+    seq: int, valid: bool, reason: str = "", error_px: float = 3.0, lifted: bool = False
+) -> EndEffectorTwist:
     header = Header(seq=seq, sim_time_s=seq * PERIOD_S, send_time_s=0.0, frame_seq=seq)
     return EndEffectorTwist(
         header=header,
@@ -38,6 +45,7 @@ def twist(seq: int, valid: bool, reason: str = "", error_px: float = 3.0) -> End
         mode="dynamic",
         error_px_rms=error_px if valid else 0.0,
         converged=False,
+        lifted=lifted,
     )
 
 
@@ -86,6 +94,22 @@ def test_servoing_without_progress_ends_the_run_as_stalled_naming_the_best_and_s
     assert monitor.ended_frame == 180
     assert monitor.ended_detail == stall_detail(19.6, 20.0, 1.0, 6.0)
     assert "since sim time 1.00 s" in monitor.ended_detail
+
+
+def test_a_stall_held_by_the_clearance_says_so_and_since_when() -> None:
+    """Twists lifted by the clearance for the last second and more: the law would lower the
+    hand onto the object, and the detail says the clearance holds it; lifted only for the last
+    half second, it does not."""
+    for lifted_from, held in ((120, True), (166, False)):
+        monitor = RunMonitor(limits=EndLimits(timeout_s=30.0, stall_after_s=5.0))
+        falling = [twist(i, True, error_px=40.0 - 20.0 * i / 30) for i in range(31)]
+        stalled = [twist(i, True, error_px=20.0, lifted=i >= lifted_from) for i in range(31, 181)]
+        feed(monitor, falling + stalled)
+        assert monitor.ended == "stalled" and monitor.ended_frame == 180
+        since = lifted_from * PERIOD_S if held else None
+        assert monitor.ended_detail == stall_detail(20.0, 20.0, 1.0, 6.0, since)
+        assert (HELD_BY_CLEARANCE in monitor.ended_detail) is held
+    assert "every twist lifted since sim time 4.00 s" in stall_detail(20.0, 20.0, 1.0, 6.0, 4.0)
 
 
 def test_a_slow_steady_fall_is_progress_and_never_stalls() -> None:
@@ -144,4 +168,7 @@ def test_progress_restarts_off_servoing_and_status_describes_a_stall() -> None:
     assert describe_stall(19.4, p, 6.0) == (
         "stalled: image error 19.4 px, not 5% below its best 20.0 px for 6.0 s "
         "(since sim time 0.00 s)"
+    )
+    assert describe_stall(19.4, p, 6.0, lifted=True).endswith(
+        "(since sim time 0.00 s); the clearance above the object holds the hand"
     )

@@ -4,6 +4,7 @@ back into the loop): the failure taxonomy of docs/campaign.md."""
 from __future__ import annotations
 
 from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
+from services.controller.progress import HELD_BY_CLEARANCE
 
 # A run that failed with a joint this near its limit failed on it: the actuation slows a joint
 # linearly inside its last 10° (services/actuation/inverse.py), so the servo's last pixels
@@ -37,7 +38,9 @@ def failure_cause(row: CompareRow, manipulability_threshold: float = 0.002) -> s
     what it waited for (from the detail); a run still servoing at its end: *joint limit*
     (a joint inside the actuation's slow-down zone at the end, :data:`JOINT_LIMIT_MARGIN_DEG`),
     *singularity* (least manipulability below the actuation's damping threshold), else
-    *local minimum (image error stalled)* or *timeout*. The ground-truth fields judge; nothing
+    *local minimum (against the clearance)* (stalled with the hand held above the object by
+    the clearance, where the law would lower it: the run's detail says so), *local minimum
+    (image error stalled)* or *timeout*. The ground-truth fields judge; nothing
     flows back."""
     if row.converged:
         return "converged" if row.on_goal else "local minimum"
@@ -57,7 +60,11 @@ def failure_cause(row: CompareRow, manipulability_threshold: float = 0.002) -> s
         return "joint limit"
     if row.min_manipulability is not None and row.min_manipulability < manipulability_threshold:
         return "singularity"
-    return "local minimum (image error stalled)" if row.reason == "stalled" else "timeout"
+    if row.reason != "stalled":
+        return "timeout"
+    if HELD_BY_CLEARANCE in row.detail:
+        return "local minimum (against the clearance)"
+    return "local minimum (image error stalled)"
 
 
 def close_at_end(row: CompareRow) -> bool:
