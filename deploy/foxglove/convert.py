@@ -262,6 +262,7 @@ class ViewState:
                     "hold_reason": twist.hold_reason,
                     "mode": twist.mode,
                     "converged": twist.converged,
+                    "lifted": twist.lifted,
                 },
                 ns,
             ),

@@ -65,6 +65,7 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
             "hold_reason": {"type": "string"},
             "mode": {"type": "string"},
             "converged": {"type": "boolean"},
+            "lifted": {"type": "boolean"},
         },
     },
 }

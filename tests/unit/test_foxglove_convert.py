@@ -195,6 +195,9 @@ def test_phase_changes_are_logged_once(scenario: Scenario) -> None:
     assert "holding: target lost" in decoded(logs[2][0]).message
     phases = [next(o.message for o in outs if o.topic == topics.PHASE) for outs in runs]
     assert [p["phase_code"] for p in phases] == [0, 0, 1, 2]
+    assert [p["lifted"] for p in phases] == [False] * 4
+    lifted = twist(0.4, True).model_copy(update={"lifted": True})
+    assert next(o.message for o in state.on_twist(lifted) if o.topic == topics.PHASE)["lifted"]
     tw = next(o.message for o in runs[0] if o.topic == topics.TWIST)
     assert tw["linear_m_s"] == [0.01, 0.0, 0.0] and tw["error_px_rms"] == 3.0
 
