@@ -24,7 +24,7 @@ With ``check``, only the frames the service answered in the recording are replay
 never processed, e.g. cut off when the run stopped, cannot be compared and would change its
 state), outputs are matched by ``header.frame_seq`` (the actuation deadman's ``frame_seq`` -1
 commands are ignored on both sides) and compared field by field, ignoring ``header.seq`` and
-``header.send_time_s``. On the machine that recorded, the outputs are bit-identical; on
+``header.send_time_s``; a field the recording predates reads as its default. On the machine that recorded, the outputs are bit-identical; on
 another CPU numpy's BLAS/LAPACK kernels (least squares, pseudo-inverses) may round the last bit
 differently, which is not a change in behaviour. The controller's and actuation's twists and
 velocities then differ by about 1e-15; vision's corners of a partly hidden target, fitted by
@@ -52,9 +52,9 @@ from common.queries import alive_services
 from common.runtime import parse_overrides
 from common.session import free_tcp_endpoint, open_session
 from deploy.paths import check_output_dir
-from deploy.recording.channels import split_data_key
+from deploy.recording.channels import DATA_SUFFIXES, split_data_key
 from deploy.recording.read import NotARecordingError, RecordingReader
-from deploy.recording.replay_check import ReplayReport, check_outputs
+from deploy.recording.replay_check import ReplayReport, check_outputs, field_defaults
 from deploy.supervisor import Supervisor
 
 JOINT_STATE = "sim/joint_state"
@@ -322,7 +322,7 @@ def replay_service(
         ok=True,
     )
     if check:
-        check_outputs(report, recorded_outputs, replayed)
+        check_outputs(report, recorded_outputs, replayed, field_defaults(DATA_SUFFIXES[io.output]))
     return report
 
 

@@ -99,15 +99,33 @@ def compare_messages(
     return numeric, other
 
 
-def check_outputs(report: ReplayReport, recorded: dict[int, bytes], replayed: dict[int, bytes]):
-    """Fill the comparison fields of ``report``."""
+def field_defaults(model: type[BaseModel]) -> dict[str, Any]:
+    """The top-level fields of ``model`` that have a default, with it."""
+    return {
+        name: info.get_default(call_default_factory=True)
+        for name, info in model.model_fields.items()
+        if not info.is_required()
+    }
+
+
+def check_outputs(
+    report: ReplayReport,
+    recorded: dict[int, bytes],
+    replayed: dict[int, bytes],
+    defaults: dict[str, Any] | None = None,
+) -> None:
+    """Fill the comparison fields of ``report``. ``defaults`` (:func:`field_defaults` of the
+    output's model): a field the recorded message lacks reads as its default, as the service
+    itself would decode it (a recording made before the field existed)."""
     report.missing = len(recorded.keys() - replayed.keys())
     report.extra = len(replayed.keys() - recorded.keys())
     max_diff: dict[str, float] = {}
     other: dict[str, int] = {}
+    fill = defaults or {}
     for seq in sorted(recorded.keys() & replayed.keys()):
         numeric, different = compare_messages(
-            msgpack.unpackb(recorded[seq], raw=False), msgpack.unpackb(replayed[seq], raw=False)
+            {**fill, **msgpack.unpackb(recorded[seq], raw=False)},
+            msgpack.unpackb(replayed[seq], raw=False),
         )
         report.compared += 1
         for path, d in numeric.items():
@@ -119,7 +137,7 @@ def check_outputs(report: ReplayReport, recorded: dict[int, bytes], replayed: di
             report.differing += 1
             if len(report.examples) < 5:
                 path = next(iter(different), None) or max(over, key=lambda x: x[1])[0]
-                ra = dict(flatten(msgpack.unpackb(recorded[seq], raw=False)))
+                ra = dict(flatten({**fill, **msgpack.unpackb(recorded[seq], raw=False)}))
                 rb = dict(flatten(msgpack.unpackb(replayed[seq], raw=False)))
                 report.examples.append(
                     Difference(

@@ -1,7 +1,9 @@
 """A law stuck in a local minimum, through the real services (lockstep, loopback, own
-prefix): campaign start 3 with the thesis's constant Jacobian settles 5-26 px from its goal
-with its twist gone to zero. ``umay run`` ends it as stalled within stall_after_s of its best
-error; under ``umay up`` the controller's status says it is stalled and since when."""
+prefix): from campaign start 3 the thesis's constant Jacobian would lower the hand onto the
+object's top face 35 mm from its goal, the clearance above the object holds it there, and the
+error settles at 23 px. ``umay run`` ends it as stalled within stall_after_s of its best
+error, naming the clearance; under ``umay up`` the controller's status says it is stalled,
+since when, and that the clearance holds the hand."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from pathlib import Path
 
 from common.session import open_session
 from deploy.experiments.campaign.starts import start_overrides
+from services.controller.progress import HELD_BY_CLEARANCE
 from tests.conftest import launch_umay_up, views_once_controller
 from tests.integration.test_integration import umay_run
 
@@ -34,7 +37,7 @@ def test_umay_run_ends_a_stalled_law_early_naming_its_best_error(tmp_path: Path)
     assert r is not None, proc.stderr
     assert proc.returncode == 1 and r["reason"] == "stalled", r
     assert r["sim_time_s"] < 10.0, r  # not the 40 s timeout
-    assert "not below" in r["detail"] and "local minimum" in r["detail"], r
+    assert "not below" in r["detail"] and HELD_BY_CLEARANCE in r["detail"], r
     assert r["final_pixel_rms"] > 5.0, r
 
 
@@ -49,7 +52,9 @@ def test_umay_up_keeps_going_and_status_says_it_is_stalled(tmp_path: Path) -> No
         assert controller is not None and controller.status.fields["stalled"], controller
         fields = controller.status.fields
         assert fields["stalled_for_s"] >= 5.0 and fields["error_best_px"] > 5.0, fields
-        assert controller.status.degraded_reason.startswith("stalled: image error"), fields
+        reason = controller.status.degraded_reason
+        assert reason.startswith("stalled: image error"), fields
+        assert reason.endswith(HELD_BY_CLEARANCE), reason
         assert not fields["converged"] and not fields["holding"], fields
     finally:
         proc.send_signal(signal.SIGTERM)

@@ -3,8 +3,17 @@ fields it ignores and how it names the ones that differ; lockstep replay's steps
 
 from __future__ import annotations
 
+import msgpack
+
+from common.codec import encode
+from common.messages import EndEffectorTwist, Header
 from deploy.recording.replay import JOINT_STATE, SERVICE_IO, Recorded, lockstep_steps
-from deploy.recording.replay_check import compare_messages
+from deploy.recording.replay_check import (
+    ReplayReport,
+    check_outputs,
+    compare_messages,
+    field_defaults,
+)
 
 
 def test_compare_ignores_seq_and_send_time_and_names_field_paths() -> None:
@@ -35,3 +44,28 @@ def test_a_frame_s_joint_state_logged_after_its_trigger_is_still_replayed_with_i
         [(JOINT_STATE, 1), ("vision/features", 1)],
         [(JOINT_STATE, 3), ("vision/features", 3)],
     ]
+
+
+def test_a_field_a_recording_predates_reads_as_its_default() -> None:
+    """A twist recorded before ``lifted`` existed checks against a replayed one that carries
+    it at its default; a replayed ``lifted`` of True is a difference."""
+    header = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
+    twist = EndEffectorTwist(
+        header=header, linear_m_s=[0.0] * 3, angular_rad_s=[0.0] * 3, valid=True,
+        mode="dynamic", error_px_rms=1.0, converged=False,
+    )  # fmt: skip
+    old = twist.model_dump()
+    del old["lifted"]
+    defaults = field_defaults(EndEffectorTwist)
+    assert defaults["lifted"] is False and "valid" not in defaults  # required: no default
+    for replayed, same in ((twist, True), (twist.model_copy(update={"lifted": True}), False)):
+        report = ReplayReport(
+            recording="r.mcap", service="controller", speed="max", prefix="p", log_path="l",
+            inputs_published=2, frames=1, outputs=1, no_answer=0, skipped_inputs=0,
+            wall_time_s=0.1, check=True, tolerance=1e-12, ok=True,
+        )  # fmt: skip
+        check_outputs(report, {0: msgpack.packb(old)}, {0: encode(replayed)}, defaults)
+        assert report.ok is same and report.matched == int(same), report
+        without = report.model_copy(update={"compared": 0, "matched": 0, "differing": 0})
+        check_outputs(without, {0: msgpack.packb(old)}, {0: encode(twist)})
+        assert without.other_diffs == {"lifted": 1}  # without the defaults: absent vs False
