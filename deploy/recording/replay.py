@@ -24,9 +24,10 @@ With ``check``, only the frames the service answered in the recording are replay
 never processed, e.g. cut off when the run stopped, cannot be compared and would change its
 state), outputs are matched by ``header.frame_seq`` (the actuation deadman's ``frame_seq`` -1
 commands are ignored on both sides) and compared field by field, ignoring ``header.seq`` and
-``header.send_time_s``; a field the recording predates reads as its default. On the machine that recorded, the outputs are bit-identical; on
-another CPU numpy's BLAS/LAPACK kernels (least squares, pseudo-inverses) may round the last bit
-differently, which is not a change in behaviour. The controller's and actuation's twists and
+``header.send_time_s``; a field the recording predates reads as its default. On the machine
+that recorded, the outputs are bit-identical; on another CPU numpy's BLAS/LAPACK kernels
+(least squares, pseudo-inverses) may round the last bit differently, which is not a change in
+behaviour. The controller's and actuation's twists and
 velocities then differ by about 1e-15; vision's corners of a partly hidden target, fitted by
 Gauss-Newton from least-squares steps, by up to 5e-12 px (an AVX-512 CPU replaying a recording
 made on one without). So the controller is allowed 1e-12, vision and actuation 1e-9 (px, m,
