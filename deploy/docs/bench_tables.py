@@ -12,6 +12,7 @@ from deploy.docs.sources import (
     KINECT_LOCKSTEP_RUN,
     KINECT_REALTIME_RUN,
     LOCKSTEP_RUN,
+    STARTUP_FRAMES,
     BenchRun,
     Inputs,
 )
@@ -361,3 +362,55 @@ def bench_alternations(inputs: Inputs, here: str) -> str:
             )
         )
     return "\n\n".join(parts) or "*No alternation has been run.*"
+
+
+# The stages of a frame the start-up table shows (each run's latency and its two largest parts).
+STARTUP_STAGES = (("latency_ms", "latency"), ("frame_transport", "transport"), ("vision", "vision"))
+
+
+def bench_startup(inputs: Inputs, here: str) -> str:
+    """A run's first frames one by one against its later frames (``umay bench --warmup 0``):
+    per frame, each run's latency (the in-process functions' on the same frame in brackets),
+    frame transport and vision (ms); last, the median of the frames from
+    :data:`STARTUP_FRAMES` on."""
+    from statistics import median
+
+    parts = []
+    for r in inputs.startup:
+        runs = [_startup_frames(run) for run in r.data["each_run"]]
+        shown = min(STARTUP_FRAMES, *(len(frames) for frames in runs))
+        body = [[str(i), *[_startup_cell(frames[i]) for frames in runs]] for i in range(shown)]
+        keys = ("inprocess_ms", *(key for key, _ in STARTUP_STAGES))
+        later = [
+            {key: median(f[key] for f in frames[STARTUP_FRAMES:]) for key in keys}
+            for frames in runs
+        ]
+        body.append([f"median, frames {STARTUP_FRAMES} on", *map(_startup_cell, later)])
+        headers = ["frame", *[f"run {i + 1}: {STARTUP_WHAT}" for i in range(len(runs))]]
+        m = r.data["machine"]
+        parts.append(
+            f"[`{r.name}`]({link(here, r.path)}): `{r.data['command']}`; {m['cpus']} × "
+            f"{m['processor']}, load {_n((m.get('load_start') or [None])[0])}, code "
+            f"`{m.get('code') or 'not recorded'}`.\n\n"
+            + markdown_table(headers, body, right_from=1)
+            + "\n\nTimes in ms."
+        )
+    return "\n\n".join(parts) or "*No start-up run has been made.*"
+
+
+STARTUP_WHAT = "latency (in-process) / transport / vision"
+
+
+def _startup_frames(run: Mapping[str, Any]) -> list[dict[str, float]]:
+    """A run's distributed frames in order, each with the in-process latency of its frame."""
+    inprocess = {f["frame_seq"]: f["latency_ms"] for f in run["inprocess"]["frames_ms"]}
+    return [
+        {**f, "inprocess_ms": inprocess[f["frame_seq"]]}
+        for f in run["distributed"]["frames_ms"]
+        if f["frame_seq"] in inprocess
+    ]
+
+
+def _startup_cell(frame: Mapping[str, float]) -> str:
+    latency_ms, transport_ms, vision_ms = (frame[key] for key, _ in STARTUP_STAGES)
+    return f"{_n(latency_ms)} ({_n(frame['inprocess_ms'])}) / {_n(transport_ms)} / {_n(vision_ms)}"

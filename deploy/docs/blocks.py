@@ -16,6 +16,7 @@ from deploy.docs.bench_tables import (
     bench_render,
     bench_runs,
     bench_services,
+    bench_startup,
 )
 from deploy.docs.campaign_tables import campaign_goals, campaign_summary, campaign_taxonomy
 from deploy.docs.domains_tables import (
@@ -34,6 +35,7 @@ from deploy.docs.sources import (
     EXECUTORS_DIR,
     PER_CORNER_JSON,
     RESULTS_JSON,
+    STARTUP_DIR,
     SUITE_CAMERA_DIR,
     Inputs,
 )
@@ -60,6 +62,7 @@ BLOCKS: dict[str, Block] = {
     "bench-services": Block(bench_services, f"{BENCH_DIR}/*.json"),
     "bench-dropped": Block(bench_dropped, f"{BENCH_DIR}/*.json"),
     "bench-alternations": Block(bench_alternations, f"{ALTERNATIONS_DIR}/*.json"),
+    "bench-startup": Block(bench_startup, f"{STARTUP_DIR}/*.json"),
     "campaign-summary": Block(campaign_summary, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}"),
     "campaign-taxonomy": Block(campaign_taxonomy, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}"),
     "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}, {RESULTS_JSON}"),

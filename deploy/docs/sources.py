@@ -16,6 +16,10 @@ RESULTS_JSON = "docs/results/results.json"
 BENCH_DIR = "docs/bench"
 # umay bench --alternate: one change judged by pairs of runs without and with it.
 ALTERNATIONS_DIR = "docs/bench/alternations"
+# umay bench --warmup 0: every frame of each run from the first, for a run's start-up.
+STARTUP_DIR = "docs/bench/startup"
+# Frames shown one by one from a run's start; the rest are summed up by their median.
+STARTUP_FRAMES = 10
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
 ACCURACY_JSON = "docs/vision/accuracy.json"  # umay accuracy on the suite's target placements
 CAMPAIGN_JSON = "docs/campaign/causes.json"  # the random-start campaign: one cause per run
@@ -43,14 +47,15 @@ class DocsError(ValueError):
 # --- inputs ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class BenchRun:
-    """One ``umay bench --json`` file: its name (the file's stem) and its content."""
+    """One ``umay bench --json`` file: its name (the file's stem), its content and its folder."""
 
     name: str
     data: Mapping[str, Any]
+    folder: str = BENCH_DIR
 
     @property
     def path(self) -> str:
-        return f"{BENCH_DIR}/{self.name}.json"
+        return f"{self.folder}/{self.name}.json"
 
 
 @dataclass(frozen=True)
@@ -58,6 +63,7 @@ class Inputs:
     results: Sequence[CompareRow] = ()
     bench: Sequence[BenchRun] = ()  # sorted by name
     alternations: Sequence[tuple[str, Any]] = ()  # (file stem, AlternationReport), by name
+    startup: Sequence[BenchRun] = ()  # runs without warm-up frames (STARTUP_DIR), by name
     domains: Any = None  # the domain study (deploy.experiments.domains.report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
@@ -99,6 +105,10 @@ def load_inputs(root: Path) -> Inputs:
             for p in sorted((root / ALTERNATIONS_DIR).glob("*.json"))
         ]
 
+        startup = [
+            BenchRun(p.stem, json.loads(p.read_text()), STARTUP_DIR)
+            for p in sorted((root / STARTUP_DIR).glob("*.json"))
+        ]
         domains = None
         if (root / DOMAINS_JSON).is_file():
             domains = load_study_json(root / DOMAINS_JSON)
@@ -119,6 +129,7 @@ def load_inputs(root: Path) -> Inputs:
         results=results,
         bench=bench,
         alternations=alternations,
+        startup=startup,
         domains=domains,
         executors=executors,
         campaign=campaign,

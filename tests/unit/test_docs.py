@@ -18,6 +18,7 @@ from deploy.docs.bench_tables import (
     bench_dropped,
     bench_latency,
     bench_render,
+    bench_startup,
     frame_handoff_ms,
     latency,
     link,
@@ -33,6 +34,8 @@ from deploy.docs.sources import (
     LOCKSTEP_RUN,
     REPO_ROOT,
     RESULTS_JSON,
+    STARTUP_DIR,
+    STARTUP_FRAMES,
     BenchRun,
     DocsError,
     Inputs,
@@ -508,3 +511,31 @@ def test_umay_docs_redraws_the_bench_figure_from_its_json_once(
     assert png.startswith(b"\x89PNG") and png == (REPO_ROOT / BENCH_STAGES_PNG).read_bytes()
     assert main(["docs", "--root", str(tmp_path)]) == 0
     assert "redrew" not in capsys.readouterr().err  # the same JSON draws the same bytes
+
+
+def test_the_startup_block_shows_each_runs_first_frames_against_its_later_ones() -> None:
+    def frames(first_ms: float) -> dict[str, Any]:
+        seqs = range(14)
+        return {
+            "distributed": {
+                "frames_ms": [
+                    {"frame_seq": i, "latency_ms": first_ms if i == 0 else 6.0 + i % 2,
+                     "frame_transport": 0.5, "vision": 3.0}
+                    for i in seqs
+                ]
+            },
+            "inprocess": {"frames_ms": [{"frame_seq": i, "latency_ms": 3.0} for i in seqs]},
+        }  # fmt: skip
+
+    data = {
+        "command": "umay bench --warmup 0",
+        "machine": {"cpus": 2, "processor": "x86_64", "load_start": [1.0], "code": "abc"},
+        "each_run": [frames(13.0), frames(14.0)],
+    }
+    rendered = bench_startup(Inputs(startup=[BenchRun("s", data, STARTUP_DIR)]), "docs")
+    assert "[`s`](bench/startup/s.json): `umay bench --warmup 0`" in rendered
+    assert "| 0 | 13.00 (3.00) / 0.50 / 3.00 | 14.00 (3.00) / 0.50 / 3.00 |" in rendered
+    assert "| 1 | 7.00 (3.00) / 0.50 / 3.00 | 7.00 (3.00) / 0.50 / 3.00 |" in rendered
+    # frames 10 to 13: 6, 7, 6, 7 ms
+    assert f"| median, frames {STARTUP_FRAMES} on | 6.50 (3.00) / 0.50 / 3.00 |" in rendered
+    assert bench_startup(Inputs(), "docs") == "*No start-up run has been made.*"
