@@ -13,10 +13,14 @@ colour frame at a time, the last ``DEPTH_CACHE`` depth images) are far newer tha
 measuring a frame, vision checks that neither image was overwritten meanwhile (a stall of half
 a second would do it); if one was, the measurement is thrown away and the frame counted as
 rejected, with the reason, instead of publishing features of torn pixels.
+
+Before it subscribes, vision measures one synthetic frame (:mod:`services.vision.warmup`), so
+that the camera's first frame is not the one that pays for its first step.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from collections import OrderedDict
 
@@ -26,6 +30,9 @@ from common.node import Node
 from common.runtime import ServiceContext
 from services.vision.step import depth_for, depth_image, vision_step
 from services.vision.tracking import TrackerState
+from services.vision.warmup import warm_up
+
+log = logging.getLogger("umay.vision")
 
 DEPTH_WAIT_S = 0.5  # wall clock: how long a colour frame waits for its depth image
 DEPTH_CACHE = 4  # depth images kept
@@ -37,6 +44,16 @@ class VisionService:
         self.config = ctx.scenario.vision
         self.marker_size_m = ctx.scenario.marker.size_m
         self.orientation_cue = ctx.scenario.marker.orientation_cue
+        camera = ctx.scenario.camera
+        started = time.perf_counter()
+        warm_up(
+            camera.intrinsics(),
+            camera.depth_intrinsics(),
+            self.config,
+            self.marker_size_m,
+            self.orientation_cue,
+        )
+        log.info("warmed up on a synthetic frame in %.1f ms", 1e3 * (time.perf_counter() - started))
         self.node = Node("vision", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.features)
         self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=True)
