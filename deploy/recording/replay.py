@@ -27,11 +27,11 @@ commands are ignored on both sides) and compared field by field, ignoring ``head
 ``header.send_time_s``; a field the recording predates reads as its default. On the machine
 that recorded, the outputs are bit-identical; on another CPU numpy's BLAS/LAPACK kernels
 (least squares, pseudo-inverses) may round the last bit differently, which is not a change in
-behaviour. The controller's and actuation's twists and
-velocities then differ by about 1e-15; vision's corners of a partly hidden target, fitted by
-Gauss-Newton from least-squares steps, by up to 5e-12 px (an AVX-512 CPU replaying a recording
-made on one without). So the controller is allowed 1e-12, vision and actuation 1e-9 (px, m,
-rad/s: far below any change in behaviour). ``--tolerance 0`` asks for bit-identity.
+behaviour. The controller's and actuation's twists and velocities then differ by about 1e-15;
+vision's corners of a partly hidden target, fitted by Gauss-Newton from least-squares steps,
+by up to 5e-12 px (an AVX-512 CPU replaying a recording made on one without). So the
+controller is allowed 1e-12, vision and actuation 1e-9 (px, m, rad/s: far below any change in
+behaviour). ``--tolerance 0`` asks for bit-identity.
 """
 
 from __future__ import annotations

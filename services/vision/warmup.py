@@ -2,7 +2,7 @@
 
 Vision's first step in a process costs several times a later one (its code paths and OpenCV's
 and numpy's first use; docs/performance.md, a run's first frames), and that first step answers
-the camera's first frame, so the arm's first command came late. The node therefore measures
+the camera's first frame, delaying the arm's first command. The node therefore measures
 one synthetic frame of the scenario's sizes before it subscribes: the hand's green and the
 target's red square, both wholly seen, on grey, with a flat depth image. What it measures is
 discarded; the tracker the node starts with is a fresh one.
