@@ -229,12 +229,14 @@ def progress_line(monitor: RunMonitor, scenario: Scenario, elapsed_s: float) -> 
 
 
 def twist_phase(tw: EndEffectorTwist) -> str:
-    """``converged``, ``servoing``, ``acquiring: ...`` or ``holding: why``."""
+    """``converged``, ``servoing``, ``acquiring: ...`` or ``holding: why``; a moving twist the
+    clearance lifted says so (``servoing, lifted above the object``)."""
     if tw.converged:
         return "converged"
     if not tw.valid:
         return f"holding: {tw.hold_reason}"
-    return tw.hold_reason if tw.hold_reason.startswith(ACQUIRING) else "servoing"
+    phase = tw.hold_reason if tw.hold_reason.startswith(ACQUIRING) else "servoing"
+    return f"{phase}, lifted above the object" if tw.lifted else phase
 
 
 def result_table(result: RunResult) -> Table:

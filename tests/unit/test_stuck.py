@@ -134,6 +134,8 @@ def test_the_live_line_names_the_phase() -> None:
     assert twist_phase(twist(0, False, "target partial")) == "holding: target partial"
     acquiring = "acquiring: target partial, attempt 1/4"
     assert twist_phase(twist(0, True, acquiring)) == acquiring
+    lifted = twist_phase(twist(0, True, lifted=True))
+    assert lifted == "servoing, lifted above the object"
 
 
 def test_a_result_that_did_not_converge_must_say_why() -> None:
