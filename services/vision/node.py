@@ -44,16 +44,7 @@ class VisionService:
         self.config = ctx.scenario.vision
         self.marker_size_m = ctx.scenario.marker.size_m
         self.orientation_cue = ctx.scenario.marker.orientation_cue
-        camera = ctx.scenario.camera
-        started = time.perf_counter()
-        warm_up(
-            camera.intrinsics(),
-            camera.depth_intrinsics(),
-            self.config,
-            self.marker_size_m,
-            self.orientation_cue,
-        )
-        log.info("warmed up on a synthetic frame in %.1f ms", 1e3 * (time.perf_counter() - started))
+        self._warm_up()
         self.node = Node("vision", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.features)
         self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=True)
@@ -68,6 +59,24 @@ class VisionService:
         self.depth_age_s: float | None = None
         self.states: dict[str, str] = {"hand": "lost", "target": "lost"}
         self.reasons: dict[str, str] = {"hand": "", "target": ""}
+
+    def _warm_up(self) -> None:
+        """One step on a synthetic frame; only an optimisation, so a failure is logged and
+        the service goes on."""
+        camera = self.ctx.scenario.camera
+        started = time.perf_counter()
+        try:
+            warm_up(
+                camera.intrinsics(),
+                camera.depth_intrinsics(),
+                self.config,
+                self.marker_size_m,
+                self.orientation_cue,
+            )
+        except Exception:
+            log.exception("warm-up on a synthetic frame failed; the first frame pays for it")
+            return
+        log.info("warmed up on a synthetic frame in %.1f ms", 1e3 * (time.perf_counter() - started))
 
     def status_fields(self) -> dict:
         return {
