@@ -238,6 +238,15 @@ def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--modes", nargs="+", default=None, metavar="MODE", help="strategies")
     p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
     _pipeline_option(p)
+    p.add_argument(
+        "--only",
+        nargs="+",
+        default=[],
+        metavar="START",
+        help="only these starts, instead of the first N: their names in campaign.md (e.g. "
+        "start_0003) or indices; the same starts as in the whole campaign, to see some of its "
+        "runs again (with figures, the first one's runs are recorded and plotted)",
+    )
     p.add_argument("--out", default="out/campaign", metavar="DIR", help="output folder")
     p.add_argument(
         "--no-figures",
@@ -258,6 +267,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from deploy.experiments.campaign.causes import failure_cause
     from deploy.experiments.campaign.run import (
         campaign_inputs,
+        parse_only,
         plan_campaign,
         run_campaign,
         write_campaign,
@@ -273,14 +283,15 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         modes = parse_modes(args.modes)
         check_jobs(args.jobs)
         # Every input checked, --out last (it creates the folder), before minutes of drawing.
+        only = parse_only(args.only)
         campaign_inputs(args.n, Path(args.distribution), args.seed, args.set)
         out_dir = check_output_dir("--out", args.out)
         columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn())
         with Progress(*columns, TimeElapsedColumn(), console=console, transient=True) as bar:
-            drawing = bar.add_task("drawing starts", total=args.n)
+            drawing = bar.add_task("drawing starts", total=len(only) or args.n)
             cplan = plan_campaign(
                 args.n, modes, Path(args.distribution), args.seed, args.set,
-                not args.no_figures, args.jobs, lambda _i: bar.advance(drawing),
+                not args.no_figures, args.jobs, lambda _i: bar.advance(drawing), only,
             )  # fmt: skip
     except (CompareError, OutputPathError) as exc:
         print(f"umay campaign: {exc}", file=sys.stderr)

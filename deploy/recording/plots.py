@@ -78,13 +78,15 @@ class RunSeries:
     that had at least one valid message."""
 
     present: frozenset[str] = frozenset()
-    # vision/features: (N,), (N, 4, 2) with NaN where the marker is not visible
+    # vision/features: (N,), (N, 4, 2) with NaN where the marker's corners are unknown (not
+    # seen whole, nor fitted from its edges); *_visible: seen whole
     image_size_px: tuple[int, int] | None = None  # (width, height)
     feat_t_s: np.ndarray = field(default_factory=lambda: np.empty(0))
     hand_px: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 2)))
     hand_visible: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=bool))
     target_px: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 2)))
     target_visible: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=bool))
+    target_usable: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=bool))
     # controller/twist
     twist_t_s: np.ndarray = field(default_factory=lambda: np.empty(0))
     linear_m_s: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
@@ -156,17 +158,19 @@ def _rows(values: list[list[float]], width: int) -> np.ndarray:
     return np.array(values, dtype=float).reshape(len(values), width)
 
 
-def _corners(markers: list, n: int) -> tuple[np.ndarray, np.ndarray]:
+def _corners(markers: list, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Corners (NaN where unknown), seen whole, and usable (whole or fitted) per frame."""
     visible = np.array([m.visible for m in markers], dtype=bool).reshape(n)
+    usable = np.array([m.usable for m in markers], dtype=bool).reshape(n)
     px = np.array([m.corners_px for m in markers], dtype=float).reshape(n, 4, 2)
-    px[~visible] = np.nan
-    return px, visible
+    px[~usable] = np.nan
+    return px, visible, usable
 
 
 def _feature_fields(feats: list[Features]) -> dict:
     n = len(feats)
-    hand_px, hand_visible = _corners([f.hand for f in feats], n)
-    target_px, target_visible = _corners([f.target for f in feats], n)
+    hand_px, hand_visible, _ = _corners([f.hand for f in feats], n)
+    target_px, target_visible, target_usable = _corners([f.target for f in feats], n)
     size = None
     if feats:
         k = feats[0].intrinsics
@@ -178,6 +182,7 @@ def _feature_fields(feats: list[Features]) -> dict:
         "hand_visible": hand_visible,
         "target_px": target_px,
         "target_visible": target_visible,
+        "target_usable": target_usable,
     }
 
 
@@ -278,7 +283,7 @@ def image_trajectory_figure(series: RunSeries) -> Figure | None:
         linewidth=1.6,
         linestyle="--",
         zorder=4,  # above the target square it ends on
-        label="hand marker, final (it stops above the target)",
+        label="hand marker, final",
     )
     for i, (u, v) in enumerate(hand[0]):
         ax.annotate(
@@ -290,18 +295,21 @@ def image_trajectory_figure(series: RunSeries) -> Figure | None:
             color=HAND_GREEN,
             fontweight="bold",
         )
-    if series.target_visible.any():
-        target = series.target_px[series.target_visible][0]
+    # The target as first seen whole; else (the hand over it from the start) as first fitted
+    # from its visible edges.
+    seen = series.target_visible if series.target_visible.any() else series.target_usable
+    if seen.any():
+        fitted = "" if series.target_visible.any() else ", fitted from its edges"
         _draw_square(
             ax,
-            target,
+            series.target_px[seen][0],
             color=TARGET_RED,
             linewidth=3.0,
             alpha=0.8,
             marker="s",
             markersize=6,
             zorder=1.5,
-            label="target marker (red square)",
+            label=f"target marker (red square{fitted})",
         )
     ax.set_xlim(0, width)
     ax.set_ylim(height, 0)  # v points down

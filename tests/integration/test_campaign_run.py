@@ -49,3 +49,11 @@ def test_a_small_campaign_names_every_run_and_repeats_bit_for_bit(tmp_path: Path
     assert (tmp_path / "a" / "campaign.md").read_text() == (
         tmp_path / "b" / "campaign.md"
     ).read_text()
+    # One start of it again (--only, by name and by index): the same runs to the bit.
+    again = campaign(tmp_path / "c", 1, "--no-figures", "--only", "start_0002", "0")
+    assert again.returncode == 0, again.stderr
+    c = rows_from_json((tmp_path / "c" / "results.json").read_text())
+    assert sorted({r.scenario for r in c}) == sorted(
+        {r.scenario for r in a} & {"start_0000", "start_0002"}
+    )
+    assert c and differences([r for r in a if r.scenario in {x.scenario for x in c}], c) == []

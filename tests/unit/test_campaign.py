@@ -184,6 +184,8 @@ def test_starts_drawn_by_two_processes_are_the_same_and_reported_in_order() -> N
         (["--out", "/proc/no-such-dir/out"], "--out /proc/no-such-dir/out: cannot write"),
         (["--set", "controller.gain=-3"], "controller.gain"),
         (["--n", "0"], "--n: at least 1 start"),
+        (["--only", "start_x"], "--only: 'start_x'"),
+        (["--only", "first"], "--only: 'first': a start's name (e.g. start_0003) or its index"),
     ],
 )
 def test_bad_campaign_input_exits_2_before_any_start_is_drawn(

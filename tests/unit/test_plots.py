@@ -20,7 +20,7 @@ from common.messages import (
     MarkerFeatures,
     SimTruth,
 )
-from deploy.recording.plots import load_series, plot_recording
+from deploy.recording.plots import RunSeries, load_series, plot_recording
 from deploy.recording.read import NotARecordingError
 
 PREFIX = "umay/test"
@@ -232,3 +232,23 @@ def test_threshold_is_optional(tmp_path: Path, threshold: float | None) -> None:
     rec = write_recording(tmp_path / "run.mcap")
     written = plot_recording(rec, tmp_path / "figs", converged_px=threshold)
     assert "feature_error.png" in {p.name for p in written}
+
+
+def test_a_target_never_seen_whole_is_drawn_as_fitted() -> None:
+    """The hand over the target from the first frame: vision fits the target from its edges
+    (partial, fitted) and never sees it whole; the image plot still draws it, and says so."""
+    from deploy.recording.plots import _feature_fields, image_trajectory_figure
+
+    fitted = marker(TARGET).model_copy(update={"state": "partial", "fitted": True})
+    feats = [
+        Features(header=header(k), intrinsics=K, hand=marker(START), target=fitted)
+        for k in range(3)
+    ]
+    fields = _feature_fields(feats)
+    assert not fields["target_visible"].any() and fields["target_usable"].all()
+    np.testing.assert_allclose(fields["target_px"][0], TARGET)
+    series = RunSeries(**fields)
+    fig = image_trajectory_figure(series)
+    assert fig is not None
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert "target marker (red square, fitted from its edges)" in labels

@@ -34,19 +34,36 @@ class CampaignPlan:
 
 
 def _draw_all(
-    dist: Distribution, base: Scenario, n: int, jobs: int, on_drawn: Callable[[int], None]
+    dist: Distribution,
+    base: Scenario,
+    indices: Sequence[int],
+    jobs: int,
+    on_drawn: Callable[[int], None],
 ) -> Iterator[Start]:
-    """Starts 0 … n-1 in order, drawn by ``jobs`` processes (inverse kinematics and a
-    pybullet scene per draw: the slow part of planning a campaign)."""
-    if jobs <= 1 or n == 1:
-        for i in range(n):
+    """The starts of ``indices`` in order, drawn by ``jobs`` processes (inverse kinematics and
+    a pybullet scene per draw: the slow part of planning a campaign)."""
+    if jobs <= 1 or len(indices) == 1:
+        for i in indices:
             yield draw_start(dist, base, i)
             on_drawn(i)
         return
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        for i, start in enumerate(pool.map(partial(draw_start, dist, base), range(n))):
+        drawn = pool.map(partial(draw_start, dist, base), indices)
+        for i, start in zip(indices, drawn, strict=True):
             yield start
             on_drawn(i)
+
+
+def parse_only(items: Sequence[str]) -> tuple[int, ...]:
+    """The start indices ``--only`` names, in order, each once: a start's name as the
+    campaign's reports give it (``start_0003``) or its index (``3``)."""
+    indices: list[int] = []
+    for item in items:
+        digits = item.removeprefix("start_")
+        if not digits.isdigit():
+            raise CompareError(f"--only: {item!r}: a start's name (e.g. start_0003) or its index")
+        indices.append(int(digits))
+    return tuple(dict.fromkeys(indices))
 
 
 def campaign_inputs(
@@ -79,13 +96,17 @@ def plan_campaign(
     figures: bool = True,
     jobs: int = 1,
     on_drawn: Callable[[int], None] | None = None,
+    only: Sequence[int] = (),
 ) -> CampaignPlan:
     """Draw ``n`` starts (``seed`` instead of the distribution's), validate every job.
     ``figures``: the first start's runs are recorded, for the figures (False: none is).
     ``jobs``: worker processes drawing at once (each start comes from its own generator, so
-    the same starts whatever ``jobs``); ``on_drawn(i)`` after start ``i``, in order."""
+    the same starts whatever ``jobs``); ``on_drawn(i)`` after start ``i``, in order.
+    ``only``: these starts' indices instead of the first ``n`` (the same starts as in the
+    whole campaign: to see some of its runs again)."""
     dist, base_path, base = campaign_inputs(n, distribution_path, seed, overrides)
-    starts = tuple(_draw_all(dist, base, n, jobs, on_drawn or (lambda _i: None)))
+    indices = tuple(only) or tuple(range(n))
+    starts = tuple(_draw_all(dist, base, indices, jobs, on_drawn or (lambda _i: None)))
     jobs: list[Job] = []
     names: list[str] = []
     for start in starts:
