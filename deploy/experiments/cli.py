@@ -227,7 +227,17 @@ def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
         "from each, and write compare's outputs plus campaign.md, causes.json and starts.json: "
         "one named cause per run that did not end on its goal (docs/campaign.md).",
     )
-    p.add_argument("--n", type=int, default=20, help="starts to draw (default 20)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--n", type=int, default=20, help="starts to draw (default 20)")
+    which.add_argument(
+        "--only",
+        nargs="+",
+        default=[],
+        metavar="START",
+        help="only these starts, instead of the first N: their names in campaign.md (e.g. "
+        "start_0003) or indices; the same starts as in the whole campaign, to see some of its "
+        "runs again (with figures, the first one's runs are recorded and plotted)",
+    )
     p.add_argument("--seed", type=int, default=None, help="instead of the distribution file's seed")
     p.add_argument(
         "--distribution",
@@ -238,15 +248,6 @@ def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--modes", nargs="+", default=None, metavar="MODE", help="strategies")
     p.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
     _pipeline_option(p)
-    p.add_argument(
-        "--only",
-        nargs="+",
-        default=[],
-        metavar="START",
-        help="only these starts, instead of the first N: their names in campaign.md (e.g. "
-        "start_0003) or indices; the same starts as in the whole campaign, to see some of its "
-        "runs again (with figures, the first one's runs are recorded and plotted)",
-    )
     p.add_argument("--out", default="out/campaign", metavar="DIR", help="output folder")
     p.add_argument(
         "--no-figures",

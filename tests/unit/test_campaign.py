@@ -186,6 +186,7 @@ def test_starts_drawn_by_two_processes_are_the_same_and_reported_in_order() -> N
         (["--n", "0"], "--n: at least 1 start"),
         (["--only", "start_x"], "--only: 'start_x'"),
         (["--only", "first"], "--only: 'first': a start's name (e.g. start_0003) or its index"),
+        (["--n", "3", "--only", "3"], "not allowed with argument --n"),
     ],
 )
 def test_bad_campaign_input_exits_2_before_any_start_is_drawn(
@@ -203,7 +204,8 @@ def test_bad_campaign_input_exits_2_before_any_start_is_drawn(
 
     monkeypatch.setattr(campaign, "draw_start", no_drawing)
     out = ["--out", str(tmp_path / "out")] if "--out" not in args else []
-    refused = umay_cli("campaign", "--n", "2", *out, *args)
+    n = [] if "--only" in args else ["--n", "2"]  # --only replaces --n
+    refused = umay_cli("campaign", *n, *out, *args)
     assert refused.returncode == 2, refused.stderr
     assert message in refused.stderr
     assert not (tmp_path / "out").exists()
