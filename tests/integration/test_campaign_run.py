@@ -16,8 +16,9 @@ CHEAP = ["camera.width_px=320", "camera.height_px=240", "run.timeout_s=15.0"]
 
 def campaign(out: Path, jobs: int, *extra: str) -> subprocess.CompletedProcess:
     sets = [a for item in CHEAP for a in ("--set", item)]
+    n = [] if "--only" in extra else ["--n", "3"]  # --only replaces --n
     return subprocess.run(
-        [sys.executable, "-m", "deploy", "campaign", "--n", "3", "--modes", "dynamic", "mpj",
+        [sys.executable, "-m", "deploy", "campaign", *n, "--modes", "dynamic", "mpj",
          "--jobs", str(jobs), "--out", str(out), "--pipeline", "inprocess", *sets, *extra],
         capture_output=True, text=True, timeout=900,
     )  # fmt: skip
