@@ -351,10 +351,8 @@ def bench_alternations(inputs: Inputs, here: str) -> str:
     parts = []
     for name, report in inputs.alternations:
         path = f"{ALTERNATIONS_DIR}/{name}.json"
-        m = report.machine
         parts.append(
-            f"[`{name}`]({link(here, path)}): `{report.command}`; {m.cpus} × {m.processor}, "
-            f"load {_n((m.load_start or [None])[0])}, code `{m.code or 'not recorded'}`.\n\n"
+            _caption(here, name, path, report.command, report.machine.model_dump())
             + markdown_table(
                 ["figure", "without", f"with `{report.change}`", "pairs"],
                 comparison_rows(report),
@@ -364,8 +362,21 @@ def bench_alternations(inputs: Inputs, here: str) -> str:
     return "\n\n".join(parts) or "*No alternation has been run.*"
 
 
-# The stages of a frame the start-up table shows (each run's latency and its two largest parts).
+def _caption(here: str, name: str, path: str, command: str, machine: Mapping[str, Any]) -> str:
+    """What made a generated table: its JSON, the command, the machine (a bench JSON's
+    ``machine``) and the code."""
+    load = (machine.get("load_start") or [None])[0]
+    return (
+        f"[`{name}`]({link(here, path)}): `{command}`; {machine['cpus']} × "
+        f"{machine['processor']}, load {_n(load)}, code `{machine.get('code') or 'not recorded'}`."
+        "\n\n"
+    )
+
+
+# The stages of a frame the start-up table shows: each run's latency (with the in-process
+# latency of the same frame in brackets) and its two largest parts.
 STARTUP_STAGES = (("latency_ms", "latency"), ("frame_transport", "transport"), ("vision", "vision"))
+STARTUP_WHAT = "latency (in-process) / transport / vision"
 
 
 def bench_startup(inputs: Inputs, here: str) -> str:
@@ -387,18 +398,12 @@ def bench_startup(inputs: Inputs, here: str) -> str:
         ]
         body.append([f"median, frames {STARTUP_FRAMES} on", *map(_startup_cell, later)])
         headers = ["frame", *[f"run {i + 1}: {STARTUP_WHAT}" for i in range(len(runs))]]
-        m = r.data["machine"]
         parts.append(
-            f"[`{r.name}`]({link(here, r.path)}): `{r.data['command']}`; {m['cpus']} × "
-            f"{m['processor']}, load {_n((m.get('load_start') or [None])[0])}, code "
-            f"`{m.get('code') or 'not recorded'}`.\n\n"
+            _caption(here, r.name, r.path, r.data["command"], r.data["machine"])
             + markdown_table(headers, body, right_from=1)
             + "\n\nTimes in ms."
         )
     return "\n\n".join(parts) or "*No start-up run has been made.*"
-
-
-STARTUP_WHAT = "latency (in-process) / transport / vision"
 
 
 def _startup_frames(run: Mapping[str, Any]) -> list[dict[str, float]]:

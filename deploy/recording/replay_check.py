@@ -123,10 +123,9 @@ def check_outputs(
     other: dict[str, int] = {}
     fill = defaults or {}
     for seq in sorted(recorded.keys() & replayed.keys()):
-        numeric, different = compare_messages(
-            {**fill, **msgpack.unpackb(recorded[seq], raw=False)},
-            msgpack.unpackb(replayed[seq], raw=False),
-        )
+        was = {**fill, **msgpack.unpackb(recorded[seq], raw=False)}
+        now = msgpack.unpackb(replayed[seq], raw=False)
+        numeric, different = compare_messages(was, now)
         report.compared += 1
         for path, d in numeric.items():
             max_diff[path] = max(max_diff.get(path, 0.0), d)
@@ -137,8 +136,7 @@ def check_outputs(
             report.differing += 1
             if len(report.examples) < 5:
                 path = next(iter(different), None) or max(over, key=lambda x: x[1])[0]
-                ra = dict(flatten({**fill, **msgpack.unpackb(recorded[seq], raw=False)}))
-                rb = dict(flatten(msgpack.unpackb(replayed[seq], raw=False)))
+                ra, rb = dict(flatten(was)), dict(flatten(now))
                 report.examples.append(
                     Difference(
                         frame_seq=seq,
