@@ -393,6 +393,14 @@ class SupervisorConfig(_Strict):
         description="a service whose event loop is stuck in one step, or that stops answering "
         "status queries, this long is killed (then restarted by its policy); 0: never",
     )
+    start_timeout_s: float = Field(
+        20.0,
+        ge=0.0,
+        le=600.0,
+        description="a service that has answered no status query this long after it started "
+        "is taken as hung (a start that never ends, or a hang before its first answer) and "
+        "killed; 0: never",
+    )
     cpu_wakeup_latency_us: int | None = Field(
         None,
         ge=0,

@@ -11,7 +11,9 @@ A process can also hang without exiting: a deadlock, a native call that never re
 ``SIGSTOP``. Given a session, the supervisor asks every service for its status each second
 and kills (SIGKILL) a child whose event loop has been busy in one step, or that has not
 answered, for ``hang_timeout_s``; its restart policy then applies as to any other death.
-A child is judged only once it has answered, so a slow start is never taken for a hang.
+A child that has not answered yet is still starting, so a slow start is not taken for a hang;
+one that has answered nothing ``start_timeout_s`` after it started is (a start that never ends,
+or a hang before its first answer).
 
 With ``cpu_wakeup_latency_us`` set, the supervisor holds that CPU wake-up latency request
 (:mod:`deploy.cpu_latency`) from :meth:`Supervisor.start` to :meth:`Supervisor.stop`.
@@ -67,13 +69,24 @@ class Heard:
 
 
 def hang_reason(
-    heard: Heard | None, unanswered_since_s: float | None, now_s: float, hang_timeout_s: float
+    heard: Heard | None,
+    unanswered_since_s: float | None,
+    now_s: float,
+    hang_timeout_s: float,
+    started_s: float | None = None,
+    start_timeout_s: float = 0.0,
 ) -> str | None:
     """Why a running child counts as hung, else None. ``unanswered_since_s``: when the first
     status query it has not answered was sent (None: it answered the last one). A child that
-    has never answered is still starting and is not judged."""
-    if heard is None or hang_timeout_s <= 0:
+    has never answered is still starting: it is judged only once ``start_timeout_s`` (0: never)
+    have passed since it started at ``started_s``, so that one that hangs before its first
+    answer is not left hanging for good."""
+    if hang_timeout_s <= 0:
         return None
+    if heard is None:
+        if started_s is None or start_timeout_s <= 0 or now_s - started_s <= start_timeout_s:
+            return None
+        return f"no status answer in the {now_s - started_s:.1f} s since it started"
     if unanswered_since_s is not None and now_s - unanswered_since_s > hang_timeout_s:
         return f"no status answer for {now_s - unanswered_since_s:.1f} s"
     if heard.loop_busy_s is not None and heard.loop_busy_s > hang_timeout_s:
@@ -196,7 +209,10 @@ class Supervisor:
             heard = self._heard.get((child.name, child.process.pid))  # this process's
             after = heard.at_s if heard else now
             unanswered = next((t for t in self._queries_s if t > after), None)
-            reason = hang_reason(heard, unanswered, now, self.config.hang_timeout_s)
+            reason = hang_reason(
+                heard, unanswered, now, self.config.hang_timeout_s,
+                child.started_s, self.config.start_timeout_s,
+            )  # fmt: skip
             if reason is not None:
                 child.hang_kills += 1
                 child.last_hang = reason

@@ -37,3 +37,13 @@ def test_supervisor_pid_is_read_only_when_it_is_a_pid() -> None:
     for value in ("", "abc", "-5", "1", "0"):  # 1: init, never a supervisor
         assert supervisor_pid({ENV_SUPERVISOR_PID: value}) is None
     assert supervisor_pid({}) is None
+
+
+def test_a_child_that_never_answers_is_judged_after_the_start_timeout() -> None:
+    """Frozen before its first answer (or a start that never ends): killed once
+    ``start_timeout_s`` have passed since it started, not left hanging for good."""
+    assert hang_reason(None, 1.0, 20.9, 5.0, started_s=1.0, start_timeout_s=20.0) is None
+    reason = hang_reason(None, 1.0, 21.5, 5.0, started_s=1.0, start_timeout_s=20.0)
+    assert reason == "no status answer in the 20.5 s since it started"
+    assert hang_reason(None, 1.0, 99.0, 5.0, started_s=1.0, start_timeout_s=0.0) is None  # off
+    assert hang_reason(None, 1.0, 99.0, 0.0, started_s=1.0, start_timeout_s=20.0) is None
