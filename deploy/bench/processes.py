@@ -150,6 +150,30 @@ def code_version() -> str | None:
     return proc.stdout.strip() or None
 
 
+def cpu_model(cpuinfo: str | None = None) -> str | None:
+    """The first CPU's model name, family and model (``/proc/cpuinfo``), e.g. "AMD EPYC
+    (family 26, model 2)": hosts of one machine class (2 × x86_64, the same VM image) run the
+    loop at different speeds, and a virtual machine's model name alone can be as short as that.
+    None where the file or its fields are missing."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return None
+    fields: dict[str, str] = {}
+    for line in cpuinfo.split("\n\n", 1)[0].splitlines():
+        key, sep, value = line.partition(":")
+        if sep:
+            fields.setdefault(key.strip(), value.strip())
+    name = fields.get("model name")
+    if not name:
+        return None
+    numbers = [
+        f"{k} {fields[f]}" for k, f in (("family", "cpu family"), ("model", "model")) if f in fields
+    ]
+    return f"{name} ({', '.join(numbers)})" if numbers else name
+
+
 def zenoh_version() -> str:
     """The installed Zenoh's version, for the report's machine."""
     from importlib.metadata import PackageNotFoundError, version

@@ -213,6 +213,7 @@ class Machine(Figures):
     host: str
     cpus: int | None
     processor: str
+    cpu_model: str | None = None  # model name, family, model: hosts of one class differ
     python: str
     zenoh: str
     load_start: list[float]  # 1, 5 and 15 min load averages
@@ -221,10 +222,12 @@ class Machine(Figures):
 
     @model_serializer(mode="wrap")
     def _without_unknown_code(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        # A report made before the code was recorded is written back as it was read.
+        # A report made before the code or the CPU model was recorded is written back as it
+        # was read.
         data = handler(self)
-        if data.get("code") is None:
-            data.pop("code", None)
+        for optional in ("code", "cpu_model"):
+            if data.get(optional) is None:
+                data.pop(optional, None)
         return data
 
 

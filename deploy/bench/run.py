@@ -14,7 +14,7 @@ from common.config import ClockMode, Scenario
 from common.keys import Keys
 from deploy.bench.distributed import Observer, run_distributed
 from deploy.bench.inprocess import run_inprocess
-from deploy.bench.processes import code_version, machine_load, zenoh_version
+from deploy.bench.processes import code_version, cpu_model, machine_load, zenoh_version
 from deploy.bench.render import REFERENCE_RENDERER, run_render_bench
 from deploy.bench.report import (
     BenchConfig,
@@ -137,6 +137,7 @@ def run_bench(
             host=platform.node(),
             cpus=os.cpu_count(),
             processor=platform.processor() or platform.machine(),
+            cpu_model=cpu_model(),
             python=platform.python_version(),
             zenoh=zenoh_version(),
             load_start=distributed.load_before,

@@ -175,7 +175,7 @@ def bench_runs(inputs: Inputs, here: str) -> str:
                 f"[`{r.name}`]({link(here, r.path)})",
                 run_label(r.data),
                 _runs_note(r.data),
-                f"{m['cpus']} × {m['processor']}, Python {m['python']}, zenoh {m['zenoh']}; "
+                f"{m['cpus']} × {_cpu(m)}, Python {m['python']}, zenoh {m['zenoh']}; "
                 f"load {_n((m.get('load_start') or [None])[0])}",
                 f"`{m['code']}`" if m.get("code") else "not recorded",
             ]
@@ -362,13 +362,18 @@ def bench_alternations(inputs: Inputs, here: str) -> str:
     return "\n\n".join(parts) or "*No alternation has been run.*"
 
 
+def _cpu(machine: Mapping[str, Any]) -> str:
+    """A bench JSON's CPU: its model where the report recorded it, else the architecture."""
+    return machine.get("cpu_model") or machine["processor"]
+
+
 def _caption(here: str, name: str, path: str, command: str, machine: Mapping[str, Any]) -> str:
     """What made a generated table: its JSON, the command, the machine (a bench JSON's
     ``machine``) and the code."""
     load = (machine.get("load_start") or [None])[0]
     return (
         f"[`{name}`]({link(here, path)}): `{command}`; {machine['cpus']} × "
-        f"{machine['processor']}, load {_n(load)}, code `{machine.get('code') or 'not recorded'}`."
+        f"{_cpu(machine)}, load {_n(load)}, code `{machine.get('code') or 'not recorded'}`."
         "\n\n"
     )
 

@@ -12,6 +12,7 @@ import pytest
 from common.codec import encode
 from common.messages import AppliedCommand, Header, PublishedStamps, SimTiming
 from deploy.bench.figure import bench_figure
+from deploy.bench.processes import cpu_model
 from deploy.bench.report import BenchReport, load_json, median_of_runs, summary_ms
 from deploy.bench.run import same_commands_max_abs_diff
 from deploy.bench.stages import LATENCY_STAGES
@@ -191,6 +192,17 @@ def test_the_stored_runs_load_and_are_written_back_as_they_are(path: Path) -> No
     report = load_json(path)
     assert json.dumps(report.to_json(), indent=2) + "\n" == path.read_text()
     assert "latency excl. render" in format_report(report)
+
+
+def test_the_cpu_model_is_read_from_the_first_processors_block() -> None:
+    """Hosts of one class differ in speed: the report names the CPU, not just x86_64."""
+    two = (
+        "processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 26\nmodel\t\t: 2\n"
+        "model name\t: AMD EPYC\n\nprocessor\t: 1\nmodel name\t: other\n"
+    )
+    assert cpu_model(two) == "AMD EPYC (family 26, model 2)"
+    assert cpu_model("processor\t: 0\nmodel name\t: Some CPU\n") == "Some CPU"
+    assert cpu_model("processor\t: 0\nBogoMIPS\t: 50.00\n") is None  # e.g. many ARM hosts
 
 
 def test_a_report_with_an_unknown_key_does_not_load() -> None:

@@ -229,6 +229,19 @@ def test_the_runs_table_names_the_code_each_run_measured() -> None:
     assert rows[0].endswith("| `fd2f398abc` |") and rows[1].endswith("| not recorded |")
 
 
+def test_the_runs_table_names_the_cpu_model_where_recorded() -> None:
+    from deploy.docs.sources import BenchRun
+
+    recorded, older = _bench(), _bench()
+    recorded["machine"] = {**recorded["machine"], "cpu_model": "AMD EPYC (family 26, model 2)"}
+    table = BLOCKS["bench-runs"].render(
+        Inputs(bench=[BenchRun("a", recorded), BenchRun("b", older)]), ""
+    )
+    rows = [line for line in table.splitlines() if line.startswith("| [")]
+    assert "| 2 × AMD EPYC (family 26, model 2), Python" in rows[0]
+    assert "| 2 × x86_64, Python" in rows[1]
+
+
 def test_figures_taken_from_the_json() -> None:
     one = _bench()
     assert frame_handoff_ms(one) == pytest.approx(0.75)
