@@ -21,6 +21,7 @@ from deploy.supervisor import Supervisor
 # ``common.publishers.STAMPS_KEPT`` messages per key they keep (2 min at 30 Hz).
 STAMPS_POLL_S = 30.0
 CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
+REPO_ROOT = Path(__file__).resolve().parents[2]  # the checkout whose code a report measured
 
 
 def machine_load() -> list[float]:
@@ -130,24 +131,31 @@ def status_counters(session: zenoh.Session, keys: Keys) -> dict[str, ServiceCoun
     }
 
 
-def code_version() -> str | None:
-    """The commit of the code measured (``git describe --always --dirty``), so that a report
-    says which code it measured; None outside a git checkout."""
+def code_version(repo: Path = REPO_ROOT) -> str | None:
+    """The commit of the code measured (``git describe``), with ``-dirty`` when tracked files
+    outside ``docs/`` have changes on top, so that a report says which code it measured (a run
+    whose command writes its JSON into ``docs/`` does not mark the next one dirty); None outside
+    a git checkout."""
     import subprocess
 
-    try:
-        proc = subprocess.run(
-            ["git", "describe", "--always", "--dirty", "--abbrev=10"],
-            cwd=Path(__file__).resolve().parents[2],
-            capture_output=True,
-            text=True,
-            timeout=10,
-        )
-    except (OSError, subprocess.SubprocessError):
+    def git(*args: str) -> str | None:
+        try:
+            proc = subprocess.run(
+                ["git", *args],
+                cwd=repo,
+                capture_output=True,
+                text=True,
+                timeout=10,
+            )
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return proc.stdout.strip() if proc.returncode == 0 else None
+
+    commit = git("describe", "--always", "--abbrev=10")
+    if not commit:
         return None
-    if proc.returncode != 0:
-        return None
-    return proc.stdout.strip() or None
+    changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)docs")
+    return f"{commit}-dirty" if changed else commit
 
 
 def cpu_model(cpuinfo: str | None = None) -> str | None:

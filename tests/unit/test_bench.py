@@ -12,14 +12,18 @@ import pytest
 from common.codec import encode
 from common.messages import AppliedCommand, Header, PublishedStamps, SimTiming
 from deploy.bench.figure import bench_figure
-from deploy.bench.processes import cpu_model
+from deploy.bench.processes import code_version, cpu_model
 from deploy.bench.report import BenchReport, load_json, median_of_runs, summary_ms
 from deploy.bench.run import same_commands_max_abs_diff
 from deploy.bench.stages import LATENCY_STAGES
 from deploy.bench.text import format_report
 from deploy.bench.trace import HopStamp, Trace, analyse_trace
 
-BENCH_JSON = sorted((Path(__file__).parents[2] / "docs" / "bench").glob("*.json"))
+BENCH_DIR = Path(__file__).parents[2] / "docs" / "bench"
+# The runs umay docs reads (alternations have a report of their own).
+BENCH_JSON = sorted(
+    p for pattern in ("*.json", "startup/*.json", "hosts/*.json") for p in BENCH_DIR.glob(pattern)
+)
 
 
 def header(seq: int, send: float, recv: float = 0.0) -> Header:
@@ -203,6 +207,30 @@ def test_the_cpu_model_is_read_from_the_first_processors_block() -> None:
     assert cpu_model(two) == "AMD EPYC (family 26, model 2)"
     assert cpu_model("processor\t: 0\nmodel name\t: Some CPU\n") == "Some CPU"
     assert cpu_model("processor\t: 0\nBogoMIPS\t: 50.00\n") is None  # e.g. many ARM hosts
+
+
+def test_the_code_measured_is_dirty_only_for_changes_outside_docs(tmp_path: Path) -> None:
+    """The docs' bench commands write their JSON into docs/ one after another: that must not
+    mark the next run's code as changed; a change to the code must."""
+    import subprocess
+
+    def git(*args: str) -> None:
+        subprocess.run(["git", "-C", str(tmp_path), *args], check=True, capture_output=True)
+
+    git("init", "-q")
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "run.json").write_text("{}")
+    (tmp_path / "code.py").write_text("x = 1\n")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "start")
+    clean = code_version(tmp_path)
+    assert clean and not clean.endswith("-dirty")
+    (tmp_path / "docs" / "run.json").write_text('{"a": 1}')
+    (tmp_path / "new.py").write_text("")  # untracked: not the code measured
+    assert code_version(tmp_path) == clean
+    (tmp_path / "code.py").write_text("x = 2\n")
+    assert code_version(tmp_path) == f"{clean}-dirty"
+    assert code_version(tmp_path / "missing") is None
 
 
 def test_a_report_with_an_unknown_key_does_not_load() -> None:
