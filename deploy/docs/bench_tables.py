@@ -20,7 +20,7 @@ from deploy.experiments.compare.summary import markdown_table
 
 
 # --- formatting ------------------------------------------------------------------------------
-def _n(v: float | int | None, fmt: str = ".2f") -> str:
+def num(v: float | int | None, fmt: str = ".2f") -> str:
     return "–" if v is None else format(v, fmt)
 
 
@@ -109,36 +109,36 @@ def bench_headline(inputs: Inputs, here: str) -> str:
     rows = [
         [
             "render p50, OpenGL (TinyRenderer)",
-            f"{_n(gl.get('render_ms', {}).get('p50'))} ms "
-            f"({_n(tiny.get('render_ms', {}).get('p50'))} ms)",
+            f"{num(gl.get('render_ms', {}).get('p50'))} ms "
+            f"({num(tiny.get('render_ms', {}).get('p50'))} ms)",
             "≤ 6 ms",
         ],
         [
             "lockstep real-time factor, four-process loop, OpenGL (TinyRenderer)",
-            f"{_n(lk['distributed']['real_time_factor'])} ({_n(ref.get('real_time_factor'))})",
+            f"{num(lk['distributed']['real_time_factor'])} ({num(ref.get('real_time_factor'))})",
             "≥ 2.5",
         ],
         [
             "same, Kinect model on, depth 320×240",
-            _n(kin.data["distributed"]["real_time_factor"]),
+            num(kin.data["distributed"]["real_time_factor"]),
             "≥ 2",
         ],
         [
             f"realtime, Kinect model on, {rt.data['config']['frames']} frames: frames dropped "
             "by vision, controller, actuation; camera frames the sim skipped; loop rate",
             f"{rt_pipeline}; {rt_dropped.get('camera', 0)}; "
-            f"{_n(rt.data['distributed']['loop_rate_hz'], '.1f')} frames/s",
+            f"{num(rt.data['distributed']['loop_rate_hz'], '.1f')} frames/s",
             f"0; 0; {rt.data['config']['rgb_hz']:g} frames/s",
         ],
-        ["frame publish + transport p50", f"{_n(frame_handoff_ms(lk))} ms", "≤ 0.5 ms"],
+        ["frame publish + transport p50", f"{num(frame_handoff_ms(lk))} ms", "≤ 0.5 ms"],
         [
             f"latency p50 / p99, frame captured → command applied ({lat['n']} frames pooled)",
-            f"{_n(lat['p50'])} / {_n(lat['p99'])} ms",
+            f"{num(lat['p50'])} / {num(lat['p99'])} ms",
             "≤ 6 / ≤ 9 ms",
         ],
         [
             "what distribution adds (distributed p50 − in-process p50)",
-            f"{_n(lk['distribution_adds_ms']['p50'])} ms",
+            f"{num(lk['distribution_adds_ms']['p50'])} ms",
             "≤ 2.0 ms",
         ],
         ["peak RSS, largest service", f"{rss:.0f} MiB", "≤ 300 MB"],
@@ -152,8 +152,8 @@ def bench_headline(inputs: Inputs, here: str) -> str:
             [
                 "with idle CPUs kept awake (`supervisor.cpu_wakeup_latency_us = 0`, needs root): "
                 "frame publish + transport; latency p50 / p99; what distribution adds",
-                f"{_n(frame_handoff_ms(aw))} ms; {_n(aw_lat['p50'])} / {_n(aw_lat['p99'])} ms; "
-                f"{_n(aw['distribution_adds_ms']['p50'])} ms",
+                f"{num(frame_handoff_ms(aw))} ms; {num(aw_lat['p50'])} / {num(aw_lat['p99'])} ms; "
+                f"{num(aw['distribution_adds_ms']['p50'])} ms",
                 "≤ 0.5 ms; ≤ 6 / ≤ 9 ms; ≤ 2.0 ms",
             ]
         )
@@ -176,7 +176,7 @@ def bench_runs(inputs: Inputs, here: str) -> str:
                 run_label(r.data),
                 _runs_note(r.data),
                 f"{m['cpus']} × {_cpu(m)}, Python {m['python']}, zenoh {m['zenoh']}; "
-                f"load {_n((m.get('load_start') or [None])[0])}",
+                f"load {num((m.get('load_start') or [None])[0])}",
                 f"`{m['code']}`" if m.get("code") else "not recorded",
             ]
         )
@@ -206,10 +206,10 @@ def bench_render(inputs: Inputs, here: str) -> str:
                 [
                     r.name,
                     v["renderer"],
-                    _n(v["render_ms"]["p50"]),
-                    _n(v["render_ms"]["p99"]),
-                    _n(loop.get("loop_rate_hz"), ".1f"),
-                    _n(loop.get("real_time_factor")),
+                    num(v["render_ms"]["p50"]),
+                    num(v["render_ms"]["p99"]),
+                    num(loop.get("loop_rate_hz"), ".1f"),
+                    num(loop.get("real_time_factor")),
                 ]
             )
     headers = ["run", "renderer", "render p50 (ms)", "p99 (ms)", "loop (frames/s)", "real-time"]
@@ -229,10 +229,10 @@ def bench_kinect(inputs: Inputs, here: str) -> str:
                 r.name,
                 "×".join(map(str, s["colour_px"])),
                 "×".join(map(str, s["depth_px"])),
-                _n(s["colour_ms"]["p50"]),
-                _n(s["depth_ms"]["p50"]),
-                _n(s["total_ms"]["p50"]),
-                _n(s["total_ms"]["p99"]),
+                num(s["colour_ms"]["p50"]),
+                num(s["depth_ms"]["p50"]),
+                num(s["total_ms"]["p50"]),
+                num(s["total_ms"]["p99"]),
             ]
         )
     headers = ["run", "colour", "depth", "colour p50", "depth p50", "total p50", "total p99"]
@@ -254,14 +254,14 @@ def bench_latency(inputs: Inputs, here: str) -> str:
             [
                 r.name,
                 _runs_note(d),
-                _n(frame_handoff_ms(d)),
-                _n(d["distributed"]["latency_ms"]["p50"]),
-                _n(lat["p50"]),
-                _n(lat["p99"]),
-                _n(lat["max"]),
+                num(frame_handoff_ms(d)),
+                num(d["distributed"]["latency_ms"]["p50"]),
+                num(lat["p50"]),
+                num(lat["p99"]),
+                num(lat["max"]),
                 str(over),
-                _n(d["inprocess"]["per_frame_ms"]["p50"]),
-                _n(d["distribution_adds_ms"]["p50"]),
+                num(d["inprocess"]["per_frame_ms"]["p50"]),
+                num(d["distribution_adds_ms"]["p50"]),
             ]
         )
     headers = [
@@ -290,8 +290,8 @@ def bench_distribution(inputs: Inputs, here: str) -> str:
     body = [
         [
             r.name,
-            _n(r.data["distribution_adds_ms"]["p50"]),
-            *[_n(r.data["distribution_adds_ms"]["parts_p50"].get(s)) for s in stages],
+            num(r.data["distribution_adds_ms"]["p50"]),
+            *[num(r.data["distribution_adds_ms"]["parts_p50"].get(s)) for s in stages],
         ]
         for r in inputs.bench
     ]
@@ -309,8 +309,8 @@ def bench_services(inputs: Inputs, here: str) -> str:
     body = []
     for r in inputs.bench:
         u = r.data["distributed"]["services"]
-        rss = [_n(u.get(s, {}).get("peak_rss_mb"), ".0f") for s in services]
-        cpu = [_n(u.get(s, {}).get("cpu_ms_per_frame"), ".1f") for s in services]
+        rss = [num(u.get(s, {}).get("peak_rss_mb"), ".0f") for s in services]
+        cpu = [num(u.get(s, {}).get("cpu_ms_per_frame"), ".1f") for s in services]
         body.append([r.name, " / ".join(rss), " / ".join(cpu)])
     order = " / ".join(services)
     headers = ["run", f"peak RSS, MiB: {order}", f"CPU ms per frame: {order}"]
@@ -373,7 +373,7 @@ def _caption(here: str, name: str, path: str, command: str, machine: Mapping[str
     load = (machine.get("load_start") or [None])[0]
     return (
         f"[`{name}`]({link(here, path)}): `{command}`; {machine['cpus']} × "
-        f"{_cpu(machine)}, load {_n(load)}, code `{machine.get('code') or 'not recorded'}`."
+        f"{_cpu(machine)}, load {num(load)}, code `{machine.get('code') or 'not recorded'}`."
         "\n\n"
     )
 
@@ -423,4 +423,5 @@ def _startup_frames(run: Mapping[str, Any]) -> list[dict[str, float]]:
 
 def _startup_cell(frame: Mapping[str, float]) -> str:
     latency_ms, transport_ms, vision_ms = (frame[key] for key, _ in STARTUP_STAGES)
-    return f"{_n(latency_ms)} ({_n(frame['inprocess_ms'])}) / {_n(transport_ms)} / {_n(vision_ms)}"
+    inprocess_ms = frame["inprocess_ms"]
+    return f"{num(latency_ms)} ({num(inprocess_ms)}) / {num(transport_ms)} / {num(vision_ms)}"

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from deploy.docs.bench_hosts import bench_hosts
 from deploy.docs.bench_tables import (
     bench_alternations,
     bench_commands,
@@ -33,6 +34,8 @@ from deploy.docs.sources import (
     CAMPAIGN_JSON,
     DOMAINS_JSON,
     EXECUTORS_DIR,
+    HOSTS_DIR,
+    LOCKSTEP_RUN,
     PER_CORNER_JSON,
     RESULTS_JSON,
     STARTUP_DIR,
@@ -63,6 +66,7 @@ BLOCKS: dict[str, Block] = {
     "bench-dropped": Block(bench_dropped, f"{BENCH_DIR}/*.json"),
     "bench-alternations": Block(bench_alternations, f"{ALTERNATIONS_DIR}/*.json"),
     "bench-startup": Block(bench_startup, f"{STARTUP_DIR}/*.json"),
+    "bench-hosts": Block(bench_hosts, f"{BENCH_DIR}/{LOCKSTEP_RUN}.json, {HOSTS_DIR}/*.json"),
     "campaign-summary": Block(campaign_summary, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}"),
     "campaign-taxonomy": Block(campaign_taxonomy, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}"),
     "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}, {RESULTS_JSON}"),

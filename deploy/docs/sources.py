@@ -18,6 +18,8 @@ BENCH_DIR = "docs/bench"
 ALTERNATIONS_DIR = "docs/bench/alternations"
 # umay bench --warmup 0: every frame of each run from the first, for a run's start-up.
 STARTUP_DIR = "docs/bench/startup"
+# The headline lockstep run's command on other hosts of the machine class, one JSON each.
+HOSTS_DIR = "docs/bench/hosts"
 # Frames shown one by one from a run's start; the rest are summed up by their median.
 STARTUP_FRAMES = 10
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
@@ -64,6 +66,7 @@ class Inputs:
     bench: Sequence[BenchRun] = ()  # sorted by name
     alternations: Sequence[tuple[str, Any]] = ()  # (file stem, AlternationReport), by name
     startup: Sequence[BenchRun] = ()  # runs without warm-up frames (STARTUP_DIR), by name
+    hosts: Sequence[BenchRun] = ()  # the headline lockstep run on other hosts (HOSTS_DIR)
     domains: Any = None  # the domain study (deploy.experiments.domains.report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
@@ -109,6 +112,10 @@ def load_inputs(root: Path) -> Inputs:
             BenchRun(p.stem, json.loads(p.read_text()), STARTUP_DIR)
             for p in sorted((root / STARTUP_DIR).glob("*.json"))
         ]
+        hosts = [
+            BenchRun(p.stem, json.loads(p.read_text()), HOSTS_DIR)
+            for p in sorted((root / HOSTS_DIR).glob("*.json"))
+        ]
         domains = None
         if (root / DOMAINS_JSON).is_file():
             domains = load_study_json(root / DOMAINS_JSON)
@@ -130,6 +137,7 @@ def load_inputs(root: Path) -> Inputs:
         bench=bench,
         alternations=alternations,
         startup=startup,
+        hosts=hosts,
         domains=domains,
         executors=executors,
         campaign=campaign,

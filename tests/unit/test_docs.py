@@ -229,6 +229,24 @@ def test_the_runs_table_names_the_code_each_run_measured() -> None:
     assert rows[0].endswith("| `fd2f398abc` |") and rows[1].endswith("| not recorded |")
 
 
+def test_the_hosts_table_puts_the_same_command_on_each_host_side_by_side() -> None:
+    from deploy.docs.sources import HOSTS_DIR, LOCKSTEP_RUN, BenchRun, DocsError
+
+    here, there = _bench(), _bench()
+    here["machine"] = {**here["machine"], "cpu_model": "AMD EPYC (family 26, model 2)"}
+    there["distribution_adds_ms"] = {"p50": 3.15}
+    inputs = Inputs(bench=[BenchRun(LOCKSTEP_RUN, here)], hosts=[BenchRun("old", there, HOSTS_DIR)])
+    table = BLOCKS["bench-hosts"].render(inputs, "docs")
+    rows = [line for line in table.splitlines() if line.startswith("| [")]
+    assert rows[0].startswith(f"| [`{LOCKSTEP_RUN}`](bench/{LOCKSTEP_RUN}.json) | AMD EPYC")
+    assert rows[1].startswith("| [`hosts/old`](bench/hosts/old.json) | not recorded |")
+    assert rows[0].endswith("| 2.00 |") and rows[1].endswith("| 3.15 |")
+    assert "| 0.75 | 6.00 / 12.00 |" in rows[0]  # hand-off: publish + transport; latency
+    there["command"] = "umay bench --frames 60 --size 320x240"
+    with pytest.raises(DocsError, match=r"hosts/old\.json was made by `umay bench --frames 60"):
+        BLOCKS["bench-hosts"].render(inputs, "docs")
+
+
 def test_the_runs_table_names_the_cpu_model_where_recorded() -> None:
     from deploy.docs.sources import BenchRun
 
