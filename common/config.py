@@ -61,6 +61,14 @@ class ConstantDepth(StrEnum):
     PER_CORNER = "per_corner"  # each desired corner's own depth, measured at the start
 
 
+class ClearanceCorrection(StrEnum):
+    """How a twist that would lower the hand box onto the object's top face is corrected."""
+
+    # the law's twist changed where its features notice it least (controller/constrained.py)
+    LEAST_FEATURE_CHANGE = "least_feature_change"
+    LIFT = "lift"  # the least upward velocity added, the rest of the twist kept as it was
+
+
 class RobotConfig(_Strict):
     q0: Joints6 = Field(description="initial joint angles (rad), joint_1..joint_6")
 
@@ -280,6 +288,11 @@ class ControllerConfig(_Strict):
         description="the hand box's corners stay this far above the plane of the red marker "
         "(the object's top face, as vision measures it)",
     )
+    clearance_correction: ClearanceCorrection = Field(
+        ClearanceCorrection.LEAST_FEATURE_CHANGE,
+        description="how a twist that breaks the clearance is corrected: least_feature_change "
+        "(the law's least squares under the bound) or lift (straight up, the rest kept)",
+    )
     clearance_rate_1_s: float = Field(
         3.0, gt=0.0, description="a corner's height may fall at most this times its margin (1/s)"
     )
@@ -289,6 +302,13 @@ class ControllerConfig(_Strict):
         True,
         description="estimate the target's velocity from its recent views, feed it forward, "
         "and carry a hidden target along it",
+    )
+    predict_hand_s: float = Field(
+        2.0,
+        ge=0.0,
+        le=60.0,
+        description="while vision cannot use the hand marker, servo on its last view carried "
+        "along the encoders' motion for at most this long (sim s; 0: hold at once)",
     )
     acquire: bool = Field(
         True,

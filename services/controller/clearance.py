@@ -11,11 +11,12 @@ assumed camera pose); the hand box's corners from the encoders (forward kinemati
 robot model). Each corner's height ``h`` above the plane may fall no faster than
 ``rate · (h − h_min)`` (a control barrier: it slows to a stop at ``h_min``): with ``n`` the
 plane's upward normal and ``d`` the corner from the end-effector origin,
-``ḣ = n · v + (d × n) · ω``, and a twist that breaks a corner's bound gets the least upward
-velocity ``δ n`` that meets every corner's: the turn and the sideways motion are kept (a
-change of ``ω`` would turn the hand away from what the image law asked). The object's sides
-are unknown, so the plane is kept everywhere: the starts lie above their goal, the goal above
-the plane.
+``ḣ = n · v + (d × n) · ω``, one linear bound per corner (:func:`clearance_bounds`). A twist
+that breaks one is changed where the image law's features notice it least
+(:func:`.constrained.least_feature_change`), and whatever that leaves short is made up by the
+least upward velocity ``δ n`` (:func:`keep_above`, also the whole correction of a twist the
+law did not make, such as acquisition's). The object's sides are unknown, so the plane is kept
+everywhere: the starts lie above their goal, the goal above the plane.
 """
 
 from __future__ import annotations
@@ -65,6 +66,22 @@ def heights_m(corners_base_m: FloatArray, plane: Plane) -> FloatArray:
     return (np.asarray(corners_base_m, dtype=float) - plane.point_m) @ plane.normal
 
 
+def clearance_bounds(
+    corners_base_m: FloatArray,
+    p_ee_base_m: FloatArray,
+    plane: Plane,
+    min_height_m: float,
+    rate_1_s: float,
+) -> tuple[FloatArray, FloatArray]:
+    """``(A, b)``, every corner's bound as ``A · twist ≥ b`` (8×6, 8): ``A`` gives each
+    corner's ``ḣ`` for a twist (v, ω at the end-effector origin, base frame), ``b`` the least
+    ``ḣ`` allowed, ``−rate · (h − h_min)`` (positive: a corner below the margin must rise)."""
+    corners = np.asarray(corners_base_m, dtype=float)
+    n = plane.normal
+    rows = np.hstack([np.tile(n, (len(corners), 1)), np.cross(corners - p_ee_base_m, n)])
+    return rows, -rate_1_s * (heights_m(corners, plane) - min_height_m)
+
+
 def keep_above(
     twist_base_ee: FloatArray,
     corners_base_m: FloatArray,
@@ -77,11 +94,9 @@ def keep_above(
     corner's height falls faster than ``rate_1_s · (h − min_height_m)``; and whether it was.
     A corner below ``min_height_m`` is asked to rise at that rate."""
     twist = np.array(twist_base_ee, dtype=float)
-    corners = np.asarray(corners_base_m, dtype=float)
-    n = plane.normal
-    rates = twist[:3] @ n + np.cross(corners - p_ee_base_m, n) @ twist[3:]  # ḣ of each corner
-    short = float(np.max(-rate_1_s * (heights_m(corners, plane) - min_height_m) - rates))
+    rows, bounds = clearance_bounds(corners_base_m, p_ee_base_m, plane, min_height_m, rate_1_s)
+    short = float(np.max(bounds - rows @ twist))
     if short <= 0.0:
         return twist, False
-    twist[:3] += short * n  # lifts every corner by the same rate
+    twist[:3] += short * plane.normal  # lifts every corner by the same rate
     return twist, True

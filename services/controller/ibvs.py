@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode
-from common.kinematics import BASE_UP, cross
+from common.kinematics import BASE_UP, cross, skew
 from common.marker import Marker
 from common.motion import MarkerMotion
 from services.controller import acquisition as acq
@@ -29,6 +29,7 @@ from services.controller.goal import (
     hand_hides_target,
     may_be_behind_the_hand,
 )
+from services.controller.hand import carried_by_encoders
 from services.controller.interaction import (
     USES_CURRENT,
     USES_DESIRED,
@@ -55,6 +56,18 @@ def camera_twist_to_base_ee(
     return np.concatenate([v_e, omega_b])
 
 
+def twist_matrix_base_ee_to_cam(t_base_cam: FloatArray, p_ee_base_m: FloatArray) -> FloatArray:
+    """The 6×6 inverse of :func:`camera_twist_to_base_ee` as a matrix: a hand twist in the base
+    frame at the end-effector origin to the camera frame at the camera origin,
+    ``ω = Rᵀ ω_b``, ``v = Rᵀ (v_e + [p_e − t]× ω_b)``."""
+    rot, origin = t_base_cam[:3, :3], t_base_cam[:3, 3]
+    out = np.zeros((6, 6))
+    out[:3, :3] = rot.T
+    out[:3, 3:] = rot.T @ skew(np.asarray(p_ee_base_m, dtype=float) - origin)
+    out[3:, 3:] = rot.T
+    return out
+
+
 def clamp_twist(twist: FloatArray, max_linear_m_s: float, max_angular_rad_s: float) -> FloatArray:
     """Scale the whole twist down (direction kept) so both norms respect their limits."""
     scale = 1.0
@@ -78,7 +91,12 @@ class ControlOutput:
     hold_reason: str = ""
     phase: str = "servoing"  # servoing / acquiring / holding
     hold_since_s: float | None = None  # sim time the current hold began
-    lifted: bool = False  # the twist was lifted to keep the hand above the object (clearance)
+    lifted: bool = False  # the twist was corrected to keep the hand above the object (clearance)
+    # The law's own model of the features' rate per twist (camera frame, at the camera
+    # origin), W = M⁺ (2N×6 or 3N×6): a correction of the twist changes the image by W Δ
+    # (services.controller.constrained). None when the twist is not the law's.
+    feature_jacobian: FloatArray | None = None
+    hand_predicted: bool = False  # servoed on the hand carried by the encoders (.hand)
 
     @property
     def status(self) -> str:
@@ -142,6 +160,11 @@ class IbvsController:
     acquisition_failed: str = ""  # what acquisition could not uncover (then it holds)
     frames_on_prediction: int = 0  # frames the hand has sat on an unconfirmed prediction
     plateau: Plateau | None = None  # the averaged error under plateau_px, and since when
+    # The hand's last usable view and the end effector's pose then (encoders), and since when
+    # (sim s) the hand has been carried from it (services.controller.hand).
+    last_hand: Marker | None = None
+    t_base_ee_at_last_hand: FloatArray | None = None
+    hand_predicted_since_s: float | None = None
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
 
     def step(
@@ -152,12 +175,16 @@ class IbvsController:
         p_ee_base_m: FloatArray,
         t_s: float = 0.0,
         elbow_base_m: FloatArray | None = None,
+        t_base_ee: FloatArray | None = None,
     ) -> ControlOutput:
         """One control step on the markers seen in the camera frame taken at sim time ``t_s``
-        with the end effector (encoders, forward kinematics) at ``p_ee_base_m`` and the elbow
-        at ``elbow_base_m`` (for acquisition's directions; None: image directions alone)."""
+        with the end effector (encoders, forward kinematics) at ``p_ee_base_m`` (its whole
+        pose ``t_base_ee``, 4×4, to carry a hand vision cannot use; None: hold instead) and
+        the elbow at ``elbow_base_m`` (for acquisition's directions; None: image directions
+        alone)."""
         remembered = False
         seen = target
+        hand, hand_predicted = self._hand_now(hand, k, t_s, t_base_ee)
         if target.usable:
             self.last_target = target
             self.motion = self.motion.seen(t_s, target.points_m)
@@ -232,7 +259,7 @@ class IbvsController:
         # where a hidden target went: it must be seen again first.
         still = not np.any(velocity)  # slower than motion.STILL_SPEED_M_S
         window = self.config.converged_frames
-        if still and not self.predicted:
+        if still and not self.predicted and not hand_predicted:
             self.recent_errors_px = [*self.recent_errors_px, error_px][-window:]
         else:
             self.recent_errors_px = []
@@ -249,7 +276,35 @@ class IbvsController:
             started = self._start_acquisition(why, hand, k, p_ee_base_m, t_s, elbow_base_m)
             if started is not None:
                 return started
-        return ControlOutput(twist, True, err_px, converged, remembered)
+        return ControlOutput(
+            twist, True, err_px, converged, remembered,
+            feature_jacobian=np.linalg.pinv(m), hand_predicted=hand_predicted,
+        )  # fmt: skip
+
+    def _hand_now(
+        self, hand: Marker, k: CameraIntrinsics, t_s: float, t_base_ee: FloatArray | None
+    ) -> tuple[Marker, bool]:
+        """``(hand, carried)``: the hand as seen, remembered with the end effector's pose when
+        usable; when not, for at most ``predict_hand_s``, its last view carried along the
+        encoders' motion since (:func:`.hand.carried_by_encoders`) while it stays in the image."""
+        if t_base_ee is None:
+            return hand, False
+        if hand.usable:
+            self.last_hand, self.t_base_ee_at_last_hand = hand, t_base_ee
+            self.hand_predicted_since_s = None
+            return hand, False
+        if self.last_hand is None or self.t_base_ee_at_last_hand is None:
+            return hand, False
+        since = t_s if self.hand_predicted_since_s is None else self.hand_predicted_since_s
+        if t_s - since > self.config.predict_hand_s or self.config.predict_hand_s == 0.0:
+            return hand, False
+        carried = carried_by_encoders(
+            self.last_hand, self.t_base_ee_at_last_hand, t_base_ee, self.t_base_cam, k
+        )
+        if carried is None:
+            return hand, False
+        self.hand_predicted_since_s = since
+        return carried, True
 
     def _settled(self, t_s: float) -> bool:
         """Converged: the error averaged over the window is under ``converged_px``, or under

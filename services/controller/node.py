@@ -44,6 +44,7 @@ class ControllerService:
         self.target_remembered = False
         self.clearance_lifts = 0  # twists lifted to keep the hand above the object
         self.lifted = False  # the last twist was
+        self.hand_predicted = False  # the last twist servoed on the hand carried by the encoders
         self.progress = Progress()  # whether servoing still brings the error down
         self.events_end_s = ctx.scenario.events_end_s  # progress counts once they are over
 
@@ -70,6 +71,9 @@ class ControllerService:
             "target_predicted": self.controller.predicted,
             "target_speed_m_s": self.target_speed_m_s,
             "clearance_lifts": self.clearance_lifts,
+            # servoing on the hand's last view carried along the encoders (vision cannot use it)
+            "hand_predicted": self.hand_predicted,
+            "hand_predicted_since_s": self.controller.hand_predicted_since_s,
         }
 
     def stuck(self) -> bool:
@@ -97,6 +101,7 @@ class ControllerService:
         self.hold_since_s, self.sim_time_s = out.hold_since_s, features.header.sim_time_s
         self.clearance_lifts += out.lifted
         self.lifted = out.lifted
+        self.hand_predicted = out.hand_predicted
         # On the goal (umay up holds it there) the error has nothing left to fall by.
         servoing = out.phase == "servoing" and not out.converged
         servoing = servoing and self.sim_time_s >= self.events_end_s

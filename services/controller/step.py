@@ -14,11 +14,18 @@ from dataclasses import replace
 import numpy as np
 
 from common import kinematics as kin
+from common.config import ClearanceCorrection
 from common.kinematics import FloatArray
 from common.marker import Marker
 from common.messages import EndEffectorTwist, Features, Header
 from services.controller import clearance
-from services.controller.ibvs import ControlOutput, IbvsController, clamp_twist
+from services.controller.constrained import least_feature_change
+from services.controller.ibvs import (
+    ControlOutput,
+    IbvsController,
+    clamp_twist,
+    twist_matrix_base_ee_to_cam,
+)
 
 ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
 
@@ -36,6 +43,7 @@ def control_step(
         frames[-1][:3, 3],
         features.header.sim_time_s,
         elbow_base_m=frames[ELBOW_FRAME][:3, 3],
+        t_base_ee=frames[-1],
     )
     return above_the_target(controller, out, frames[-1])
 
@@ -45,21 +53,32 @@ def above_the_target(
 ) -> ControlOutput:
     """``out`` with its twist kept from lowering the hand box onto the object's top face
     (:mod:`services.controller.clearance`; the face from the last usable view of the red
-    marker, the box from the encoders); unchanged while holding or before any view."""
+    marker, the box from the encoders): the law's twist changed where its features notice it
+    least (:mod:`services.controller.constrained`), then lifted by what that left short (with
+    ``controller.clearance_correction = "lift"``, or a twist not the law's: lifted alone);
+    unchanged while holding or before any view."""
     cfg = controller.config
     last = controller.last_target
     if not out.valid or not cfg.keep_above_target or last is None:
         return out
     plane = clearance.target_top_plane(last.points_m, controller.t_base_cam)
-    corners = clearance.hand_box_corners_ee() @ t_base_ee[:3, :3].T + t_base_ee[:3, 3]
-    twist, corrected = clearance.keep_above(
-        out.twist_base_ee, corners, t_base_ee[:3, 3], plane,
-        cfg.hand_clearance_m, cfg.clearance_rate_1_s,
-    )  # fmt: skip
-    if not corrected:
+    p_ee = t_base_ee[:3, 3]
+    corners = clearance.hand_box_corners_ee() @ t_base_ee[:3, :3].T + p_ee
+    twist, corrected = out.twist_base_ee, False
+    least_change = cfg.clearance_correction is ClearanceCorrection.LEAST_FEATURE_CHANGE
+    if least_change and out.feature_jacobian is not None:  # the law's twist
+        rows, bounds = clearance.clearance_bounds(
+            corners, p_ee, plane, cfg.hand_clearance_m, cfg.clearance_rate_1_s
+        )
+        w_base = out.feature_jacobian @ twist_matrix_base_ee_to_cam(controller.t_base_cam, p_ee)
+        twist, corrected = least_feature_change(twist, rows, bounds, w_base)
+    twist, lifted = clearance.keep_above(
+        twist, corners, p_ee, plane, cfg.hand_clearance_m, cfg.clearance_rate_1_s
+    )  # what the sweeps left short, or the whole correction of a twist not the law's
+    if not (corrected or lifted):
         return out
-    lifted = clamp_twist(twist, cfg.max_linear_m_s, cfg.max_angular_rad_s)
-    return replace(out, twist_base_ee=lifted, lifted=True)
+    twist = clamp_twist(twist, cfg.max_linear_m_s, cfg.max_angular_rad_s)
+    return replace(out, twist_base_ee=twist, lifted=True)
 
 
 def twist_message(out: ControlOutput, header: Header, mode: str) -> EndEffectorTwist:

@@ -1,9 +1,11 @@
 """A law stuck in a local minimum, through the real services (lockstep, loopback, own
 prefix): from campaign start 3 the thesis's constant Jacobian would lower the hand onto the
-object's top face 35 mm from its goal, the clearance above the object holds it there, and the
-error settles at 23 px. ``umay run`` ends it as stalled within stall_after_s of its best
-error, naming the clearance; under ``umay up`` the controller's status says it is stalled,
-since when, and that the clearance holds the hand."""
+object's top face 35 mm from its goal; with the clearance lifting its twist straight up
+(``controller.clearance_correction = "lift"``) it holds the hand there, and the error settles
+at 23 px. ``umay run`` ends it as stalled within stall_after_s of its best error, naming the
+clearance; under ``umay up`` the controller's status says it is stalled, since when, and that
+the clearance holds the hand. With the default correction (the law's least squares under the
+clearance) the same start converges."""
 
 from __future__ import annotations
 
@@ -21,15 +23,26 @@ REPO = Path(__file__).resolve().parents[2]
 BASE = str(REPO / "deploy/scenarios/suite/01_baseline.toml")
 
 
-def start_3() -> list[str]:
-    """The campaign's start 3 as scenario overrides, constant strategy."""
+def campaign_start(name: str, *sets: str) -> list[str]:
+    """A start of the published campaign as ``umay run`` arguments, constant strategy."""
     starts = json.loads((REPO / "docs/campaign/starts.json").read_text())
-    s = next(x for x in starts if x["name"] == "start_0003")
+    s = next(x for x in starts if x["name"] == name)
     items = start_overrides(s["name"], s["q0_rad"], s["target_position_m"], s["target_yaw_rad"])
     args = ["--scenario", BASE, "--mode", "constant"]
-    for item in [*items, "run.timeout_s=40.0"]:
+    for item in [*items, "run.timeout_s=40.0", *sets]:
         args += ["--set", item]
     return args
+
+
+def start_3() -> list[str]:
+    """Start 3 with the clearance's twist lifted straight up: the stall against it."""
+    return campaign_start("start_0003", "controller.clearance_correction='lift'")
+
+
+def test_the_laws_least_squares_under_the_clearance_leaves_that_stall(tmp_path: Path) -> None:
+    proc, r = umay_run(tmp_path, *campaign_start("start_0003"))
+    assert r is not None, proc.stderr
+    assert proc.returncode == 0 and r["reason"] == "converged", r
 
 
 def test_umay_run_ends_a_stalled_law_early_naming_its_best_error(tmp_path: Path) -> None:

@@ -13,12 +13,17 @@ from common.marker import Marker
 from common.messages import Header
 from services.controller.clearance import (
     Plane,
+    clearance_bounds,
     hand_box_corners_ee,
     heights_m,
     keep_above,
     target_top_plane,
 )
-from services.controller.ibvs import ControlOutput, IbvsController
+from services.controller.ibvs import (
+    ControlOutput,
+    IbvsController,
+    twist_matrix_base_ee_to_cam,
+)
 from services.controller.step import above_the_target, twist_message
 
 FLOOR = Plane(np.zeros(3), np.array([0.0, 1.0, 0.0]))  # y up, as the arm's base frame
@@ -94,3 +99,29 @@ def test_the_controllers_twist_is_lifted_over_the_last_seen_target_and_flagged()
     assert above_the_target(controller, held, t_ee) is held
     controller.config = ControllerConfig(keep_above_target=False)
     assert above_the_target(controller, down, t_ee) is down
+
+
+def test_the_laws_twist_is_changed_where_its_features_notice_it_least() -> None:
+    """With the law's model of the features' rate (``feature_jacobian``) the correction meets
+    every corner's bound and changes the image motion less than the straight lift does."""
+    q = np.array(load_scenario(None).robot.q0)
+    t_ee = kin.frame_transforms(q)[-1]
+    corners = hand_box_corners_ee() @ t_ee[:3, :3].T + t_ee[:3, 3]
+    floor_y = corners[:, 1].min() - 0.003
+    x, z = corners[:, 0].mean(), corners[:, 2].mean()
+    square = np.array([[x - 0.03, floor_y, z - 0.03], [x + 0.03, floor_y, z - 0.03],
+                       [x + 0.03, floor_y, z + 0.03], [x - 0.03, floor_y, z + 0.03]])  # fmt: skip
+    controller = IbvsController(ControllerConfig(), np.eye(4))
+    k = load_scenario(None).camera.intrinsics()
+    controller.last_target = Marker.seen_at(square, k)
+    w_cam = np.random.default_rng(3).normal(size=(8, 6))
+    down = ControlOutput(np.array([0.005, -0.05, 0.0, 0.1, 0.0, 0.05]), True, 5.0, False)
+    lifted = above_the_target(controller, down, t_ee)
+    law = above_the_target(controller, replace(down, feature_jacobian=w_cam), t_ee)
+    assert law.lifted and lifted.lifted
+    plane = target_top_plane(square, np.eye(4))
+    rows, bounds = clearance_bounds(corners, t_ee[:3, 3], plane, 0.002, 3.0)
+    assert np.all(rows @ law.twist_base_ee >= bounds - 1e-9)
+    w_base = w_cam @ twist_matrix_base_ee_to_cam(np.eye(4), t_ee[:3, 3])
+    change = np.linalg.norm(w_base @ (law.twist_base_ee - down.twist_base_ee))
+    assert change < np.linalg.norm(w_base @ (lifted.twist_base_ee - down.twist_base_ee))

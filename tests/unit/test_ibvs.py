@@ -15,7 +15,12 @@ from common.messages import MarkerState
 from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
 from services.controller.convergence import settled_error_px_rms
 from services.controller.goal import desired_observation
-from services.controller.ibvs import IbvsController, camera_twist_to_base_ee, clamp_twist
+from services.controller.ibvs import (
+    IbvsController,
+    camera_twist_to_base_ee,
+    clamp_twist,
+    twist_matrix_base_ee_to_cam,
+)
 from services.controller.interaction import (
     USES_CURRENT,
     USES_DESIRED,
@@ -25,7 +30,6 @@ from services.controller.interaction import (
     point_feature_jacobian,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2
-from tests.twists import base_ee_twist_to_camera
 
 K = CameraIntrinsics.from_fov(640, 480, 57.0)
 RNG = np.random.default_rng(7)
@@ -129,7 +133,9 @@ def test_twist_transforms_are_inverse_and_consistent() -> None:
     p_ee = RNG.normal(size=3)
     twist_cam = RNG.normal(size=6)
     twist_base = camera_twist_to_base_ee(twist_cam, t_base_cam, p_ee)
-    np.testing.assert_allclose(base_ee_twist_to_camera(twist_base, t_base_cam, p_ee), twist_cam)
+    np.testing.assert_allclose(
+        twist_matrix_base_ee_to_cam(t_base_cam, p_ee) @ twist_base, twist_cam
+    )
     # The velocity of the camera-origin point computed both ways agrees.
     origin = t_base_cam[:3, 3]
     v_origin_base = twist_base[:3] + np.cross(twist_base[3:], origin - p_ee)

@@ -12,17 +12,17 @@ import numpy as np
 
 from common import kinematics as kin
 from common.camera import pixel_to_normalized
+from services.controller.ibvs import twist_matrix_base_ee_to_cam
 from services.controller.interaction import (
     interaction_matrix,
     point_feature_jacobian,
 )
 from services.vision.measurement import measure_markers
-from tests.twists import base_ee_twist_to_camera
 
 
 def predicted_px(dq, jac, p_ee, l_s, t_base_cam, k) -> np.ndarray:
     """Corner displacements (4×2 px) the model predicts for a joint motion dq."""
-    v_cam = base_ee_twist_to_camera(jac @ dq, t_base_cam, p_ee)
+    v_cam = twist_matrix_base_ee_to_cam(t_base_cam, p_ee) @ (jac @ dq)
     ds = (-l_s @ v_cam).reshape(4, 2)
     return ds * np.array([k.fx_px, k.fy_px])
 
@@ -62,7 +62,7 @@ def test_predicted_feature_motion_matches_the_rendered_one(world, scenario) -> N
 
 def predicted_points_m(dq, jac, p_ee, points_m, t_base_cam) -> np.ndarray:
     """Corner displacements (4×3 m, camera frame) the model predicts for a joint motion dq."""
-    v_cam = base_ee_twist_to_camera(jac @ dq, t_base_cam, p_ee)
+    v_cam = twist_matrix_base_ee_to_cam(t_base_cam, p_ee) @ (jac @ dq)
     return (point_feature_jacobian(points_m) @ v_cam).reshape(4, 3)
 
 

@@ -1,0 +1,45 @@
+"""Where the hand marker is while vision cannot use it: its last view carried along the motion
+the joint encoders measured since. Pure.
+
+On the way to its goal the hand can turn so that its own forearm crosses the marker, or its
+edge comes to the camera, for a few frames: vision then reports it ``partial`` and the law
+would hold with nothing to bring it back (constant's bent paths did, from five starts of the
+random-start campaign). The marker rides rigidly on the end effector, whose pose the encoders
+give at every frame, so its last usable corners moved by the end effector's motion since are
+where it is now, to the accuracy of the kinematic model and of the assumed camera pose's
+rotation (the motion is relative, so an error in the camera's position cancels). Used for a
+bounded time (``controller.predict_hand_s``), only while the carried corners stay in the
+image, and never to call a run converged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from common.camera import CameraIntrinsics
+from common.marker import Marker
+
+FloatArray = NDArray[np.float64]
+
+
+def carried_by_encoders(
+    last_hand: Marker,
+    t_base_ee_then: FloatArray,
+    t_base_ee_now: FloatArray,
+    t_base_cam: FloatArray,
+    k: CameraIntrinsics,
+) -> Marker | None:
+    """``last_hand`` (seen with the end effector at ``t_base_ee_then``, 4×4, base frame) moved
+    with the end effector to ``t_base_ee_now``, as the camera at ``t_base_cam`` (the assumed
+    pose) sees it; None when a corner would fall outside the image or behind the camera."""
+    moved_base = t_base_ee_now @ np.linalg.inv(t_base_ee_then)
+    moved_cam = np.linalg.inv(t_base_cam) @ moved_base @ t_base_cam
+    points = last_hand.points_m @ moved_cam[:3, :3].T + moved_cam[:3, 3]
+    if np.any(points[:, 2] <= 1e-3):
+        return None
+    carried = Marker.seen_at(points, k, last_hand.depth_sigma_m)
+    u, v = carried.corners_px[:, 0], carried.corners_px[:, 1]
+    if np.any(u < 0) or np.any(v < 0) or np.any(u > k.width_px) or np.any(v > k.height_px):
+        return None
+    return carried
