@@ -31,18 +31,20 @@ from deploy.docs.sources import (
     ACCURACY_JSON,
     ALTERNATIONS_DIR,
     BENCH_DIR,
+    CAMPAIGN_DIR,
     CAMPAIGN_JSON,
     DOMAINS_JSON,
     EXECUTORS_DIR,
     HOSTS_DIR,
     LOCKSTEP_RUN,
-    PER_CORNER_JSON,
     RESULTS_JSON,
     STARTUP_DIR,
     SUITE_CAMERA_DIR,
     Inputs,
 )
 from deploy.docs.vision_tables import vision_accuracy
+
+CAMPAIGN_SOURCES = f"{CAMPAIGN_JSON}, {CAMPAIGN_DIR}/<variant>/causes.json"
 
 
 @dataclass(frozen=True)
@@ -67,9 +69,9 @@ BLOCKS: dict[str, Block] = {
     "bench-alternations": Block(bench_alternations, f"{ALTERNATIONS_DIR}/*.json"),
     "bench-startup": Block(bench_startup, f"{STARTUP_DIR}/*.json"),
     "bench-hosts": Block(bench_hosts, f"{BENCH_DIR}/{LOCKSTEP_RUN}.json, {HOSTS_DIR}/*.json"),
-    "campaign-summary": Block(campaign_summary, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}"),
-    "campaign-taxonomy": Block(campaign_taxonomy, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}"),
-    "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_JSON}, {PER_CORNER_JSON}, {RESULTS_JSON}"),
+    "campaign-summary": Block(campaign_summary, CAMPAIGN_SOURCES),
+    "campaign-taxonomy": Block(campaign_taxonomy, CAMPAIGN_SOURCES),
+    "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_SOURCES}, {RESULTS_JSON}"),
     "vision-accuracy": Block(vision_accuracy, ACCURACY_JSON),
     "domains-summary": Block(domains_summary, DOMAINS_JSON),
     "domains-bands": Block(domains_bands, DOMAINS_JSON),

@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from deploy.docs.bench_tables import link
-from deploy.docs.sources import CAMPAIGN_JSON, PER_CORNER_JSON, RESULTS_JSON, Inputs
+from deploy.docs.sources import CAMPAIGN_JSON, RESULTS_JSON, Inputs
 from deploy.experiments.campaign.causes import CAUSES, cause_family
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.compare.summary import markdown_table
@@ -20,26 +20,24 @@ ON_GOAL = "converged"  # the campaign's cause of a run that ended on its goal
 
 
 NOT_RUN = "*Not run yet: `umay campaign --out docs/campaign`, then `umay docs`.*"
-# The row of constant with each corner's own depth (controller.constant_depth = per_corner).
-PER_CORNER = "constant, per_corner depths"
 
 
 def _rows_of(
     inputs: Inputs, runs: list[Mapping[str, Any]], modes: list[str]
 ) -> list[tuple[str, list[Mapping[str, Any]]]]:
-    """Each table row's label and its runs: a strategy each, then constant with per_corner
-    depths when that campaign is there."""
+    """Each table row's label and its runs: a strategy each, then each of constant's variants
+    that has been run (:data:`deploy.docs.sources.CONSTANT_VARIANTS`)."""
     groups = [(mode, [r for r in runs if r["mode"] == mode]) for mode in modes]
-    per_corner = [r for r in inputs.per_corner if r["mode"] == "constant"]
-    return groups + ([(PER_CORNER, per_corner)] if per_corner else [])
+    return groups + [
+        (v.label, [r for r in v.runs if r["mode"] == "constant"]) for v in inputs.variants
+    ]
 
 
 def _sources(inputs: Inputs, here: str) -> str:
     """Where a campaign table comes from, linked."""
-    out = f"[`causes.json`]({link(here, CAMPAIGN_JSON)})"
-    if inputs.per_corner:
-        out += f" and [`constant_per_corner/causes.json`]({link(here, PER_CORNER_JSON)})"
-    return out
+    files = [f"[`causes.json`]({link(here, CAMPAIGN_JSON)})"]
+    files += [f"[`{v.folder}/causes.json`]({link(here, v.path)})" for v in inputs.variants]
+    return ", ".join(files[:-1]) + " and " + files[-1] if len(files) > 1 else files[0]
 
 
 def _runs(inputs: Inputs) -> tuple[list[Mapping[str, Any]], list[str], set[str], set[str]]:
@@ -136,7 +134,8 @@ def campaign_goals(inputs: Inputs, here: str) -> str:
         own = [r for r in group if r["cause"] != REFUSED]
         won = sum(r["cause"] == ON_GOAL for r in own)
         share = f"{label} {100.0 * won / len(own):.1f} %" if own else f"{label} –"
-        success.append(f"({share})" if label == PER_CORNER else share)
+        variant = label not in modes  # one of constant's variants: not a strategy's default
+        success.append(f"({share})" if variant else share)
     unnamed = sum(
         cause_family(r["cause"]) not in CAUSES or (r["cause"] != ON_GOAL and not r["detail"])
         for r in runs

@@ -24,9 +24,16 @@ HOSTS_DIR = "docs/bench/hosts"
 STARTUP_FRAMES = 10
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
 ACCURACY_JSON = "docs/vision/accuracy.json"  # umay accuracy on the suite's target placements
-CAMPAIGN_JSON = "docs/campaign/causes.json"  # the random-start campaign: one cause per run
-# The same starts with constant's matrix built from each corner's depth (per_corner).
-PER_CORNER_JSON = "docs/campaign/constant_per_corner/causes.json"
+CAMPAIGN_DIR = "docs/campaign"
+CAMPAIGN_JSON = f"{CAMPAIGN_DIR}/causes.json"  # the random-start campaign: one cause per run
+# The same starts again with one of constant's settings changed (``umay campaign --modes
+# constant --set ... --out docs/campaign/<folder>``, the command in docs/campaign.md): each
+# folder's runs are one more row of the campaign's tables, under this label.
+CONSTANT_VARIANTS = (
+    ("constant_per_corner", "constant, per_corner depths"),  # constant_depth = per_corner
+    ("constant_lift", "constant, clearance lifting"),  # clearance_correction = lift
+    ("constant_hand_held", "constant, hidden hand held"),  # predict_hand_s = 0
+)
 # The suite at its own camera (480×360 at 15 Hz) and at the default's (640×480 at 30 Hz), both
 # in-process: what moving the suite to the default's camera would change (docs/scenarios.md).
 SUITE_CAMERA_DIR = "docs/results/suite_camera"
@@ -61,6 +68,19 @@ class BenchRun:
 
 
 @dataclass(frozen=True)
+class CampaignVariant:
+    """The campaign's starts run again with one of constant's settings changed."""
+
+    folder: str  # under CAMPAIGN_DIR
+    label: str  # its row's name
+    runs: Sequence[Mapping[str, Any]]
+
+    @property
+    def path(self) -> str:
+        return f"{CAMPAIGN_DIR}/{self.folder}/causes.json"
+
+
+@dataclass(frozen=True)
 class Inputs:
     results: Sequence[CompareRow] = ()
     bench: Sequence[BenchRun] = ()  # sorted by name
@@ -70,7 +90,7 @@ class Inputs:
     domains: Any = None  # the domain study (deploy.experiments.domains.report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
-    per_corner: Sequence[Mapping[str, Any]] = ()  # constant per_corner on the same starts
+    variants: Sequence[CampaignVariant] = ()  # constant's variants run (CONSTANT_VARIANTS)
     accuracy: Sequence[Mapping[str, Any]] = ()  # vision's accuracy, one record per condition
     # The suite's rows per camera (SUITE_CAMERAS), where both have been run.
     suite_cameras: Sequence[tuple[str, Sequence[CompareRow]]] = ()
@@ -124,7 +144,11 @@ def load_inputs(root: Path) -> Inputs:
             for path in sorted((root / EXECUTORS_DIR).glob("*/domains.json"))
         ]
         campaign = _records(root / CAMPAIGN_JSON)
-        per_corner = _records(root / PER_CORNER_JSON)
+        variants = [
+            CampaignVariant(folder, label, runs)
+            for folder, label in CONSTANT_VARIANTS
+            if (runs := _records(root / CAMPAIGN_DIR / folder / "causes.json"))
+        ]
         accuracy = _records(root / ACCURACY_JSON)
         cameras = [(n, root / SUITE_CAMERA_DIR / n / "results.json") for n in SUITE_CAMERAS]
         suite_cameras = [
@@ -141,7 +165,7 @@ def load_inputs(root: Path) -> Inputs:
         domains=domains,
         executors=executors,
         campaign=campaign,
-        per_corner=per_corner,
+        variants=variants,
         accuracy=accuracy,
         suite_cameras=suite_cameras if len(suite_cameras) == len(SUITE_CAMERAS) else (),
     )

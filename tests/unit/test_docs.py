@@ -446,9 +446,18 @@ def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
         {"start": "s2", "mode": "constant", "cause": "local minimum (image error stalled)"},
         {"start": "s4", "mode": "constant", "cause": "refused at start"},
     ]
-    table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs, per_corner=per_corner), "")
+    from deploy.docs.sources import CampaignVariant
+
+    variant = CampaignVariant("constant_per_corner", "constant, per_corner depths", per_corner)
+    lift = CampaignVariant("constant_lift", "constant, clearance lifting", per_corner[:1])
+    table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs, variants=[variant, lift]), "")
     assert "| constant, per_corner depths | 2 | 50.0% (1/2) | – | – | local minimum" in table
-    assert "constant_per_corner/causes.json" in table
+    assert "| constant, clearance lifting | 1 | 100.0% (1/1) |" in table
+    assert "constant_per_corner/causes.json`](docs/campaign/constant_per_corner" in table
+    assert "and [`constant_lift/causes.json`]" in table
+    told = [{**r, "detail": "why"} for r in runs]  # every failure names its cause
+    goals = BLOCKS["campaign-goals"].render(Inputs(campaign=told, variants=[variant]), "")
+    assert "dynamic 66.7 %, (constant, per_corner depths 50.0 %)" in goals
 
 
 def test_the_campaign_taxonomy_and_goals_count_every_cause_from_causes_json() -> None:
