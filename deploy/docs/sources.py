@@ -28,11 +28,12 @@ CAMPAIGN_DIR = "docs/campaign"
 CAMPAIGN_JSON = f"{CAMPAIGN_DIR}/causes.json"  # the random-start campaign: one cause per run
 # The same starts again with one of constant's settings changed (``umay campaign --modes
 # constant --set ... --out docs/campaign/<folder>``, the command in docs/campaign.md): each
-# folder's runs are one more row of the campaign's tables, under this label.
+# folder's runs are one more row of the campaign's taxonomy, under this label, and of the
+# README's summary where marked (the ablations of the controller's own parts are not).
 CONSTANT_VARIANTS = (
-    ("constant_per_corner", "constant, per_corner depths"),  # constant_depth = per_corner
-    ("constant_lift", "constant, clearance lifting"),  # clearance_correction = lift
-    ("constant_hand_held", "constant, hidden hand held"),  # predict_hand_s = 0
+    ("constant_per_corner", "constant, per_corner depths", True),  # constant_depth = per_corner
+    ("constant_lift", "constant, clearance lifting", False),  # clearance_correction = lift
+    ("constant_hand_held", "constant, hidden hand held", False),  # predict_hand_s = 0
 )
 # The suite at its own camera (480×360 at 15 Hz) and at the default's (640×480 at 30 Hz), both
 # in-process: what moving the suite to the default's camera would change (docs/scenarios.md).
@@ -74,6 +75,7 @@ class CampaignVariant:
     folder: str  # under CAMPAIGN_DIR
     label: str  # its row's name
     runs: Sequence[Mapping[str, Any]]
+    in_summary: bool = True  # a row of the README's summary too
 
     @property
     def path(self) -> str:
@@ -145,8 +147,8 @@ def load_inputs(root: Path) -> Inputs:
         ]
         campaign = _records(root / CAMPAIGN_JSON)
         variants = [
-            CampaignVariant(folder, label, runs)
-            for folder, label in CONSTANT_VARIANTS
+            CampaignVariant(folder, label, runs, in_summary)
+            for folder, label, in_summary in CONSTANT_VARIANTS
             if (runs := _records(root / CAMPAIGN_DIR / folder / "causes.json"))
         ]
         accuracy = _records(root / ACCURACY_JSON)

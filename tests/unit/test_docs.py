@@ -449,12 +449,16 @@ def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
     from deploy.docs.sources import CampaignVariant
 
     variant = CampaignVariant("constant_per_corner", "constant, per_corner depths", per_corner)
-    lift = CampaignVariant("constant_lift", "constant, clearance lifting", per_corner[:1])
-    table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs, variants=[variant, lift]), "")
+    lift = CampaignVariant("constant_lift", "constant, clearance lifting", per_corner[:1], False)
+    both = Inputs(campaign=runs, variants=[variant, lift])
+    table = BLOCKS["campaign-summary"].render(both, "")
     assert "| constant, per_corner depths | 2 | 50.0% (1/2) | – | – | local minimum" in table
-    assert "| constant, clearance lifting | 1 | 100.0% (1/1) |" in table
+    assert "clearance lifting" not in table  # an ablation: the taxonomy's row only
     assert "constant_per_corner/causes.json`](docs/campaign/constant_per_corner" in table
-    assert "and [`constant_lift/causes.json`]" in table
+    assert "constant_lift/causes.json" not in table
+    taxonomy = BLOCKS["campaign-taxonomy"].render(both, "")
+    assert "| constant, clearance lifting | 1 | 1 | 100.0% |" in taxonomy
+    assert "and [`constant_lift/causes.json`]" in taxonomy
     told = [{**r, "detail": "why"} for r in runs]  # every failure names its cause
     goals = BLOCKS["campaign-goals"].render(Inputs(campaign=told, variants=[variant]), "")
     assert "dynamic 66.7 %, (constant, per_corner depths 50.0 %)" in goals
