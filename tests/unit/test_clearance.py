@@ -73,13 +73,12 @@ def test_the_top_face_plane_comes_from_the_marker_corners_and_faces_the_camera()
         np.testing.assert_allclose(plane.point_m, [0.15, 0.3, 0.35])
 
 
-def test_the_controllers_twist_is_lifted_over_the_last_seen_target_and_flagged() -> None:
-    """``above_the_target`` on a real arm posture: the red square 3 mm under the hand box's
-    lowest corner (camera at the base, so its frame is the base's); a twist pressing down is
-    lifted to the barrier's rate and flagged, a hold or the switch off leaves it as it was."""
+def above_a_square() -> tuple[IbvsController, np.ndarray, np.ndarray, np.ndarray]:
+    """A controller that last saw a red square 3 mm under the hand box's lowest corner, the arm
+    at the default start (camera at the base, so its frame is the base's): the controller, the
+    end effector's pose, the box's corners and the square (base frame)."""
     q = np.array(load_scenario(None).robot.q0)
-    frames = kin.frame_transforms(q)
-    t_ee = frames[-1]
+    t_ee = kin.frame_transforms(q)[-1]
     corners = hand_box_corners_ee() @ t_ee[:3, :3].T + t_ee[:3, 3]
     floor_y = corners[:, 1].min() - 0.003
     assert floor_y < 0.0  # below the camera, so the plane's normal (towards it) is up
@@ -87,8 +86,15 @@ def test_the_controllers_twist_is_lifted_over_the_last_seen_target_and_flagged()
     square = np.array([[x - 0.03, floor_y, z - 0.03], [x + 0.03, floor_y, z - 0.03],
                        [x + 0.03, floor_y, z + 0.03], [x - 0.03, floor_y, z + 0.03]])  # fmt: skip
     controller = IbvsController(ControllerConfig(), np.eye(4))
-    k = load_scenario(None).camera.intrinsics()
-    controller.last_target = Marker.seen_at(square, k)
+    controller.last_target = Marker.seen_at(square, load_scenario(None).camera.intrinsics())
+    return controller, t_ee, corners, square
+
+
+def test_the_controllers_twist_is_lifted_over_the_last_seen_target_and_flagged() -> None:
+    """``above_the_target`` on a real arm posture: the red square 3 mm under the hand box's
+    lowest corner (camera at the base, so its frame is the base's); a twist pressing down is
+    lifted to the barrier's rate and flagged, a hold or the switch off leaves it as it was."""
+    controller, t_ee, _, _ = above_a_square()
     down = ControlOutput(np.array([0.0, -0.1, 0.0, 0.0, 0.0, 0.0]), True, 5.0, False)
     out = above_the_target(controller, down, t_ee)
     assert out.lifted and out.twist_base_ee[1] == pytest.approx(-3.0 * (0.003 - 0.002))
@@ -104,16 +110,7 @@ def test_the_controllers_twist_is_lifted_over_the_last_seen_target_and_flagged()
 def test_the_laws_twist_is_changed_where_its_features_notice_it_least() -> None:
     """With the law's model of the features' rate (``feature_jacobian``) the correction meets
     every corner's bound and changes the image motion less than the straight lift does."""
-    q = np.array(load_scenario(None).robot.q0)
-    t_ee = kin.frame_transforms(q)[-1]
-    corners = hand_box_corners_ee() @ t_ee[:3, :3].T + t_ee[:3, 3]
-    floor_y = corners[:, 1].min() - 0.003
-    x, z = corners[:, 0].mean(), corners[:, 2].mean()
-    square = np.array([[x - 0.03, floor_y, z - 0.03], [x + 0.03, floor_y, z - 0.03],
-                       [x + 0.03, floor_y, z + 0.03], [x - 0.03, floor_y, z + 0.03]])  # fmt: skip
-    controller = IbvsController(ControllerConfig(), np.eye(4))
-    k = load_scenario(None).camera.intrinsics()
-    controller.last_target = Marker.seen_at(square, k)
+    controller, t_ee, corners, square = above_a_square()
     w_cam = np.random.default_rng(3).normal(size=(8, 6))
     down = ControlOutput(np.array([0.005, -0.05, 0.0, 0.1, 0.0, 0.05]), True, 5.0, False)
     lifted = above_the_target(controller, down, t_ee)

@@ -217,16 +217,18 @@ def test_run_label_says_what_a_run_is() -> None:
     assert run_label(refused) == "lockstep 640×480"  # what the run had, not what it asked
 
 
-def test_the_runs_table_names_the_code_each_run_measured() -> None:
+def test_the_runs_table_names_the_code_and_cpu_each_run_measured_where_recorded() -> None:
     from deploy.docs.sources import BenchRun
 
     recorded, older = _bench(), _bench()
-    recorded["machine"] = {**recorded["machine"], "code": "fd2f398abc"}
+    cpu = "AMD EPYC (family 26, model 2)"
+    recorded["machine"] = {**recorded["machine"], "code": "fd2f398abc", "cpu_model": cpu}
     table = BLOCKS["bench-runs"].render(
         Inputs(bench=[BenchRun("a", recorded), BenchRun("b", older)]), ""
     )
     rows = [line for line in table.splitlines() if line.startswith("| [")]
     assert rows[0].endswith("| `fd2f398abc` |") and rows[1].endswith("| not recorded |")
+    assert f"| 2 × {cpu}, Python" in rows[0] and "| 2 × x86_64, Python" in rows[1]
 
 
 def test_the_hosts_table_puts_the_same_command_on_each_host_side_by_side() -> None:
@@ -245,19 +247,6 @@ def test_the_hosts_table_puts_the_same_command_on_each_host_side_by_side() -> No
     there["command"] = "umay bench --frames 60 --size 320x240"
     with pytest.raises(DocsError, match=r"hosts/old\.json was made by `umay bench --frames 60"):
         BLOCKS["bench-hosts"].render(inputs, "docs")
-
-
-def test_the_runs_table_names_the_cpu_model_where_recorded() -> None:
-    from deploy.docs.sources import BenchRun
-
-    recorded, older = _bench(), _bench()
-    recorded["machine"] = {**recorded["machine"], "cpu_model": "AMD EPYC (family 26, model 2)"}
-    table = BLOCKS["bench-runs"].render(
-        Inputs(bench=[BenchRun("a", recorded), BenchRun("b", older)]), ""
-    )
-    rows = [line for line in table.splitlines() if line.startswith("| [")]
-    assert "| 2 × AMD EPYC (family 26, model 2), Python" in rows[0]
-    assert "| 2 × x86_64, Python" in rows[1]
 
 
 def test_figures_taken_from_the_json() -> None:
