@@ -92,10 +92,11 @@ class ControlOutput:
     phase: str = "servoing"  # servoing / acquiring / holding
     hold_since_s: float | None = None  # sim time the current hold began
     lifted: bool = False  # the twist was corrected to keep the hand above the object (clearance)
-    # The law's own model of the features' rate per twist (camera frame, at the camera
-    # origin), W = M⁺ (2N×6 or 3N×6): a correction of the twist changes the image by W Δ
-    # (services.controller.constrained). None when the twist is not the law's.
-    feature_jacobian: FloatArray | None = None
+    # The law's M of (v, ω) = λ · M · e (6×2N or 6×3N, camera frame at the camera origin):
+    # W = M⁺ is the law's own model of the features' rate per twist, by which a correction of
+    # the twist changes the image (services.controller.constrained; computed only when a
+    # correction is needed). None when the twist is not the law's.
+    control_matrix: FloatArray | None = None
     hand_predicted: bool = False  # servoed on the hand carried by the encoders (.hand)
 
     @property
@@ -278,7 +279,7 @@ class IbvsController:
                 return started
         return ControlOutput(
             twist, True, err_px, converged, remembered,
-            feature_jacobian=np.linalg.pinv(m), hand_predicted=hand_predicted,
+            control_matrix=m, hand_predicted=hand_predicted,
         )  # fmt: skip
 
     def _hand_now(

@@ -108,13 +108,14 @@ def test_the_controllers_twist_is_lifted_over_the_last_seen_target_and_flagged()
 
 
 def test_the_laws_twist_is_changed_where_its_features_notice_it_least() -> None:
-    """With the law's model of the features' rate (``feature_jacobian``) the correction meets
-    every corner's bound and changes the image motion less than the straight lift does."""
+    """With the law's model of the features' rate (``W = M⁺``, M its ``control_matrix``) the
+    correction meets every corner's bound and changes the image motion less than the straight
+    lift does."""
     controller, t_ee, corners, square = above_a_square()
     w_cam = np.random.default_rng(3).normal(size=(8, 6))
     down = ControlOutput(np.array([0.005, -0.05, 0.0, 0.1, 0.0, 0.05]), True, 5.0, False)
     lifted = above_the_target(controller, down, t_ee)
-    law = above_the_target(controller, replace(down, feature_jacobian=w_cam), t_ee)
+    law = above_the_target(controller, replace(down, control_matrix=np.linalg.pinv(w_cam)), t_ee)
     assert law.lifted and lifted.lifted
     plane = target_top_plane(square, np.eye(4))
     rows, bounds = clearance_bounds(corners, t_ee[:3, 3], plane, 0.002, 3.0)
