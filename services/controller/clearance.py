@@ -93,10 +93,19 @@ def keep_above(
     """``twist_base_ee`` (v, ω at the end-effector origin, base frame) lifted so that no
     corner's height falls faster than ``rate_1_s · (h − min_height_m)``; and whether it was.
     A corner below ``min_height_m`` is asked to rise at that rate."""
-    twist = np.array(twist_base_ee, dtype=float)
     rows, bounds = clearance_bounds(corners_base_m, p_ee_base_m, plane, min_height_m, rate_1_s)
+    return lift_short(np.asarray(twist_base_ee, dtype=float), rows, bounds, plane.normal)
+
+
+def lift_short(
+    twist: FloatArray, rows: FloatArray, bounds: FloatArray, normal: FloatArray
+) -> tuple[FloatArray, bool]:
+    """``twist`` with the least upward velocity ``δ n`` that meets ``rows · twist ≥ bounds``
+    (:func:`clearance_bounds`: an upward velocity raises every corner at the same rate); and
+    whether it was short."""
     short = float(np.max(bounds - rows @ twist))
     if short <= 0.0:
         return twist, False
-    twist[:3] += short * plane.normal  # lifts every corner by the same rate
-    return twist, True
+    lifted = np.array(twist, dtype=float)
+    lifted[:3] += short * normal
+    return lifted, True

@@ -64,21 +64,19 @@ def above_the_target(
     plane = clearance.target_top_plane(last.points_m, controller.t_base_cam)
     p_ee = t_base_ee[:3, 3]
     corners = clearance.hand_box_corners_ee() @ t_base_ee[:3, :3].T + p_ee
-    twist, corrected = out.twist_base_ee, False
-    least_change = cfg.clearance_correction is ClearanceCorrection.LEAST_FEATURE_CHANGE
-    if least_change and out.control_matrix is not None:  # the law's twist
-        rows, bounds = clearance.clearance_bounds(
-            corners, p_ee, plane, cfg.hand_clearance_m, cfg.clearance_rate_1_s
-        )
-        if float(np.max(bounds - rows @ twist)) > 0.0:  # broken: the law's W, only now
-            w_cam = np.linalg.pinv(out.control_matrix)
-            w_base = w_cam @ twist_matrix_base_ee_to_cam(controller.t_base_cam, p_ee)
-            twist, corrected = least_feature_change(twist, rows, bounds, w_base)
-    twist, lifted = clearance.keep_above(
-        twist, corners, p_ee, plane, cfg.hand_clearance_m, cfg.clearance_rate_1_s
-    )  # what the sweeps left short, or the whole correction of a twist not the law's
-    if not (corrected or lifted):
+    rows, bounds = clearance.clearance_bounds(
+        corners, p_ee, plane, cfg.hand_clearance_m, cfg.clearance_rate_1_s
+    )
+    twist = out.twist_base_ee
+    if float(np.max(bounds - rows @ twist)) <= 0.0:
         return out
+    least_change = cfg.clearance_correction is ClearanceCorrection.LEAST_FEATURE_CHANGE
+    if least_change and out.control_matrix is not None:  # the law's twist: its W, only now
+        w_cam = np.linalg.pinv(out.control_matrix)
+        w_base = w_cam @ twist_matrix_base_ee_to_cam(controller.t_base_cam, p_ee)
+        twist, _ = least_feature_change(twist, rows, bounds, w_base)
+    # What the sweeps left short, or the whole correction of a twist not the law's.
+    twist, _ = clearance.lift_short(twist, rows, bounds, plane.normal)
     twist = clamp_twist(twist, cfg.max_linear_m_s, cfg.max_angular_rad_s)
     return replace(out, twist_base_ee=twist, lifted=True)
 
