@@ -133,9 +133,9 @@ def status_counters(session: zenoh.Session, keys: Keys) -> dict[str, ServiceCoun
 
 def code_version(repo: Path = REPO_ROOT) -> str | None:
     """The commit of the code measured (``git describe``), with ``-dirty`` when tracked files
-    outside ``docs/`` have changes on top, so that a report says which code it measured (a run
-    whose command writes its JSON into ``docs/`` does not mark the next one dirty); None outside
-    a git checkout."""
+    other than ``docs/`` and ``README.md`` have changes on top, so that a report says which code
+    it measured (a run whose command writes its JSON into ``docs/``, or ``umay docs`` its tables
+    between runs, does not mark the next one dirty); None outside a git checkout."""
     import subprocess
 
     def git(*args: str) -> str | None:
@@ -154,7 +154,8 @@ def code_version(repo: Path = REPO_ROOT) -> str | None:
     commit = git("describe", "--always", "--abbrev=10")
     if not commit:
         return None
-    changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)docs")
+    generated = (":(exclude)docs", ":(exclude)README.md")  # what the bench and umay docs write
+    changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", *generated)
     return f"{commit}-dirty" if changed else commit
 
 

@@ -221,11 +221,13 @@ def test_the_code_measured_is_dirty_only_for_changes_outside_docs(tmp_path: Path
     (tmp_path / "docs").mkdir()
     (tmp_path / "docs" / "run.json").write_text("{}")
     (tmp_path / "code.py").write_text("x = 1\n")
+    (tmp_path / "README.md").write_text("")
     git("add", ".")
     git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "start")
     clean = code_version(tmp_path)
     assert clean and not clean.endswith("-dirty")
     (tmp_path / "docs" / "run.json").write_text('{"a": 1}')
+    (tmp_path / "README.md").write_text("tables")
     (tmp_path / "new.py").write_text("")  # untracked: not the code measured
     assert code_version(tmp_path) == clean
     (tmp_path / "code.py").write_text("x = 2\n")
