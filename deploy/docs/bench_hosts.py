@@ -1,6 +1,7 @@
-"""The default lockstep run on each host it was measured on (``docs/bench/hosts/``): hosts of
-one machine class (2 × x86_64 VMs, the same image) run the four-process loop at different
-speeds, so issue 26's latency goals are met on some and not on others."""
+"""The default lockstep run again, on each host it was measured on and in repeated runs
+(``docs/bench/hosts/``): hosts of one machine class (2 × x86_64 VMs, the same image) run the
+four-process loop at different speeds, and one host from one run to the next, so issue 26's
+latency goals are met on some hosts and in some runs and not in others."""
 
 from __future__ import annotations
 
@@ -37,8 +38,8 @@ def _row(here: str, run: BenchRun) -> list[str]:
 
 
 def bench_hosts(inputs: Inputs, here: str) -> str:
-    """The headline run (``docs/bench/lockstep_640x480.json``) and the same command's runs on
-    other hosts, one row each: CPU, code, load and the figures whose goals depend on the host."""
+    """The headline run (``docs/bench/lockstep_640x480.json``) and the same command's other
+    runs, one row each: CPU, code, load and the figures whose goals depend on the host."""
     runs = [inputs.run(LOCKSTEP_RUN), *inputs.hosts]
     for r in runs[1:]:
         if r.data["command"] != runs[0].data["command"]:
@@ -50,5 +51,6 @@ def bench_hosts(inputs: Inputs, here: str) -> str:
         markdown_table(HEADERS, [_row(here, r) for r in runs], right_from=3)
         + "\n\nTimes in ms; each row is `"
         + runs[0].data["command"]
-        + "` (a row under `hosts/` was made by it on another host, then moved there)."
+        + "` (a row under `hosts/` was made by it in another run, on this host or another, then "
+        "moved there)."
     )
