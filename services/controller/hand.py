@@ -14,6 +14,8 @@ image, and never to call a run converged.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -43,3 +45,39 @@ def carried_by_encoders(
     if np.any(u < 0) or np.any(v < 0) or np.any(u > k.width_px) or np.any(v > k.height_px):
         return None
     return carried
+
+
+@dataclass
+class HandMemory:
+    """The hand's last usable view, the end effector's pose then, and since when (sim s) the
+    hand has been carried from it (None: seen now, or not carried)."""
+
+    last: Marker | None = None
+    t_base_ee_then: FloatArray | None = None
+    carried_since_s: float | None = None
+
+    def now(
+        self,
+        hand: Marker,
+        t_base_ee: FloatArray,
+        t_base_cam: FloatArray,
+        k: CameraIntrinsics,
+        t_s: float,
+        limit_s: float,
+    ) -> tuple[Marker, bool]:
+        """``(hand, carried)``: the hand as seen, remembered when usable; when not, for at most
+        ``limit_s`` (0: never) its last view carried to ``t_base_ee`` while it stays in the
+        image (:func:`carried_by_encoders`); else the hand as seen."""
+        if hand.usable:
+            self.last, self.t_base_ee_then, self.carried_since_s = hand, t_base_ee, None
+            return hand, False
+        if self.last is None or self.t_base_ee_then is None or limit_s == 0.0:
+            return hand, False
+        since = t_s if self.carried_since_s is None else self.carried_since_s
+        if t_s - since > limit_s:
+            return hand, False
+        carried = carried_by_encoders(self.last, self.t_base_ee_then, t_base_ee, t_base_cam, k)
+        if carried is None:
+            return hand, False
+        self.carried_since_s = since
+        return carried, True

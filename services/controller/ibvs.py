@@ -29,7 +29,7 @@ from services.controller.goal import (
     hand_hides_target,
     may_be_behind_the_hand,
 )
-from services.controller.hand import carried_by_encoders
+from services.controller.hand import HandMemory
 from services.controller.interaction import (
     USES_CURRENT,
     USES_DESIRED,
@@ -161,11 +161,8 @@ class IbvsController:
     acquisition_failed: str = ""  # what acquisition could not uncover (then it holds)
     frames_on_prediction: int = 0  # frames the hand has sat on an unconfirmed prediction
     plateau: Plateau | None = None  # the averaged error under plateau_px, and since when
-    # The hand's last usable view and the end effector's pose then (encoders), and since when
-    # (sim s) the hand has been carried from it (services.controller.hand).
-    last_hand: Marker | None = None
-    t_base_ee_at_last_hand: FloatArray | None = None
-    hand_predicted_since_s: float | None = None
+    # The hand's last usable view, to carry along the encoders while vision cannot use it.
+    hand_memory: HandMemory = field(default_factory=HandMemory)
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
 
     def step(
@@ -185,7 +182,11 @@ class IbvsController:
         alone)."""
         remembered = False
         seen = target
-        hand, hand_predicted = self._hand_now(hand, k, t_s, t_base_ee)
+        hand_predicted = False
+        if t_base_ee is not None:
+            hand, hand_predicted = self.hand_memory.now(
+                hand, t_base_ee, self.t_base_cam, k, t_s, self.config.predict_hand_s
+            )
         if target.usable:
             self.last_target = target
             self.motion = self.motion.seen(t_s, target.points_m)
@@ -281,31 +282,6 @@ class IbvsController:
             twist, True, err_px, converged, remembered,
             control_matrix=m, hand_predicted=hand_predicted,
         )  # fmt: skip
-
-    def _hand_now(
-        self, hand: Marker, k: CameraIntrinsics, t_s: float, t_base_ee: FloatArray | None
-    ) -> tuple[Marker, bool]:
-        """``(hand, carried)``: the hand as seen, remembered with the end effector's pose when
-        usable; when not, for at most ``predict_hand_s``, its last view carried along the
-        encoders' motion since (:func:`.hand.carried_by_encoders`) while it stays in the image."""
-        if t_base_ee is None:
-            return hand, False
-        if hand.usable:
-            self.last_hand, self.t_base_ee_at_last_hand = hand, t_base_ee
-            self.hand_predicted_since_s = None
-            return hand, False
-        if self.last_hand is None or self.t_base_ee_at_last_hand is None:
-            return hand, False
-        since = t_s if self.hand_predicted_since_s is None else self.hand_predicted_since_s
-        if t_s - since > self.config.predict_hand_s or self.config.predict_hand_s == 0.0:
-            return hand, False
-        carried = carried_by_encoders(
-            self.last_hand, self.t_base_ee_at_last_hand, t_base_ee, self.t_base_cam, k
-        )
-        if carried is None:
-            return hand, False
-        self.hand_predicted_since_s = since
-        return carried, True
 
     def _settled(self, t_s: float) -> bool:
         """Converged: the error averaged over the window is under ``converged_px``, or under

@@ -73,7 +73,7 @@ class ControllerService:
             "clearance_lifts": self.clearance_lifts,
             # servoing on the hand's last view carried along the encoders (vision cannot use it)
             "hand_predicted": self.hand_predicted,
-            "hand_predicted_since_s": self.controller.hand_predicted_since_s,
+            "hand_predicted_since_s": self.controller.hand_memory.carried_since_s,
         }
 
     def stuck(self) -> bool:

@@ -76,7 +76,7 @@ def test_the_law_servoes_on_the_carried_hand_for_a_bounded_time(predict_hand_s: 
             assert not out.valid and out.hold_reason == "hand partial"
     # Seen again: the prediction ends and may start afresh later.
     out = ctl.step(hand, target_marker(), K, t_ee[:3, 3], 3.0, t_base_ee=t_ee)
-    assert out.valid and not out.hand_predicted and ctl.hand_predicted_since_s is None
+    assert out.valid and not out.hand_predicted and ctl.hand_memory.carried_since_s is None
 
 
 def test_without_the_end_effectors_pose_a_hidden_hand_is_held_on() -> None:
