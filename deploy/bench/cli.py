@@ -115,7 +115,7 @@ def repeated_runs(
             Path(args.log_dir),
             shm=not args.no_shm,
             synthetic_frames=args.synthetic_frames,
-            command=" ".join(["umay", *sys.argv[1:]]),
+            command=typed_command(),
             reference_renderer=not args.no_reference,
             view=args.view,
             on_phase=say_phase(i, args.repeat, label),
@@ -164,7 +164,7 @@ def alternate(
         return 1
     assert machine is not None  # --pairs >= 1
     report = AlternationReport(
-        command=" ".join(["umay", *sys.argv[1:]]),
+        command=typed_command(),
         change=args.alternate,
         machine=machine,
         pairs=pairs,
@@ -177,6 +177,11 @@ def alternate(
             print(f"umay bench: could not write the results: {exc}", file=sys.stderr)
             return 1
     return 0
+
+
+def typed_command() -> str:
+    """The command as the user typed it, for the reports (each JSON says what made it)."""
+    return " ".join(["umay", *sys.argv[1:]])
 
 
 def say_phase(run: int, runs: int, label: str = "") -> Callable[[str], None]:

@@ -5,7 +5,14 @@ latency goals are met on some hosts and in some runs and not in others."""
 
 from __future__ import annotations
 
-from deploy.docs.bench_tables import frame_handoff_ms, latency, link, num
+from deploy.docs.bench_tables import (
+    code_cell,
+    frame_handoff_ms,
+    latency,
+    link,
+    load_cell,
+    num,
+)
 from deploy.docs.sources import BENCH_DIR, LOCKSTEP_RUN, BenchRun, DocsError, Inputs
 from deploy.experiments.compare.summary import markdown_table
 
@@ -28,8 +35,8 @@ def _row(here: str, run: BenchRun) -> list[str]:
     return [
         f"[`{link(BENCH_DIR, run.path).removesuffix('.json')}`]({link(here, run.path)})",
         m.get("cpu_model") or "not recorded",
-        f"`{m['code']}`" if m.get("code") else "not recorded",
-        num((m.get("load_start") or [None])[0]),
+        code_cell(m),
+        load_cell(m),
         num(d["distributed"]["real_time_factor"]),
         num(frame_handoff_ms(d)),
         f"{num(lat['p50'])} / {num(lat['p99'])}",

@@ -24,6 +24,16 @@ def num(v: float | int | None, fmt: str = ".2f") -> str:
     return "–" if v is None else format(v, fmt)
 
 
+def load_cell(machine: Mapping[str, Any]) -> str:
+    """A bench JSON's 1-minute load average as the run began."""
+    return num((machine.get("load_start") or [None])[0])
+
+
+def code_cell(machine: Mapping[str, Any]) -> str:
+    """The commit a bench JSON measured, quoted as code ("not recorded" before it was)."""
+    return f"`{machine['code']}`" if machine.get("code") else "not recorded"
+
+
 def link(here: str, path: str) -> str:
     """``path`` (relative to the repository) as seen from the folder ``here`` (same)."""
     return posixpath.relpath(path, here or ".")
@@ -176,8 +186,8 @@ def bench_runs(inputs: Inputs, here: str) -> str:
                 run_label(r.data),
                 _runs_note(r.data),
                 f"{m['cpus']} × {_cpu(m)}, Python {m['python']}, zenoh {m['zenoh']}; "
-                f"load {num((m.get('load_start') or [None])[0])}",
-                f"`{m['code']}`" if m.get("code") else "not recorded",
+                f"load {load_cell(m)}",
+                code_cell(m),
             ]
         )
     headers = ["run", "what", "frames", "machine", "code"]
@@ -370,11 +380,9 @@ def _cpu(machine: Mapping[str, Any]) -> str:
 def _caption(here: str, name: str, path: str, command: str, machine: Mapping[str, Any]) -> str:
     """What made a generated table: its JSON, the command, the machine (a bench JSON's
     ``machine``) and the code."""
-    load = (machine.get("load_start") or [None])[0]
     return (
         f"[`{name}`]({link(here, path)}): `{command}`; {machine['cpus']} × "
-        f"{_cpu(machine)}, load {num(load)}, code `{machine.get('code') or 'not recorded'}`."
-        "\n\n"
+        f"{_cpu(machine)}, load {load_cell(machine)}, code {code_cell(machine)}.\n\n"
     )
 
 

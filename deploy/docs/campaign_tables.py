@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from deploy.docs.bench_tables import link
-from deploy.docs.sources import CAMPAIGN_JSON, RESULTS_JSON, Inputs
+from deploy.docs.sources import CAMPAIGN_JSON, RESULTS_JSON, CampaignVariant, Inputs
 from deploy.experiments.campaign.causes import CAUSES, cause_family
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.compare.summary import markdown_table
@@ -31,18 +31,20 @@ def _rows_of(
     groups = [(mode, [r for r in runs if r["mode"] == mode]) for mode in modes]
     return groups + [
         (v.label, [r for r in v.runs if r["mode"] == "constant"])
-        for v in inputs.variants
-        if v.in_summary or not summary
+        for v in _variants(inputs, summary)
     ]
+
+
+def _variants(inputs: Inputs, summary: bool) -> list[CampaignVariant]:
+    """Constant's variants a table shows: all of them, or the ``summary``'s."""
+    return [v for v in inputs.variants if v.in_summary or not summary]
 
 
 def _sources(inputs: Inputs, here: str, summary: bool = False) -> str:
     """Where a campaign table comes from, linked (the ``summary``: its variants only)."""
     files = [f"[`causes.json`]({link(here, CAMPAIGN_JSON)})"]
     files += [
-        f"[`{v.folder}/causes.json`]({link(here, v.path)})"
-        for v in inputs.variants
-        if v.in_summary or not summary
+        f"[`{v.folder}/causes.json`]({link(here, v.path)})" for v in _variants(inputs, summary)
     ]
     return ", ".join(files[:-1]) + " and " + files[-1] if len(files) > 1 else files[0]
 

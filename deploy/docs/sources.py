@@ -109,6 +109,14 @@ class Inputs:
         return next((r for r in self.bench if r.name == name), None)
 
 
+def _bench_runs(root: Path, folder: str) -> list[BenchRun]:
+    """Every ``umay bench --json`` file of ``folder`` (under ``root``), by name."""
+    return [
+        BenchRun(p.stem, json.loads(p.read_text()), folder)
+        for p in sorted((root / folder).glob("*.json"))
+    ]
+
+
 def _records(path: Path) -> list[Mapping[str, Any]]:
     """A JSON list of records, or none where it has not been made yet."""
     return json.loads(path.read_text()) if path.is_file() else []
@@ -118,10 +126,7 @@ def load_inputs(root: Path) -> Inputs:
     """The comparison's rows and every benchmark run under ``root``."""
     try:
         results = rows_from_json((root / RESULTS_JSON).read_text())
-        bench = [
-            BenchRun(p.stem, json.loads(p.read_text()))
-            for p in sorted((root / BENCH_DIR).glob("*.json"))
-        ]
+        bench = _bench_runs(root, BENCH_DIR)
         from deploy.bench.alternate import load_alternation
         from deploy.experiments.domains.report import load_study_json
 
@@ -129,15 +134,8 @@ def load_inputs(root: Path) -> Inputs:
             (p.stem, load_alternation(json.loads(p.read_text())))
             for p in sorted((root / ALTERNATIONS_DIR).glob("*.json"))
         ]
-
-        startup = [
-            BenchRun(p.stem, json.loads(p.read_text()), STARTUP_DIR)
-            for p in sorted((root / STARTUP_DIR).glob("*.json"))
-        ]
-        hosts = [
-            BenchRun(p.stem, json.loads(p.read_text()), HOSTS_DIR)
-            for p in sorted((root / HOSTS_DIR).glob("*.json"))
-        ]
+        startup = _bench_runs(root, STARTUP_DIR)
+        hosts = _bench_runs(root, HOSTS_DIR)
         domains = None
         if (root / DOMAINS_JSON).is_file():
             domains = load_study_json(root / DOMAINS_JSON)
