@@ -126,7 +126,8 @@ def test_taxonomy_counts_every_start_and_run() -> None:
     ]
     md = taxonomy_markdown(starts, rows, ("dynamic", "mpj"), DIST)
     ok = sum(not s.refused for s in starts)
-    assert f"| dynamic | {ok} | {ok} | 100.0% |" in md
+    low = 100.0 * ok / (ok + 1.959964**2)  # Wilson's lower bound of n out of n: n / (n + z²)
+    assert f"| dynamic | {ok} | {ok} | 100.0% | {low:.1f}–100.0% |" in md
     assert f"{len(starts)} starts drawn (seed {DIST.seed}" in md
 
 

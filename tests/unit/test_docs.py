@@ -426,7 +426,7 @@ def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
     ]
     table = BLOCKS["campaign-summary"].render(Inputs(campaign=runs), "docs")
     # medians over the runs on goal only
-    assert "| dynamic | 3 | 66.7% (2/3) | 85.5 | 1.200 | joint limit 1 |" in table
+    assert "| dynamic | 3 | 66.7% (2/3) | 20.8–93.9% | 85.5 | 1.200 | joint limit 1 |" in table
     assert "[docs/campaign.md](campaign.md)" in table
     assert "4 starts, 1 refused at start (25.0%" in table
     assert "per_corner" not in table  # no per_corner campaign: no row
@@ -441,12 +441,13 @@ def test_the_campaign_block_counts_success_among_the_starts_run() -> None:
     lift = CampaignVariant("constant_lift", "constant, clearance lifting", per_corner[:1], False)
     both = Inputs(campaign=runs, variants=[variant, lift])
     table = BLOCKS["campaign-summary"].render(both, "")
-    assert "| constant, per_corner depths | 2 | 50.0% (1/2) | – | – | local minimum" in table
+    row = "| constant, per_corner depths | 2 | 50.0% (1/2) | 9.5–90.5% | – | – | local minimum"
+    assert row in table
     assert "clearance lifting" not in table  # an ablation: the taxonomy's row only
     assert "constant_per_corner/causes.json`](docs/campaign/constant_per_corner" in table
     assert "constant_lift/causes.json" not in table
     taxonomy = BLOCKS["campaign-taxonomy"].render(both, "")
-    assert "| constant, clearance lifting | 1 | 1 | 100.0% |" in taxonomy
+    assert "| constant, clearance lifting | 1 | 1 | 100.0% | 20.7–100.0% |" in taxonomy
     assert "and [`constant_lift/causes.json`]" in taxonomy
     told = [{**r, "detail": "why"} for r in runs]  # every failure names its cause
     goals = BLOCKS["campaign-goals"].render(Inputs(campaign=told, variants=[variant]), "")

@@ -10,7 +10,7 @@ exactly one named cause; starts the pre-launch check refuses are counted with it
 
 Modules: :mod:`.starts` (the distribution and :func:`~.starts.draw_start`, each start from its
 own generator, ``default_rng([seed, i])``: the same starts whatever N), :mod:`.causes` (one
-named cause per run), :mod:`.report` (campaign.md, causes.json, starts.json), all pure; and
-:mod:`.run` (draw, plan, run and write a campaign). The command line is in
-:mod:`deploy.experiments.cli`.
+named cause per run), :mod:`.report` (campaign.md, causes.json, starts.json), :mod:`.rates`
+(how sure a success rate is: its Wilson interval), all pure; and :mod:`.run` (draw, plan, run
+and write a campaign). The command line is in :mod:`deploy.experiments.cli`.
 """

@@ -11,6 +11,7 @@ from dataclasses import asdict
 from pydantic import BaseModel
 
 from deploy.experiments.campaign.causes import CAUSES, cause_family, close_at_end, failure_cause
+from deploy.experiments.campaign.rates import interval_cell
 from deploy.experiments.campaign.starts import Distribution, Start
 from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
 from deploy.experiments.compare.summary import format_cell, markdown_table
@@ -65,8 +66,9 @@ def taxonomy_markdown(
     cause."""
     crows = campaign_rows(starts, rows, modes)
     refused = [s for s in starts if s.refused]
-    headers = ["strategy", "runs", "on goal", "success", "median frames", "median path ratio"]
-    headers += ["< 1 px, < 5 mm at the end"]
+    headers = ["strategy", "runs", "on goal", "success", "95% interval", "median frames"]
+    headers += ["median path ratio", "< 1 px, < 5 mm at the end"]
+    first_cause = len(headers)
     headers += [c for c in CAUSES if c not in ("converged",)]
     body = []
     for mode in modes:
@@ -78,11 +80,12 @@ def taxonomy_markdown(
             str(len(mine)),
             str(len(ok)),
             format_cell(len(ok) / len(mine) if mine else None, 100.0, ".1f") + "%",
+            interval_cell(len(ok), len(mine)),
             format_cell(_median([r.frames for r in ok]), 1.0, ".0f"),
             format_cell(_median([r.path_ratio for r in ok]), 1.0, ".3f"),
             str(sum(close_at_end(r) for r in mine)),
         ]
-        cells += [str(counts.get(c, 0)) for c in headers[7:]]
+        cells += [str(counts.get(c, 0)) for c in headers[first_cause:]]
         body.append(cells)
     reasons = Counter(s.refused for s in refused)
     redraws: Counter[str] = Counter()
@@ -97,7 +100,8 @@ def taxonomy_markdown(
         f"({format_cell(len(refused) / len(starts), 100.0, '.1f')}%), "
         f"{len(starts) - len(refused)} run with each of {len(modes)} strategies. Success: "
         f"converged (image error below the threshold) with the hand within "
-        f"{1000 * ON_GOAL_M:g} mm of its goal (ground truth), out of the non-refused starts. "
+        f"{1000 * ON_GOAL_M:g} mm of its goal (ground truth), out of the non-refused starts; "
+        f"95% interval: its Wilson score interval. "
         f"Draws: {sum(s.draws for s in starts)} in all; drawn again (not in the distribution): "
         + (", ".join(f"{n} × {why}" for why, n in redraws.most_common()) or "none")
         + ".",
