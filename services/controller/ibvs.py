@@ -159,7 +159,6 @@ class IbvsController:
     acquisition: acq.Acquisition | None = None
     acquisitions: int = 0  # attempts made since the last convergence
     acquisition_failed: str = ""  # what acquisition could not uncover (then it holds)
-    frames_on_prediction: int = 0  # frames the hand has sat on an unconfirmed prediction
     plateau: Plateau | None = None  # the averaged error under plateau_px, and since when
     # The hand's last usable view, to carry along the encoders while vision cannot use it.
     hand_memory: HandMemory = field(default_factory=HandMemory)
@@ -188,6 +187,8 @@ class IbvsController:
                 hand, t_base_ee, self.t_base_cam, k, t_s, self.config.predict_hand_s
             )
         if target.usable:
+            if self.predicted:  # the window's errors were against the prediction: afresh
+                self.recent_errors_px, self.plateau = [], None
             self.last_target = target
             self.motion = self.motion.seen(t_s, target.points_m)
             self.predicted = False
@@ -208,7 +209,6 @@ class IbvsController:
         # of the marker, so a fitted hand's corners are as good as a whole one's.
         if not (hand.usable and target.usable):
             self.recent_errors_px, self.plateau = [], None
-            self.frames_on_prediction = 0
             which = "hand" if not hand.usable else "target"
             state = hand.state if not hand.usable else target.state
             if self.hold_since_s is None:
@@ -257,23 +257,26 @@ class IbvsController:
         # s − s* (px, 2N): this frame's error, and its share of convergence's window
         error_px = (np.asarray(hand.corners_px) - np.asarray(target.corners_px)).ravel()
         err_px = float(np.sqrt(np.mean(error_px**2)))  # feature_error_px_rms
-        # On a target believed to move the hand is tracking, not done; nor on a prediction of
-        # where a hidden target went: it must be seen again first.
+        # On a target believed to move the hand is tracking, not done; nor on a hand carried by
+        # the encoders. On a prediction of where a hidden target went it may settle, but it is
+        # not done either: the target must be seen there first.
         still = not np.any(velocity)  # slower than motion.STILL_SPEED_M_S
         window = self.config.converged_frames
-        if still and not self.predicted and not hand_predicted:
+        if still and not hand_predicted:
             self.recent_errors_px = [*self.recent_errors_px, error_px][-window:]
         else:
             self.recent_errors_px = []
-        converged = self._settled(t_s)
+        settled = self._settled(t_s)
+        converged = settled and not self.predicted
         if converged:
             self.acquisitions, self.acquisition_failed = 0, ""
-        # On a prediction the hand can sit forever: once it is there and the target is believed
-        # still, uncover it to see whether it is really there.
-        on_prediction = self.predicted and err_px < self.config.converged_px and still
-        self.frames_on_prediction = self.frames_on_prediction + 1 if on_prediction else 0
-        if self.frames_on_prediction >= self.config.converged_frames and self.config.acquire:
-            self.frames_on_prediction = 0
+        # On a prediction the hand can sit forever: once it has settled there (as it would
+        # have converged on a target seen) and the target is believed still, uncover it to see
+        # whether it is really there. Judged like convergence, on the averaged error or its
+        # plateau: a hand wobbling a few hundredths of a pixel about 0.25 px was never under
+        # it for five frames in a row, and sat on the prediction until it was reported stalled.
+        if settled and self.predicted and self.config.acquire:
+            self.recent_errors_px, self.plateau = [], None
             why = "predicted target unconfirmed"
             started = self._start_acquisition(why, hand, k, p_ee_base_m, t_s, elbow_base_m)
             if started is not None:

@@ -261,6 +261,42 @@ def test_no_convergence_on_a_predicted_target_until_it_is_seen_again() -> None:
     assert not ctrl.predicted and out.converged
 
 
+def test_a_hand_settled_just_above_the_threshold_on_a_prediction_goes_to_confirm_it() -> None:
+    """Sitting on an ended prediction 0.3 px from it, wobbling by ±0.05 px (never under
+    0.25 px): the hand has settled there as it would have on a target seen (a plateau under
+    1 px), so it moves off to see whether the target is there, and not before the plateau has
+    lasted ``plateau_s``. Judged frame by frame, it sat there until the run stalled."""
+    velocity = np.array([0.02, 0.0, 0.0])
+    start = np.array([0.0, 0.05, 0.55])
+    cfg = ControllerConfig(gain=1.0)
+    ctrl = IbvsController(cfg, np.eye(4))
+    dt = 1 / 30
+    for i in range(16):  # seen sliding for 0.5 s, the hand already on it
+        where = observe(square_points(start + velocity * i * dt))
+        ctrl.step(where, where, K, np.zeros(3), i * dt)
+    last_seen_s = t = 15 * dt
+    ended = start + velocity * (last_seen_s + PREDICTION_HORIZON_S)  # where it is believed
+    on_it = observe(square_points(ended))
+    started_s = None
+    for i in range(30 * 8):
+        t += dt
+        wobble = 0.3 + 0.05 * (-1) ** i  # px, on every corner coordinate
+        out = ctrl.step(
+            replace(on_it, corners_px=on_it.corners_px + wobble),
+            not_seen("lost", occluded=True),
+            K,
+            np.zeros(3),
+            t,
+        )
+        assert not out.converged
+        if out.phase == "acquiring":
+            started_s = t
+            break
+    assert started_s is not None, "never went to confirm the prediction"
+    assert out.hold_reason.startswith("acquiring: predicted target unconfirmed")
+    assert started_s - (last_seen_s + PREDICTION_HORIZON_S) >= cfg.plateau_s
+
+
 def test_convergence_is_judged_on_the_error_averaged_over_the_window() -> None:
     """Corners jittering ±0.4 px about the goal, frame after frame (pixel edges): every
     frame's own error is above 0.25 px, yet the hand is on its goal and the run converges
