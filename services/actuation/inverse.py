@@ -46,11 +46,6 @@ def position_bound_rad_s(
     return np.asarray(vmax_rad_s, dtype=float) * np.where(qdot > 0, to_upper, to_lower)
 
 
-# The hand's points lie within this of the end-effector origin (DH frame 6, the wrist): the
-# hand box reaches its fingertips there, and the green marker lies halfway.
-HAND_REACH_M = kin.HAND_OFFSET_M + kin.HAND_LENGTH_M
-
-
 def redistribute_at_limits(
     jacobian: FloatArray,
     twist_base_ee: FloatArray,
@@ -58,28 +53,19 @@ def redistribute_at_limits(
     q_rad: FloatArray,
     damping: float,
     slow_zone_rad: float = np.deg2rad(10.0),
-    hand_reach_m: float = HAND_REACH_M,
 ) -> tuple[FloatArray, list[int]]:
     """Joints asked to move towards a limit faster than :func:`position_bound_rad_s` allows
     are held at their bound (inside the slow-down zone only: the speed limit outside it scales
     the whole vector, later), and the rest of the twist (``V − J_held q̇_held``) is given to
-    the other joints by least squares, until no free joint is over its bound: the
-    saturation-in-the-null-space idea (Flacco, De Luca & Khatib, 2012) without a null space
-    to use (six joints, six task rows). Clipping the joint alone lost that share of the
-    twist, so the hand drifted off its line and a goal beside a limit was never reached.
-
-    Five joints cannot make every twist, so the least squares chooses what is lost, and it
-    weighs it in one unit: ``‖Δv‖² + (hand_reach_m · ‖Δω‖)²``, the velocity error of the
-    hand's points (``Δv + Δω × r``, ``|r| ≤ hand_reach_m``) rather than metres per second
-    added to radians per second, which weighed a turn as if it swung points a metre away.
-    Unweighted, the free joints kept the turn and gave up the translation: the hand marker
-    slid over the image border or onto the object. Returns the rates and the joints held at
-    their bound."""
+    the other joints by least squares (``q̇_free = J_free⁺ (…)``), until no free joint is over
+    its bound: the saturation-in-the-null-space idea (Flacco, De Luca & Khatib, 2012) without
+    a null space to use (six joints, six task rows). Clipping the joint alone lost that share
+    of the twist, so the hand drifted off its line and a goal beside a limit was never
+    reached. Returns the rates and the joints held at their bound."""
     jac = np.asarray(jacobian, dtype=float)
     twist = np.asarray(twist_base_ee, dtype=float)
     qdot = np.array(qdot_rad_s, dtype=float)
     held = np.zeros(len(qdot), dtype=bool)
-    weight = np.array([1.0, 1.0, 1.0, hand_reach_m, hand_reach_m, hand_reach_m])
     for _ in range(len(qdot)):
         bound = position_bound_rad_s(qdot, q_rad, slow_zone_rad=slow_zone_rad)
         in_zone = bound < kin.JOINT_VELOCITY_LIMIT_RAD_S  # the speed limit is not this one's
@@ -92,7 +78,7 @@ def redistribute_at_limits(
         if not free.any():
             break
         rest = twist - jac[:, held] @ qdot[held]
-        qdot[free] = damped_pinv(weight[:, None] * jac[:, free], damping) @ (weight * rest)
+        qdot[free] = damped_pinv(jac[:, free], damping) @ rest
     return qdot, [int(i) for i in np.flatnonzero(held)]
 
 

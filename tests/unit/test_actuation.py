@@ -7,7 +7,6 @@ import pytest
 
 from common import kinematics as kin
 from services.actuation.inverse import (
-    HAND_REACH_M,
     damped_pinv,
     damping_for,
     deadman_expired,
@@ -125,12 +124,6 @@ def test_nonfinite_inverse_is_flagged() -> None:
     np.testing.assert_array_equal(cmd.velocity_rad_s, np.zeros(6))
 
 
-def hand_points_error(twist_error: np.ndarray) -> float:
-    """A twist's error as the velocity error of the hand's points: ``‖Δv‖² + (r ‖Δω‖)²``."""
-    weight = np.array([1.0, 1.0, 1.0, *([HAND_REACH_M] * 3)])
-    return float(np.linalg.norm(weight * twist_error))
-
-
 def test_a_joint_held_at_its_limit_leaves_its_share_of_the_twist_to_the_others() -> None:
     """Joint 2 two degrees from its upper limit and asked to move towards it: held at its
     bound, the other joints give the twist's rest, and the hand's twist is closer to the one
@@ -146,8 +139,7 @@ def test_a_joint_held_at_its_limit_leaves_its_share_of_the_twist_to_the_others()
     clipped, _ = limit_joint_positions(qdot, q)
     bound = position_bound_rad_s(held_qdot, q)
     assert held == [1] and held_qdot[1] == pytest.approx(bound[1])
-    lost = hand_points_error(jac @ held_qdot - twist)
-    assert lost < 0.5 * hand_points_error(jac @ clipped - twist)
+    assert np.linalg.norm(jac @ held_qdot - twist) < 0.5 * np.linalg.norm(jac @ clipped - twist)
     free = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     free_q = np.zeros(6)
     free_twist = kin.geometric_jacobian(free_q) @ np.full(6, 0.2)
@@ -155,24 +147,3 @@ def test_a_joint_held_at_its_limit_leaves_its_share_of_the_twist_to_the_others()
         kin.geometric_jacobian(free_q), free_twist, free + 0.2, free_q, 0.0
     )
     assert none == [] and np.allclose(same, 0.2)
-
-
-def test_what_the_free_joints_cannot_make_is_least_at_the_hands_points() -> None:
-    """Five free joints cannot make every twist: the one they make is the weighted least
-    squares (translation in m/s, turn times the hand's reach), exactly; it loses less at the
-    hand's points than the split that adds m/s to rad/s, which in turn loses less in that
-    mixed norm: the weight decides what is given up."""
-    q = np.array([-0.5, kin.JOINT_UPPER_RAD[1] - np.radians(2.0), -1.2, 1.4, 0.2, -0.3])
-    jac = kin.geometric_jacobian(q)
-    twist = jac @ np.array([-0.3, 0.8, 0.2, -0.4, 0.5, 0.3])  # joint 2 towards its limit
-    qdot = damped_pinv(jac, 0.0) @ twist
-    weighted, held = redistribute_at_limits(jac, twist, qdot, q, 0.0)
-    mixed, same = redistribute_at_limits(jac, twist, qdot, q, 0.0, hand_reach_m=1.0)
-    assert held == same == [1] and weighted[1] == pytest.approx(mixed[1])
-    weight = np.array([1.0, 1.0, 1.0, *([HAND_REACH_M] * 3)])
-    free = [0, 2, 3, 4, 5]
-    rest = twist - jac[:, 1] * weighted[1]
-    best = np.linalg.lstsq(weight[:, None] * jac[:, free], weight * rest, rcond=None)[0]
-    np.testing.assert_allclose(weighted[free], best, atol=1e-12)
-    assert hand_points_error(jac @ weighted - twist) < hand_points_error(jac @ mixed - twist)
-    assert np.linalg.norm(jac @ mixed - twist) < np.linalg.norm(jac @ weighted - twist)
