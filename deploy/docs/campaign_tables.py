@@ -18,9 +18,8 @@ from deploy.experiments.compare.summary import markdown_table
 
 REFUSED = "refused at start"
 ON_GOAL = "converged"  # the campaign's cause of a run that ended on its goal
+RATES_PY = "deploy/experiments/campaign/rates.py"  # the success rates' interval, linked
 
-
-RATES_PY = "deploy/experiments/campaign/rates.py"
 
 NOT_RUN = "*Not run yet: `umay campaign --out docs/campaign`, then `umay docs`.*"
 

@@ -231,20 +231,28 @@ def test_hold_when_a_marker_is_missing_and_memory_when_the_hand_hides_the_target
     assert not out.valid and out.hold_reason == "target no_depth"
 
 
+SLIDE_START_M = np.array([0.0, 0.05, 0.55])
+SLIDE_VELOCITY_M_S = np.array([0.02, 0.0, 0.0])
+FRAME_S = 1 / 30
+
+
+def seen_sliding(ctrl: IbvsController) -> float:
+    """The target seen sliding at 2 cm/s for 0.5 s, the hand already on it; the time it was
+    last seen (s)."""
+    for i in range(16):
+        where = observe(square_points(SLIDE_START_M + SLIDE_VELOCITY_M_S * i * FRAME_S))
+        ctrl.step(where, where, K, np.zeros(3), i * FRAME_S)
+    return 15 * FRAME_S
+
+
 def test_no_convergence_on_a_predicted_target_until_it_is_seen_again() -> None:
     """A target seen sliding, then hidden by the hand: the hand follows the prediction, and
     even once the prediction has ended (the target believed still) the run is not converged
     until vision sees the target again; sitting on the ended prediction, the hand moves off to
     uncover it (acquisition)."""
-    velocity = np.array([0.02, 0.0, 0.0])
-    start = np.array([0.0, 0.05, 0.55])
+    velocity, start, dt = SLIDE_VELOCITY_M_S, SLIDE_START_M, FRAME_S
     ctrl = IbvsController(ControllerConfig(gain=1.0), np.eye(4))
-    dt = 1 / 30
-    last_seen_s = 15 * dt
-    for i in range(16):  # seen sliding for 0.5 s, the hand already on it
-        where = observe(square_points(start + velocity * i * dt))
-        ctrl.step(where, where, K, np.zeros(3), i * dt)
-    t = last_seen_s
+    last_seen_s = t = seen_sliding(ctrl)
     for _ in range(30 * 7):  # hidden for 7 s, past the prediction horizon
         t += dt
         predicted = start + velocity * (last_seen_s + min(t - last_seen_s, PREDICTION_HORIZON_S))
@@ -266,20 +274,15 @@ def test_a_hand_settled_just_above_the_threshold_on_a_prediction_goes_to_confirm
     0.25 px): the hand has settled there as it would have on a target seen (a plateau under
     1 px), so it moves off to see whether the target is there, and not before the plateau has
     lasted ``plateau_s``. Judged frame by frame, it sat there until the run stalled."""
-    velocity = np.array([0.02, 0.0, 0.0])
-    start = np.array([0.0, 0.05, 0.55])
     cfg = ControllerConfig(gain=1.0)
     ctrl = IbvsController(cfg, np.eye(4))
-    dt = 1 / 30
-    for i in range(16):  # seen sliding for 0.5 s, the hand already on it
-        where = observe(square_points(start + velocity * i * dt))
-        ctrl.step(where, where, K, np.zeros(3), i * dt)
-    last_seen_s = t = 15 * dt
-    ended = start + velocity * (last_seen_s + PREDICTION_HORIZON_S)  # where it is believed
+    last_seen_s = t = seen_sliding(ctrl)
+    # where it is believed to be once the prediction has ended
+    ended = SLIDE_START_M + SLIDE_VELOCITY_M_S * (last_seen_s + PREDICTION_HORIZON_S)
     on_it = observe(square_points(ended))
     started_s = None
     for i in range(30 * 8):
-        t += dt
+        t += FRAME_S
         wobble = 0.3 + 0.05 * (-1) ** i  # px, on every corner coordinate
         out = ctrl.step(
             replace(on_it, corners_px=on_it.corners_px + wobble),
