@@ -15,7 +15,7 @@ plane's upward normal and ``d`` the corner from the end-effector origin,
 that breaks one is changed where the image law's features notice it least
 (:func:`.constrained.least_feature_change`), and whatever that leaves short is made up by the
 least upward velocity ``δ n`` (:func:`lift_short`, also the whole correction of a twist the
-law did not make, such as acquisition's; :func:`keep_above` on its own). The object's sides
+law did not make, such as acquisition's). The object's sides
 are unknown, so the plane is kept everywhere: the starts lie above their goal, the goal above
 the plane.
 """
@@ -81,21 +81,6 @@ def clearance_bounds(
     n = plane.normal
     rows = np.hstack([np.tile(n, (len(corners), 1)), np.cross(corners - p_ee_base_m, n)])
     return rows, -rate_1_s * (heights_m(corners, plane) - min_height_m)
-
-
-def keep_above(
-    twist_base_ee: FloatArray,
-    corners_base_m: FloatArray,
-    p_ee_base_m: FloatArray,
-    plane: Plane,
-    min_height_m: float,
-    rate_1_s: float,
-) -> tuple[FloatArray, bool]:
-    """``twist_base_ee`` (v, ω at the end-effector origin, base frame) lifted so that no
-    corner's height falls faster than ``rate_1_s · (h − min_height_m)``; and whether it was.
-    A corner below ``min_height_m`` is asked to rise at that rate."""
-    rows, bounds = clearance_bounds(corners_base_m, p_ee_base_m, plane, min_height_m, rate_1_s)
-    return lift_short(np.asarray(twist_base_ee, dtype=float), rows, bounds, plane.normal)
 
 
 def lift_short(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.controller.clearance import Plane, clearance_bounds, keep_above
+from services.controller.clearance import Plane, clearance_bounds, lift_short
 from services.controller.constrained import RIDGE, least_feature_change
 
 FLOOR = Plane(np.zeros(3), np.array([0.0, 1.0, 0.0]))
@@ -60,7 +60,7 @@ def test_every_corner_is_kept_and_the_image_changes_less_than_by_lifting(seed: i
     out, corrected = least_feature_change(twist, rows, bounds, w)
     assert corrected and np.all(rows @ out >= bounds - 1e-9)
     change = np.linalg.norm(w @ (out - twist))
-    lifted, _ = keep_above(twist, BOX, EE, FLOOR, 0.002, 3.0)
+    lifted, _ = lift_short(twist, rows, bounds, FLOOR.normal)
     assert np.all(rows @ lifted >= bounds - 1e-9)
     assert change < np.linalg.norm(w @ (lifted - twist))
     for _ in range(2000):
