@@ -4,7 +4,6 @@ the failure taxonomy per strategy, and the issue's figures against its goals."""
 from __future__ import annotations
 
 import re
-import statistics
 from collections import Counter
 from collections.abc import Mapping
 from typing import Any
@@ -12,12 +11,17 @@ from typing import Any
 from deploy.docs.bench_tables import link
 from deploy.docs.sources import CAMPAIGN_JSON, RESULTS_JSON, CampaignVariant, Inputs
 from deploy.experiments.campaign.causes import CAUSES, cause_family
-from deploy.experiments.campaign.rates import interval_cell
+from deploy.experiments.campaign.tally import (
+    DOCS_STYLE,
+    ON_GOAL,
+    REFUSED,
+    TALLY_HEADERS,
+    RunOutcome,
+    StrategyTally,
+)
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.compare.summary import markdown_table
 
-REFUSED = "refused at start"
-ON_GOAL = "converged"  # the campaign's cause of a run that ended on its goal
 RATES_PY = "deploy/experiments/campaign/rates.py"  # the success rates' interval, linked
 
 
@@ -60,14 +64,11 @@ def _runs(inputs: Inputs) -> tuple[list[Mapping[str, Any]], list[str], set[str],
     return runs, modes, starts, refused
 
 
-def _medians(won: list[Mapping[str, Any]]) -> list[str]:
-    """Median frames and median path ratio of the runs on goal ("–" without any)."""
-    frames = [r["frames"] for r in won if r.get("frames") is not None]
-    ratios = [r["path_ratio"] for r in won if r.get("path_ratio") is not None]
-    return [
-        f"{statistics.median(frames):g}" if frames else "–",
-        f"{statistics.median(ratios):.3f}" if ratios else "–",
-    ]
+def _tally(label: str, records: list[Mapping[str, Any]]) -> StrategyTally:
+    """The tally of a table row's ``causes.json`` records (frames and path ratio may be
+    missing where the record has none)."""
+    outcomes = (RunOutcome(r["cause"], r.get("frames"), r.get("path_ratio")) for r in records)
+    return StrategyTally.tally(label, outcomes)
 
 
 def campaign_summary(inputs: Inputs, here: str) -> str:
@@ -78,13 +79,12 @@ def campaign_summary(inputs: Inputs, here: str) -> str:
     runs, modes, starts, refused = _runs(inputs)
     body = []
     for mode, own in _rows_of(inputs, runs, modes, summary=True):
-        ran = [r for r in own if r["cause"] != REFUSED]
-        won = [r for r in ran if r["cause"] == ON_GOAL]
-        failures = Counter(r["cause"] for r in ran if r["cause"] != ON_GOAL)
-        worst = ", ".join(f"{c} {n}" for c, n in failures.most_common(3)) or "–"
-        share = f"{100.0 * len(won) / len(ran):.1f}% ({len(won)}/{len(ran)})" if ran else "–"
-        interval = interval_cell(len(won), len(ran))
-        body.append([mode, str(len(ran)), share, interval, *_medians(won), worst])
+        tally = _tally(mode, own)
+        worst = ", ".join(f"{c} {n}" for c, n in tally.failures[:3]) or "–"
+        success = tally.success_cell(DOCS_STYLE)
+        share = f"{success} ({tally.on_goal}/{tally.runs})" if tally.runs else success
+        medians = tally.median_cells(DOCS_STYLE)
+        body.append([mode, str(tally.runs), share, tally.interval_cell(), *medians, worst])
     headers = ["strategy", "starts run", "on goal", "95% interval", "median frames"]
     headers += ["median path ratio", "commonest failures"]
     return (
@@ -107,23 +107,10 @@ def campaign_taxonomy(inputs: Inputs, here: str) -> str:
     causes = [c for c in CAUSES if c not in (ON_GOAL, REFUSED)]
     body = []
     for mode, own in _rows_of(inputs, runs, modes):
-        ran = [r for r in own if r["cause"] != REFUSED]
-        won = [r for r in ran if r["cause"] == ON_GOAL]
-        families = Counter(cause_family(r["cause"]) for r in ran)
-        body.append(
-            [
-                mode,
-                str(len(ran)),
-                str(len(won)),
-                f"{100.0 * len(won) / len(ran):.1f}%" if ran else "–",
-                interval_cell(len(won), len(ran)),
-                *_medians(won),
-                str(refused),
-                *(str(families.get(c, 0)) for c in causes),
-            ]
-        )
-    headers = ["strategy", "runs", "on goal", "success", "95% interval", "median frames"]
-    headers += ["median path ratio", "refused at start", *causes]
+        tally = _tally(mode, own)
+        counts = [str(tally.family_count(c)) for c in causes]
+        body.append([*tally.cells(DOCS_STYLE), str(refused), *counts])
+    headers = [*TALLY_HEADERS, REFUSED, *causes]
     return (
         markdown_table(headers, body, right_from=1)
         + f"\n\n*Success: on goal out of the runs (the non-refused starts); 95% interval: its "

@@ -11,6 +11,7 @@ exactly one named cause; starts the pre-launch check refuses are counted with it
 Modules: :mod:`.starts` (the distribution and :func:`~.starts.draw_start`, each start from its
 own generator, ``default_rng([seed, i])``: the same starts whatever N), :mod:`.causes` (one
 named cause per run), :mod:`.report` (campaign.md, causes.json, starts.json), :mod:`.rates`
-(how sure a success rate is: its Wilson interval), all pure; and :mod:`.run` (draw, plan, run
-and write a campaign). The command line is in :mod:`deploy.experiments.cli`.
+(how sure a success rate is: its Wilson interval), :mod:`.tally` (the runs counted per
+strategy, for campaign.md and the docs' tables alike), all pure; and :mod:`.run` (draw, plan,
+run and write a campaign). The command line is in :mod:`deploy.experiments.cli`.
 """

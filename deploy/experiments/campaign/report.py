@@ -10,9 +10,15 @@ from dataclasses import asdict
 
 from pydantic import BaseModel
 
-from deploy.experiments.campaign.causes import CAUSES, cause_family, close_at_end, failure_cause
-from deploy.experiments.campaign.rates import interval_cell
+from deploy.experiments.campaign.causes import CAUSES, close_at_end, failure_cause
 from deploy.experiments.campaign.starts import Distribution, Start
+from deploy.experiments.campaign.tally import (
+    ON_GOAL,
+    REPORT_STYLE,
+    TALLY_HEADERS,
+    RunOutcome,
+    StrategyTally,
+)
 from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
 from deploy.experiments.compare.summary import format_cell, markdown_table
 
@@ -49,14 +55,6 @@ def campaign_rows(starts: Sequence[Start], rows: Sequence[CompareRow], modes: Se
     return out
 
 
-def _median(values: Sequence[float | int | None]) -> float | None:
-    present = sorted(float(v) for v in values if v is not None)
-    if not present:
-        return None
-    mid = len(present) // 2
-    return present[mid] if len(present) % 2 else 0.5 * (present[mid - 1] + present[mid])
-
-
 def taxonomy_markdown(
     starts: Sequence[Start], rows: Sequence[CompareRow], modes: Sequence[str], dist: Distribution
 ) -> str:
@@ -66,27 +64,15 @@ def taxonomy_markdown(
     cause."""
     crows = campaign_rows(starts, rows, modes)
     refused = [s for s in starts if s.refused]
-    headers = ["strategy", "runs", "on goal", "success", "95% interval", "median frames"]
-    headers += ["median path ratio", "< 1 px, < 5 mm at the end"]
-    first_cause = len(headers)
-    headers += [c for c in CAUSES if c not in ("converged",)]
+    causes = [c for c in CAUSES if c != ON_GOAL]
+    headers = [*TALLY_HEADERS, "< 1 px, < 5 mm at the end", *causes]
     body = []
     for mode in modes:
-        mine = [r for r in rows if r.mode == mode]
-        ok = [r for r in mine if failure_cause(r) == "converged"]
-        counts = Counter(cause_family(r.cause) for r in crows if r.mode == mode)
-        cells = [
-            mode,
-            str(len(mine)),
-            str(len(ok)),
-            format_cell(len(ok) / len(mine) if mine else None, 100.0, ".1f") + "%",
-            interval_cell(len(ok), len(mine)),
-            format_cell(_median([r.frames for r in ok]), 1.0, ".0f"),
-            format_cell(_median([r.path_ratio for r in ok]), 1.0, ".3f"),
-            str(sum(close_at_end(r) for r in mine)),
-        ]
-        cells += [str(counts.get(c, 0)) for c in headers[first_cause:]]
-        body.append(cells)
+        outcomes = [RunOutcome(r.cause, r.frames, r.path_ratio) for r in crows if r.mode == mode]
+        tally = StrategyTally.tally(mode, outcomes)
+        close = sum(close_at_end(r) for r in rows if r.mode == mode)
+        counts = [str(tally.family_count(c)) for c in causes]
+        body.append([*tally.cells(REPORT_STYLE), str(close), *counts])
     reasons = Counter(s.refused for s in refused)
     redraws: Counter[str] = Counter()
     for s in starts:

@@ -1,0 +1,134 @@
+"""A campaign's runs counted per strategy, and the table cells that show the counts. Pure.
+
+campaign.md (:mod:`.report`, from the campaign's rows) and the docs' campaign tables
+(:mod:`deploy.docs.campaign_tables`, from ``causes.json``) show the same figures per strategy:
+runs, on goal, success, its Wilson interval, medians of the runs on goal, and the count of each
+cause family. Both read them from one :class:`StrategyTally`, so that what is counted, and how a
+cell writes it, is decided once.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import Counter
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import NamedTuple
+
+from deploy.experiments.campaign.causes import cause_family
+from deploy.experiments.campaign.rates import interval_cell
+
+ON_GOAL = "converged"  # the cause of a run that ended on its goal
+REFUSED = "refused at start"  # the cause of a start the pre-launch check refused: not a run
+
+# The columns every per-strategy table of a campaign begins with (:meth:`StrategyTally.cells`).
+TALLY_HEADERS = (
+    "strategy",
+    "runs",
+    "on goal",
+    "success",
+    "95% interval",
+    "median frames",
+    "median path ratio",
+)
+
+
+class RunOutcome(NamedTuple):
+    """What the tally reads of one run or refused start: its cause, and its frames and path
+    ratio where it ran (None where the run has none, or the start was refused)."""
+
+    cause: str
+    frames: int | None = None
+    path_ratio: float | None = None
+
+
+@dataclass(frozen=True)
+class CellStyle:
+    """How a table writes the tally's success and median frames. campaign.md and the docs have
+    written them each their own way; both ways are kept here, side by side, so that neither
+    output changes.
+
+    ``percent_from_share``: the percent as (on goal / runs) × 100 (campaign.md) rather than
+    100 × on goal / runs (the docs); the two round apart where the percent is a half at one
+    decimal (23 of 80: 28.7% and 28.8%). ``no_runs``: the success cell without any run.
+    ``frames_format``: the median frames' format spec (".0f" rounds a median between two
+    runs, 83.5, to 84; "g" writes it as 83.5)."""
+
+    percent_from_share: bool
+    no_runs: str
+    frames_format: str
+
+
+REPORT_STYLE = CellStyle(percent_from_share=True, no_runs="–%", frames_format=".0f")
+DOCS_STYLE = CellStyle(percent_from_share=False, no_runs="–", frames_format="g")
+
+
+def _median(values: Iterable[float | int | None]) -> float | None:
+    """The median of the values given (None where there are none)."""
+    present = [float(v) for v in values if v is not None]
+    return statistics.median(present) if present else None
+
+
+@dataclass(frozen=True)
+class StrategyTally:
+    """One strategy's (or variant's) runs counted: ``runs`` (refused starts left out, as they
+    never ran), ``on_goal`` among them, the median frames and path ratio of the runs on goal,
+    ``families`` (the count of every cause family, refused starts included under
+    :data:`REFUSED`) and ``failures`` (each cause of a run not on its goal with its count,
+    commonest first; ties in the order the causes first came)."""
+
+    label: str
+    runs: int
+    on_goal: int
+    median_frames: float | None
+    median_path_ratio: float | None
+    families: Mapping[str, int]
+    failures: tuple[tuple[str, int], ...]
+
+    @classmethod
+    def tally(cls, label: str, outcomes: Iterable[RunOutcome]) -> StrategyTally:
+        """The tally of ``outcomes``, a strategy's runs and refused starts, labelled ``label``."""
+        every = list(outcomes)
+        ran = [o for o in every if o.cause != REFUSED]
+        won = [o for o in ran if o.cause == ON_GOAL]
+        return cls(
+            label=label,
+            runs=len(ran),
+            on_goal=len(won),
+            median_frames=_median(o.frames for o in won),
+            median_path_ratio=_median(o.path_ratio for o in won),
+            families=dict(Counter(cause_family(o.cause) for o in every)),
+            failures=tuple(Counter(o.cause for o in ran if o.cause != ON_GOAL).most_common()),
+        )
+
+    def success_cell(self, style: CellStyle) -> str:
+        """``96.3%``: the share of the runs on goal (``style.no_runs`` without any run)."""
+        if not self.runs:
+            return style.no_runs
+        if style.percent_from_share:
+            percent = self.on_goal / self.runs * 100.0
+        else:
+            percent = 100.0 * self.on_goal / self.runs
+        return f"{percent:.1f}%"
+
+    def interval_cell(self) -> str:
+        """``94.2–97.6%``: the success's 95% Wilson interval ("–" without any run)."""
+        return interval_cell(self.on_goal, self.runs)
+
+    def median_cells(self, style: CellStyle) -> list[str]:
+        """Median frames and median path ratio of the runs on goal ("–" without any)."""
+        frames, ratio = self.median_frames, self.median_path_ratio
+        return [
+            "–" if frames is None else format(frames, style.frames_format),
+            "–" if ratio is None else f"{ratio:.3f}",
+        ]
+
+    def cells(self, style: CellStyle) -> list[str]:
+        """The cells under :data:`TALLY_HEADERS`: label, runs, on goal, success, its interval,
+        median frames and median path ratio."""
+        counts = [self.label, str(self.runs), str(self.on_goal)]
+        return [*counts, self.success_cell(style), self.interval_cell(), *self.median_cells(style)]
+
+    def family_count(self, family: str) -> int:
+        """How many of the outcomes fell in the cause ``family`` (0 where none)."""
+        return self.families.get(family, 0)
