@@ -12,7 +12,6 @@ from deploy.docs.bench_tables import link
 from deploy.docs.sources import CAMPAIGN_JSON, RESULTS_JSON, CampaignVariant, Inputs
 from deploy.experiments.campaign.causes import CAUSES, cause_family
 from deploy.experiments.campaign.tally import (
-    DOCS_STYLE,
     ON_GOAL,
     REFUSED,
     TALLY_HEADERS,
@@ -81,9 +80,9 @@ def campaign_summary(inputs: Inputs, here: str) -> str:
     for mode, own in _rows_of(inputs, runs, modes, summary=True):
         tally = _tally(mode, own)
         worst = ", ".join(f"{c} {n}" for c, n in tally.failures[:3]) or "–"
-        success = tally.success_cell(DOCS_STYLE)
+        success = tally.success_cell()
         share = f"{success} ({tally.on_goal}/{tally.runs})" if tally.runs else success
-        medians = tally.median_cells(DOCS_STYLE)
+        medians = tally.median_cells()
         body.append([mode, str(tally.runs), share, tally.interval_cell(), *medians, worst])
     headers = ["strategy", "starts run", "on goal", "95% interval", "median frames"]
     headers += ["median path ratio", "commonest failures"]
@@ -109,7 +108,7 @@ def campaign_taxonomy(inputs: Inputs, here: str) -> str:
     for mode, own in _rows_of(inputs, runs, modes):
         tally = _tally(mode, own)
         counts = [str(tally.family_count(c)) for c in causes]
-        body.append([*tally.cells(DOCS_STYLE), str(refused), *counts])
+        body.append([*tally.cells(), str(refused), *counts])
     headers = [*TALLY_HEADERS, REFUSED, *causes]
     return (
         markdown_table(headers, body, right_from=1)

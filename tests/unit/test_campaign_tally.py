@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 from deploy.experiments.campaign.tally import (
-    DOCS_STYLE,
-    REPORT_STYLE,
     TALLY_HEADERS,
     RunOutcome,
     StrategyTally,
@@ -45,19 +43,15 @@ def test_the_medians_are_of_the_runs_on_goal_only() -> None:
 
 def test_the_cells_give_the_share_its_wilson_interval_and_the_medians() -> None:
     tally = StrategyTally.tally("dynamic", OUTCOMES)
-    assert len(tally.cells(DOCS_STYLE)) == len(TALLY_HEADERS)
+    assert len(tally.cells()) == len(TALLY_HEADERS)
     # 2 of 6: 33.3%, and its Wilson interval (9.68–70.00% by the closed form)
-    assert tally.cells(DOCS_STYLE) == ["dynamic", "6", "2", "33.3%", "9.7–70.0%", "85.5", "1.250"]
-    # campaign.md writes the median frames to a whole frame (85.5: rounded half to even)
-    assert tally.cells(REPORT_STYLE)[-2:] == ["86", "1.250"]
+    assert tally.cells() == ["dynamic", "6", "2", "33.3%", "9.7–70.0%", "85.5", "1.250"]
 
 
-def test_the_two_styles_keep_their_own_percent_and_empty_cells() -> None:
+def test_a_strategy_without_runs_has_no_share_and_no_medians() -> None:
     half = StrategyTally.tally("mpj", [RunOutcome("converged")] * 23 + [RunOutcome("timeout")] * 57)
-    assert half.success_cell(REPORT_STYLE) == "28.7%"  # 23 / 80 × 100 falls just below 28.75
-    assert half.success_cell(DOCS_STYLE) == "28.8%"  # 100 × 23 / 80 is 28.75, to even
+    assert half.success_cell() == "28.8%"  # 100 × 23 / 80 is 28.75, to even
     assert half.interval_cell() == "20.0–39.5%"
     refused = StrategyTally.tally("constant", [RunOutcome("refused at start")] * 3)
     assert (refused.runs, refused.on_goal, refused.family_count("refused at start")) == (0, 0, 3)
-    assert refused.cells(DOCS_STYLE) == ["constant", "0", "0", "–", "–", "–", "–"]
-    assert refused.success_cell(REPORT_STYLE) == "–%"
+    assert refused.cells() == ["constant", "0", "0", "–", "–", "–", "–"]

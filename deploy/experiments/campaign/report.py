@@ -14,7 +14,6 @@ from deploy.experiments.campaign.causes import CAUSES, close_at_end, failure_cau
 from deploy.experiments.campaign.starts import Distribution, Start
 from deploy.experiments.campaign.tally import (
     ON_GOAL,
-    REPORT_STYLE,
     TALLY_HEADERS,
     RunOutcome,
     StrategyTally,
@@ -72,7 +71,7 @@ def taxonomy_markdown(
         tally = StrategyTally.tally(mode, outcomes)
         close = sum(close_at_end(r) for r in rows if r.mode == mode)
         counts = [str(tally.family_count(c)) for c in causes]
-        body.append([*tally.cells(REPORT_STYLE), str(close), *counts])
+        body.append([*tally.cells(), str(close), *counts])
     reasons = Counter(s.refused for s in refused)
     redraws: Counter[str] = Counter()
     for s in starts:

@@ -42,27 +42,6 @@ class RunOutcome(NamedTuple):
     path_ratio: float | None = None
 
 
-@dataclass(frozen=True)
-class CellStyle:
-    """How a table writes the tally's success and median frames. campaign.md and the docs have
-    written them each their own way; both ways are kept here, side by side, so that neither
-    output changes.
-
-    ``percent_from_share``: the percent as (on goal / runs) × 100 (campaign.md) rather than
-    100 × on goal / runs (the docs); the two round apart where the percent is a half at one
-    decimal (23 of 80: 28.7% and 28.8%). ``no_runs``: the success cell without any run.
-    ``frames_format``: the median frames' format spec (".0f" rounds a median between two
-    runs, 83.5, to 84; "g" writes it as 83.5)."""
-
-    percent_from_share: bool
-    no_runs: str
-    frames_format: str
-
-
-REPORT_STYLE = CellStyle(percent_from_share=True, no_runs="–%", frames_format=".0f")
-DOCS_STYLE = CellStyle(percent_from_share=False, no_runs="–", frames_format="g")
-
-
 def _median(values: Iterable[float | int | None]) -> float | None:
     """The median of the values given (None where there are none)."""
     present = [float(v) for v in values if v is not None]
@@ -101,33 +80,28 @@ class StrategyTally:
             failures=tuple(Counter(o.cause for o in ran if o.cause != ON_GOAL).most_common()),
         )
 
-    def success_cell(self, style: CellStyle) -> str:
-        """``96.3%``: the share of the runs on goal (``style.no_runs`` without any run)."""
-        if not self.runs:
-            return style.no_runs
-        if style.percent_from_share:
-            percent = self.on_goal / self.runs * 100.0
-        else:
-            percent = 100.0 * self.on_goal / self.runs
-        return f"{percent:.1f}%"
+    def success_cell(self) -> str:
+        """``96.3%``: the share of the runs on goal ("–" without any run)."""
+        return f"{100.0 * self.on_goal / self.runs:.1f}%" if self.runs else "–"
 
     def interval_cell(self) -> str:
         """``94.2–97.6%``: the success's 95% Wilson interval ("–" without any run)."""
         return interval_cell(self.on_goal, self.runs)
 
-    def median_cells(self, style: CellStyle) -> list[str]:
-        """Median frames and median path ratio of the runs on goal ("–" without any)."""
+    def median_cells(self) -> list[str]:
+        """Median frames (83.5 between two runs) and median path ratio of the runs on goal
+        ("–" without any)."""
         frames, ratio = self.median_frames, self.median_path_ratio
         return [
-            "–" if frames is None else format(frames, style.frames_format),
+            "–" if frames is None else f"{frames:g}",
             "–" if ratio is None else f"{ratio:.3f}",
         ]
 
-    def cells(self, style: CellStyle) -> list[str]:
+    def cells(self) -> list[str]:
         """The cells under :data:`TALLY_HEADERS`: label, runs, on goal, success, its interval,
         median frames and median path ratio."""
         counts = [self.label, str(self.runs), str(self.on_goal)]
-        return [*counts, self.success_cell(style), self.interval_cell(), *self.median_cells(style)]
+        return [*counts, self.success_cell(), self.interval_cell(), *self.median_cells()]
 
     def family_count(self, family: str) -> int:
         """How many of the outcomes fell in the cause ``family`` (0 where none)."""
