@@ -23,6 +23,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from deploy.bench.text import format_report
     from deploy.launch.run import prepare
 
+    if args.workflows:
+        return workflows(args)
     size = args.size.lower().split("x")
     if len(size) != 2 or not all(p.isdigit() for p in size):
         print(f"umay bench: --size {args.size!r}: expected WxH, e.g. 640x480", file=sys.stderr)
@@ -77,7 +79,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 1
     result = runs[0] if len(runs) == 1 else median_of_runs(runs)
     print(format_report(result))
-    try:  # checked before the runs; this fails only if the disk changed since (full, say)
+
+    def write() -> None:
         if args.json:
             write_json(result, args.json)
         if args.figure:
@@ -86,6 +89,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
             # frame by frame: the first run
             write_bench_figure(runs[0].to_json(), Path(args.figure))
             print(f"figure: {args.figure}" + (" (the first run)" if len(runs) > 1 else ""))
+
+    return written(write)
+
+
+def written(write: Callable[[], object]) -> int:
+    """The exit code of writing the results: 1, said, when the disk refuses. The paths were
+    checked before the runs; this fails only if the disk changed since (full, say)."""
+    try:
+        write()
     except OSError as exc:
         print(f"umay bench: could not write the results: {exc}", file=sys.stderr)
         return 1
@@ -170,13 +182,48 @@ def alternate(
         pairs=pairs,
     )
     print(format_alternation(report))
+    return written(lambda: args.json and write_alternation(report, args.json))
+
+
+def workflows(args: argparse.Namespace) -> int:
+    """``--workflows``: ``make run``, ``umay compare`` and ``make test`` timed on fresh clones
+    (:mod:`deploy.bench.workflows`); the loop's own options do not apply."""
+    from deploy.bench import BenchError
+    from deploy.bench.processes import code_version
+    from deploy.bench.workflows import format_workflows, run_workflows, write_workflows
+
+    loop_only = {
+        "--alternate": args.alternate is not None,
+        "--figure": bool(args.figure),
+        "--view": args.view,
+        "--scenario": args.scenario is not None,
+        "--set": bool(args.set),
+        "--no-shm": args.no_shm,
+    }
+    given = [name for name, on in loop_only.items() if on]
+    if given:
+        print(
+            f"umay bench: --workflows times commands on fresh clones; {', '.join(given)} "
+            "apply to the loop's bench only",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
     if args.json:
-        try:
-            write_alternation(report, args.json)
-        except OSError as exc:
-            print(f"umay bench: could not write the results: {exc}", file=sys.stderr)
-            return 1
-    return 0
+        check_output_file("--json", args.json)
+    log_dir = check_output_dir("--log-dir", args.log_dir)
+    if (code_version() or "").endswith("-dirty"):
+        print(
+            "umay bench: the checkout has uncommitted changes; the clones hold its last commit",
+            file=sys.stderr,
+        )
+    say = say_phase(0, 1, "workflows: ")
+    try:
+        report = run_workflows(Path(log_dir) / "workflows", typed_command(), on_step=say)
+    except BenchError as exc:
+        print(f"umay bench: {exc}", file=sys.stderr)
+        return 1
+    print(format_workflows(report))
+    return written(lambda: args.json and write_workflows(report, args.json))
 
 
 def typed_command() -> str:
@@ -243,6 +290,12 @@ def add_bench_parser(sub: argparse._SubParsersAction) -> None:
         "(--pairs pairs) and compare their headline figures; --json writes the pairs",
     )
     p.add_argument("--pairs", type=int, default=3, help="pairs of runs with --alternate")
+    p.add_argument(
+        "--workflows",
+        action="store_true",
+        help="instead of the loop: time `make run` (fresh, then installed), `umay compare "
+        "--jobs 2` and `make test` on fresh clones of this checkout's commit (minutes)",
+    )
     p.set_defaults(func=cmd_bench)
 
 

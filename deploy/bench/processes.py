@@ -4,6 +4,7 @@ from ``/proc/<pid>``, the services coming up, their stamps and their own counter
 from __future__ import annotations
 
 import os
+import platform
 import time
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import zenoh
 from common.keys import Keys
 from common.queries import alive_services, query_stamps, query_status
 from deploy.bench import BenchError
-from deploy.bench.report import KeyCounts, ServiceCounters, ServiceUsage
+from deploy.bench.report import KeyCounts, Machine, ServiceCounters, ServiceUsage
 from deploy.bench.stages import PIPELINE
 from deploy.bench.trace import Trace
 from deploy.supervisor import Supervisor
@@ -191,3 +192,19 @@ def zenoh_version() -> str:
         return version("eclipse-zenoh")
     except PackageNotFoundError:
         return "unknown"
+
+
+def this_machine(load_start: list[float], code: str | None) -> Machine:
+    """This host as a report records it: CPUs, Python and Zenoh, the load when the measurement
+    began (``load_start``) and now, and the ``code`` measured (:func:`code_version`)."""
+    return Machine(
+        host=platform.node(),
+        cpus=os.cpu_count(),
+        processor=platform.processor() or platform.machine(),
+        cpu_model=cpu_model(),
+        python=platform.python_version(),
+        zenoh=zenoh_version(),
+        load_start=load_start,
+        load_end=machine_load(),
+        code=code,
+    )

@@ -3,8 +3,6 @@ frames, the synthetic 30 Hz source and the renderers' cost, in one report."""
 
 from __future__ import annotations
 
-import os
-import platform
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,13 +12,12 @@ from common.config import ClockMode, Scenario
 from common.keys import Keys
 from deploy.bench.distributed import Observer, run_distributed
 from deploy.bench.inprocess import run_inprocess
-from deploy.bench.processes import code_version, cpu_model, machine_load, zenoh_version
+from deploy.bench.processes import code_version, this_machine
 from deploy.bench.render import REFERENCE_RENDERER, run_render_bench
 from deploy.bench.report import (
     BenchConfig,
     BenchReport,
     DistributionAdds,
-    Machine,
     Ratios,
     ReferenceLoop,
     Velocities,
@@ -133,17 +130,7 @@ def run_bench(
 
     return BenchReport(
         command=command,
-        machine=Machine(
-            host=platform.node(),
-            cpus=os.cpu_count(),
-            processor=platform.processor() or platform.machine(),
-            cpu_model=cpu_model(),
-            python=platform.python_version(),
-            zenoh=zenoh_version(),
-            load_start=distributed.load_before,
-            load_end=machine_load(),
-            code=code_version(),
-        ),
+        machine=this_machine(distributed.load_before, code_version()),
         config=BenchConfig(
             width_px=cam.width_px,
             height_px=cam.height_px,

@@ -13,6 +13,7 @@ from deploy.docs.sources import (
     KINECT_REALTIME_RUN,
     LOCKSTEP_RUN,
     STARTUP_FRAMES,
+    WORKFLOWS_RUN,
     BenchRun,
     Inputs,
 )
@@ -168,11 +169,50 @@ def bench_headline(inputs: Inputs, here: str) -> str:
             ]
         )
         sources.append(awake)
+    timed = inputs.optional_workflows(WORKFLOWS_RUN)
+    if timed is not None:  # the user's commands, timed on fresh clones
+        rows += workflow_rows(timed.data)
+        sources.append(timed)
     return (
         markdown_table(["figure (640×480 at 30 Hz)", "measured", "goal"], rows, right_from=1)
         + "\n\n"
         + _sources(here, sources)
     )
+
+
+def workflow_rows(data: Mapping[str, Any]) -> list[list[str]]:
+    """The goals' rows of a ``umay bench --workflows`` report: ``make run`` installed (and on
+    a fresh clone), the whole comparison, ``make test`` on a fresh clone."""
+    wall = {t["name"]: t["wall_s"] for t in data["timings"]}
+
+    def minutes(name: str) -> str:
+        return f"{wall[name] / 60.0:.1f} min" if name in wall else "–"
+
+    def seconds(name: str) -> str:
+        return f"{wall[name]:.1f} s" if name in wall else "–"
+
+    return [
+        [
+            "`make run`, installed (on a fresh clone, the venv and its install included)",
+            f"{seconds('make_run')} ({seconds('make_run_fresh')})",
+            "≤ 6 s",
+        ],
+        ["`umay compare`, the whole suite, `--jobs 2`", minutes("compare"), "≤ 1.5 min"],
+        ["`make test` on a fresh clone", minutes("make_test_fresh"), "≤ 4 min"],
+    ]
+
+
+def bench_workflows(inputs: Inputs, here: str) -> str:
+    """Each ``umay bench --workflows`` report: every command it timed, in order."""
+    parts = []
+    for r in inputs.workflows:
+        body = [[f"`{t['command']}`", t["what"], f"{t['wall_s']:.1f}"] for t in r.data["timings"]]
+        parts.append(
+            _caption(here, r.name, r.path, r.data["command"], r.data["machine"])
+            + markdown_table(["command", "what", "wall (s)"], body, right_from=2)
+        )
+    not_run = "*Not run yet: `umay bench --workflows --json docs/bench/workflows/fresh_clone.json`*"
+    return "\n\n".join(parts) or not_run
 
 
 def bench_runs(inputs: Inputs, here: str) -> str:
@@ -196,7 +236,7 @@ def bench_runs(inputs: Inputs, here: str) -> str:
 
 def bench_commands(inputs: Inputs, here: str) -> str:
     """The commands that made the runs, as they were typed."""
-    lines = [f"{r.data['command']}" for r in inputs.bench]
+    lines = [f"{r.data['command']}" for r in (*inputs.bench, *inputs.workflows)]
     return "```sh\n" + "\n".join(lines) + "\numay docs\n```"
 
 

@@ -18,6 +18,7 @@ from deploy.docs.bench_tables import (
     bench_runs,
     bench_services,
     bench_startup,
+    bench_workflows,
 )
 from deploy.docs.campaign_tables import campaign_goals, campaign_summary, campaign_taxonomy
 from deploy.docs.domains_tables import (
@@ -40,6 +41,7 @@ from deploy.docs.sources import (
     RESULTS_JSON,
     STARTUP_DIR,
     SUITE_CAMERA_DIR,
+    WORKFLOWS_DIR,
     Inputs,
 )
 from deploy.docs.vision_tables import vision_accuracy
@@ -57,7 +59,7 @@ BLOCKS: dict[str, Block] = {
     "results-compact": Block(results_compact, RESULTS_JSON),
     "results-strategies": Block(results_strategies, RESULTS_JSON),
     "suite-camera": Block(suite_camera, f"{SUITE_CAMERA_DIR}/*/results.json"),
-    "bench-headline": Block(bench_headline, f"{BENCH_DIR}/*.json"),
+    "bench-headline": Block(bench_headline, f"{BENCH_DIR}/*.json, {WORKFLOWS_DIR}/*.json"),
     "bench-runs": Block(bench_runs, f"{BENCH_DIR}/*.json"),
     "bench-commands": Block(bench_commands, f"{BENCH_DIR}/*.json"),
     "bench-render": Block(bench_render, f"{BENCH_DIR}/*.json"),
@@ -68,6 +70,7 @@ BLOCKS: dict[str, Block] = {
     "bench-dropped": Block(bench_dropped, f"{BENCH_DIR}/*.json"),
     "bench-alternations": Block(bench_alternations, f"{ALTERNATIONS_DIR}/*.json"),
     "bench-startup": Block(bench_startup, f"{STARTUP_DIR}/*.json"),
+    "bench-workflows": Block(bench_workflows, f"{WORKFLOWS_DIR}/*.json"),
     "bench-hosts": Block(bench_hosts, f"{BENCH_DIR}/{LOCKSTEP_RUN}.json, {HOSTS_DIR}/*.json"),
     "campaign-summary": Block(campaign_summary, CAMPAIGN_SOURCES),
     "campaign-taxonomy": Block(campaign_taxonomy, CAMPAIGN_SOURCES),

@@ -20,6 +20,9 @@ ALTERNATIONS_DIR = "docs/bench/alternations"
 STARTUP_DIR = "docs/bench/startup"
 # The headline lockstep run's command on other hosts of the machine class, one JSON each.
 HOSTS_DIR = "docs/bench/hosts"
+# umay bench --workflows: make run, umay compare and make test timed on fresh clones.
+WORKFLOWS_DIR = "docs/bench/workflows"
+WORKFLOWS_RUN = "fresh_clone"  # the one whose figures stand against issue 26's goals
 # Frames shown one by one from a run's start; the rest are summed up by their median.
 STARTUP_FRAMES = 10
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
@@ -89,6 +92,7 @@ class Inputs:
     alternations: Sequence[tuple[str, Any]] = ()  # (file stem, AlternationReport), by name
     startup: Sequence[BenchRun] = ()  # runs without warm-up frames (STARTUP_DIR), by name
     hosts: Sequence[BenchRun] = ()  # the headline lockstep run on other hosts (HOSTS_DIR)
+    workflows: Sequence[BenchRun] = ()  # the user's commands timed (WORKFLOWS_DIR), by name
     domains: Any = None  # the domain study (deploy.experiments.domains.report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
@@ -107,6 +111,9 @@ class Inputs:
 
     def optional_run(self, name: str) -> BenchRun | None:
         return next((r for r in self.bench if r.name == name), None)
+
+    def optional_workflows(self, name: str) -> BenchRun | None:
+        return next((r for r in self.workflows if r.name == name), None)
 
 
 def _bench_runs(root: Path, folder: str) -> list[BenchRun]:
@@ -136,6 +143,7 @@ def load_inputs(root: Path) -> Inputs:
         ]
         startup = _bench_runs(root, STARTUP_DIR)
         hosts = _bench_runs(root, HOSTS_DIR)
+        workflows = _bench_runs(root, WORKFLOWS_DIR)
         domains = None
         if (root / DOMAINS_JSON).is_file():
             domains = load_study_json(root / DOMAINS_JSON)
@@ -162,6 +170,7 @@ def load_inputs(root: Path) -> Inputs:
         alternations=alternations,
         startup=startup,
         hosts=hosts,
+        workflows=workflows,
         domains=domains,
         executors=executors,
         campaign=campaign,

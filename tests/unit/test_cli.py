@@ -87,6 +87,8 @@ REFUSED = [
     case("bench", "--repeat", "0", "--log-dir", "logs", says="umay bench"),
     case("bench", "--json", f"{FILE}/b.json", "--log-dir", "logs", says=f"--json {FILE}/b.json:"),
     case("bench", "--figure", "b.txt", "--log-dir", "logs", says="umay bench: --figure b.txt:"),
+    case("bench", "--workflows", "--set", "a.b=1", "--log-dir", "logs", says="fresh clones; --set"),
+    case("bench", "--workflows", "--json", f"{FILE}/w.json", says=f"--json {FILE}/w.json:"),
     case("replay", "none.mcap", "--service", "vision", says="no such file"),
     case("replay", REFERENCE, "--service", "sim", says="unknown service"),
     case(*REPLAY, "--speed", "fast", says="--speed"),
