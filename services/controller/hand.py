@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics
 from common.marker import Marker
+from services.controller.acquisition import border_distance_px
 
 FloatArray = NDArray[np.float64]
 
@@ -41,10 +42,7 @@ def carried_by_encoders(
     if np.any(points[:, 2] <= 1e-3):
         return None
     carried = Marker.seen_at(points, k, last_hand.depth_sigma_m)
-    u, v = carried.corners_px[:, 0], carried.corners_px[:, 1]
-    if np.any(u < 0) or np.any(v < 0) or np.any(u > k.width_px) or np.any(v > k.height_px):
-        return None
-    return carried
+    return None if border_distance_px(carried.corners_px, k) < 0.0 else carried
 
 
 @dataclass
