@@ -22,7 +22,6 @@ STARTUP_DIR = "docs/bench/startup"
 HOSTS_DIR = "docs/bench/hosts"
 # umay bench --workflows: make run, umay compare and make test timed on fresh clones.
 WORKFLOWS_DIR = "docs/bench/workflows"
-WORKFLOWS_RUN = "fresh_clone"  # the one whose figures stand against issue 26's goals
 # Frames shown one by one from a run's start; the rest are summed up by their median.
 STARTUP_FRAMES = 10
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
@@ -111,9 +110,6 @@ class Inputs:
 
     def optional_run(self, name: str) -> BenchRun | None:
         return next((r for r in self.bench if r.name == name), None)
-
-    def optional_workflows(self, name: str) -> BenchRun | None:
-        return next((r for r in self.workflows if r.name == name), None)
 
 
 def _bench_runs(root: Path, folder: str) -> list[BenchRun]:

@@ -76,13 +76,15 @@ def test_a_failing_command_is_named_with_its_log_and_its_clone_removed(tmp_path:
     assert not clone.exists()
 
 
-def test_the_goals_rows_give_each_command_its_unit() -> None:
-    timings = [
-        {"name": "make_run_fresh", "command": "make run", "what": "", "wall_s": 9.04},
-        {"name": "make_run", "command": "make run", "what": "", "wall_s": 2.26},
-        {"name": "compare", "command": "umay compare", "what": "", "wall_s": 66.0},
-    ]
-    report = {"command": "umay bench --workflows", "machine": {}, "timings": timings}
-    rows = workflow_rows(report)
-    assert [r[1] for r in rows] == ["2.3 s (9.0 s)", "1.1 min", "–"]  # make test not timed
-    assert [r[2] for r in rows] == ["≤ 6 s", "≤ 1.5 min", "≤ 4 min"]
+def test_the_goals_rows_give_each_command_its_unit_and_the_range_over_runs() -> None:
+    def report(*walls: tuple[str, float]) -> dict:
+        timings = [{"name": n, "command": n, "what": "", "wall_s": w} for n, w in walls]
+        return {"command": "umay bench --workflows", "machine": {}, "timings": timings}
+
+    first = report(("make_run_fresh", 9.04), ("make_run", 2.26), ("compare", 66.0))
+    rows = workflow_rows([first])
+    assert [r[1] for r in rows] == ["2.3 s (9.0 s)", "66.0 s", "–"]  # make test not timed
+    assert [r[2] for r in rows] == ["≤ 6 s", "≤ 90 s (1.5 min)", "≤ 4 min"]
+    second = report(("make_run_fresh", 11.4), ("make_run", 2.3), ("compare", 87.1))
+    rows = workflow_rows([first, second])
+    assert [r[1] for r in rows] == ["2.3 s (9.0–11.4 s)", "66.0–87.1 s", "–"]
