@@ -75,10 +75,6 @@ class WorkflowReport(BaseModel):
     machine: Machine
     timings: list[WorkflowTiming]
 
-    def wall_s(self, name: str) -> float | None:
-        """The wall time of workflow ``name`` (None: not timed in this report)."""
-        return next((t.wall_s for t in self.timings if t.name == name), None)
-
 
 def clean_environment(env: Mapping[str, str], venv: Path) -> dict[str, str]:
     """``env`` as a new shell on the machine would have it: without this checkout's venv
@@ -155,10 +151,6 @@ def format_workflows(report: WorkflowReport) -> str:
     lines = [f"{'workflow':<18}{'wall s':>9}  command"]
     lines += [f"{t.name:<18}{t.wall_s:>9.1f}  {t.command}" for t in report.timings]
     return "\n".join(lines)
-
-
-def load_workflows(data: Mapping[str, object]) -> WorkflowReport:
-    return WorkflowReport.model_validate(data)
 
 
 def write_workflows(report: WorkflowReport, path: str | Path) -> None:
