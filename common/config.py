@@ -421,6 +421,11 @@ class SupervisorConfig(_Strict):
         "is taken as hung (a start that never ends, or a hang before its first answer) and "
         "killed; 0: never",
     )
+    launch: Literal["fork", "exec"] = Field(
+        "fork",
+        description="fork: each service a fork of a process that imported the services once "
+        "(deploy/service_process.py); exec: each a fresh `python -m services.NAME`",
+    )
     cpu_wakeup_latency_us: int | None = Field(
         None,
         ge=0,

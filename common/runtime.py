@@ -5,11 +5,12 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import select
 import signal
 import sys
 import threading
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import zenoh
@@ -104,11 +105,34 @@ def supervisor_pid(env: Mapping[str, str]) -> int | None:
     return pid if pid > 1 else None
 
 
+def process_end_watch(pid: int) -> Callable[[], bool]:
+    """A check that says whether process ``pid`` has ended. Through a pidfd where Linux has one
+    (the process itself, even if its pid is later reused); else whether the pid still exists."""
+    try:
+        pidfd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return lambda: True
+    except (AttributeError, OSError):  # no pidfd here: Python or kernel too old
+        return lambda: not _pid_exists(pid)
+    return lambda: bool(select.select([pidfd], [], [], 0)[0])  # readable once it has ended
+
+
+def _pid_exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: it exists
+        return True
+    return True
+
+
 class ServiceContext:
     """Parsed arguments, validated scenario, keys, an open Zenoh session and a stop event that
     SIGINT/SIGTERM set, and that the supervisor's end sets too: a service launched by one
-    (``$UMAY_SUPERVISOR_PID``) stops when it is no longer that process's child, so a
-    supervisor killed outright (SIGKILL, the OOM killer) leaves no service running."""
+    (``$UMAY_SUPERVISOR_PID``) stops when that process has ended, so a supervisor killed
+    outright (SIGKILL, the OOM killer) leaves no service running. A forked service's parent
+    is the forkserver, not the supervisor, so the supervisor itself is watched."""
 
     def __init__(self, service: str, argv: list[str] | None) -> None:
         args = service_arguments(service, argv)
@@ -135,9 +159,9 @@ class ServiceContext:
             threading.Thread(target=self._stop_without, args=(supervisor,), daemon=True).start()
 
     def _stop_without(self, supervisor: int) -> None:
-        """Set ``stop`` once this process is no longer ``supervisor``'s child (it was
-        re-parented: the supervisor is gone)."""
+        """Set ``stop`` once the process ``supervisor`` has ended."""
+        ended = process_end_watch(supervisor)
         while not self.stop.wait(SUPERVISOR_CHECK_S):
-            if os.getppid() != supervisor:
+            if ended():
                 log.warning("supervisor (pid %d) is gone; stopping", supervisor)
                 self.stop.set()

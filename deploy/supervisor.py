@@ -25,7 +25,6 @@ import logging
 import os
 import signal
 import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +39,7 @@ from common.queries import status_from_reply
 from common.runtime import ENV_SUPERVISOR_PID
 from common.session import ENV_CONFIG, ENV_CONNECT
 from deploy.cpu_latency import CpuWakeupLatency
+from deploy.service_process import ServiceProcess, exec_command, exec_service, fork_service
 
 log = logging.getLogger("umay.supervisor")
 
@@ -97,9 +97,10 @@ def hang_reason(
 @dataclass
 class Child:
     name: str
-    argv: list[str]
+    args: list[str]  # the service's own arguments
     log_path: Path
-    process: subprocess.Popen | None = None
+    command: list[str] | None = None  # a command line run instead of the service (tests)
+    process: ServiceProcess | None = None
     restarts: int = 0
     exit_codes: list[int] = field(default_factory=list)
     restart_times: list[float] = field(default_factory=list)
@@ -148,12 +149,7 @@ class Supervisor:
         for item in overrides or []:
             common_args += ["--set", item]
         self.children = {
-            name: Child(
-                name,
-                [sys.executable, "-m", f"services.{name}", *common_args],
-                log_dir / f"{name}.log",
-            )
-            for name in services
+            name: Child(name, common_args, log_dir / f"{name}.log") for name in services
         }
 
     def _env(self) -> dict[str, str]:
@@ -167,10 +163,13 @@ class Supervisor:
         return env
 
     def start_child(self, child: Child) -> None:
-        with child.log_path.open("ab") as out:
-            child.process = subprocess.Popen(
-                child.argv, stdout=out, stderr=subprocess.STDOUT, env=self._env()
-            )
+        env = self._env()
+        if child.command is not None:
+            child.process = exec_command(child.command, env, child.log_path)
+        elif self.config.launch == "fork":
+            child.process = fork_service(child.name, child.args, env, child.log_path)
+        else:
+            child.process = exec_service(child.name, child.args, env, child.log_path)
         child.started_s = time.monotonic()
         child.restart_due_s = None
         child.killed_as_hung = False
@@ -288,7 +287,7 @@ class Supervisor:
         self.cpu_wakeup.release()
 
     @staticmethod
-    def _ended(process: subprocess.Popen) -> None:
+    def _ended(process: ServiceProcess) -> None:
         """After a child's end: remove the frame rings it left in shared memory (a sim
         killed outright cannot unlink its own)."""
         removed = remove_segments_of(process.pid)

@@ -31,7 +31,7 @@ def test_tick_restarts_with_a_cap(tmp_path: Path) -> None:
     cfg = SupervisorConfig(backoff_initial_s=0.0, max_restarts=2, restart_window_s=60.0)
     sup = Supervisor(None, "test/x", "tcp/127.0.0.1:1", tmp_path, services=("sim",), config=cfg)
     child = sup.children["sim"]
-    child.argv = [sys.executable, "-c", "import sys; sys.exit(3)"]
+    child.command = [sys.executable, "-c", "import sys; sys.exit(3)"]
     sup.start()
     events: list[str] = []
     deadline = time.monotonic() + 20
@@ -48,7 +48,7 @@ def test_the_frame_ring_of_a_child_killed_outright_is_removed(tmp_path: Path) ->
     removes it when it sees the child gone."""
     sup = Supervisor(None, "test/x", "tcp/127.0.0.1:1", tmp_path, services=("sim",))
     child = sup.children["sim"]
-    child.argv = [sys.executable, "-c", textwrap.dedent("""
+    child.command = [sys.executable, "-c", textwrap.dedent("""
         import os, signal, numpy as np
         from common.frame_ring import RingWriter
         ring = RingWriter()
@@ -79,7 +79,7 @@ def test_a_child_stuck_in_one_step_is_killed_and_its_run_says_why(tmp_path: Path
         session=session,
     )  # fmt: skip
     child = sup.children["vision"]
-    child.argv = [sys.executable, "-c", "import time; time.sleep(60)"]
+    child.command = [sys.executable, "-c", "import time; time.sleep(60)"]
     started = time.monotonic()
 
     def answer(query) -> None:
@@ -308,10 +308,13 @@ def test_sigterm_ends_umay_run_and_its_services(tmp_path: Path) -> None:
     assert kept["detail"] == "interrupted" and not kept["converged"]
 
 
-def test_services_stop_when_their_supervisor_is_killed(tmp_path: Path) -> None:
+@pytest.mark.parametrize("launch", ["fork", "exec"])
+def test_services_stop_when_their_supervisor_is_killed(tmp_path: Path, launch: str) -> None:
     """SIGKILL (or the OOM killer) gives the supervisor no chance to stop its children: they
-    notice they were re-parented and stop themselves."""
-    proc, pids = _umay_run_until_services_run(tmp_path, "--quiet")
+    notice it has ended and stop themselves, forked (the forkserver's children) or exec'd."""
+    proc, pids = _umay_run_until_services_run(
+        tmp_path, "--quiet", "--set", f"supervisor.launch='{launch}'"
+    )
     proc.kill()
     proc.communicate(timeout=30)
     killed = time.monotonic()

@@ -3,8 +3,12 @@ hung, and which supervisor PID a service trusts."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+import time
+
 from common.config import RestartPolicy, SupervisorConfig
-from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
+from common.runtime import ENV_SUPERVISOR_PID, process_end_watch, supervisor_pid
 from deploy.supervisor import Heard, backoff_s, hang_reason, wants_restart
 
 
@@ -37,6 +41,22 @@ def test_supervisor_pid_is_read_only_when_it_is_a_pid() -> None:
     for value in ("", "abc", "-5", "1", "0"):  # 1: init, never a supervisor
         assert supervisor_pid({ENV_SUPERVISOR_PID: value}) is None
     assert supervisor_pid({}) is None
+
+
+def test_a_watched_process_is_seen_to_end() -> None:
+    """How a service notices its supervisor gone (a forked service is not its child)."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE
+    )
+    ended = process_end_watch(process.pid)
+    assert not ended()
+    process.stdin.close()  # it reads EOF and exits
+    process.wait(10)
+    deadline = time.monotonic() + 5
+    while not ended() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert ended()
+    assert process_end_watch(process.pid)()  # reaped: no such process any more
 
 
 def test_a_child_that_never_answers_is_judged_after_the_start_timeout() -> None:

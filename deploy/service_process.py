@@ -1,0 +1,128 @@
+"""How the supervisor starts one service's OS process: ``exec`` or ``fork``.
+
+``exec`` runs ``python -m services.NAME`` afresh. Each such process imports numpy, pydantic,
+Zenoh and the project's modules before its first frame, and in a suite of short runs that
+import is about half of all the CPU spent: four processes a run, each importing the same.
+
+``fork`` starts the service as a fork of Python's forkserver (``multiprocessing``, standard
+library), which imported the four services' modules once for every later service of this
+supervising process: still a separate OS process with its own pid, environment, arguments and
+log file, that the supervisor signals, waits for and restarts as it does an exec'd one. The
+forkserver has no Zenoh session, no pybullet connection and no OpenGL context to share: each
+service opens its own after the fork, as after an exec.
+
+Both give a :class:`ServiceProcess`, the part of ``subprocess.Popen`` the supervisor uses.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import multiprocessing
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Protocol
+
+import setproctitle
+
+from common.keys import SERVICES
+
+# What the forkserver imports before its first fork: every service's node and what it imports.
+# "__main__": the launching program's main module (a script, such as the ``umay`` entry point),
+# which multiprocessing imports in every process it starts, is then imported once, here.
+PRELOAD = ["__main__", *(f"services.{name}.node" for name in SERVICES), __name__]
+
+
+class ServiceProcess(Protocol):
+    """What the supervisor does with a child: ``subprocess.Popen``'s names and meanings."""
+
+    pid: int
+
+    @property
+    def returncode(self) -> int | None: ...
+
+    def poll(self) -> int | None: ...
+
+    def wait(self, timeout: float | None = None) -> int: ...
+
+    def send_signal(self, sig: int) -> None: ...
+
+    def kill(self) -> None: ...
+
+
+def exec_command(command: list[str], env: dict[str, str], log_path: Path) -> ServiceProcess:
+    """``command`` with ``env``, its output appended to ``log_path``."""
+    with log_path.open("ab") as out:
+        return subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, env=env)
+
+
+def exec_service(name: str, argv: list[str], env: dict[str, str], log_path: Path) -> ServiceProcess:
+    """``python -m services.NAME ARGV``, its output appended to ``log_path``."""
+    return exec_command([sys.executable, "-m", f"services.{name}", *argv], env, log_path)
+
+
+class ForkedService:
+    """A service forked by the forkserver, seen through ``Popen``'s methods."""
+
+    def __init__(self, process: multiprocessing.process.BaseProcess, name: str) -> None:
+        self._process = process
+        self._name = name
+        self.pid: int = process.pid  # type: ignore[assignment]  # set once started
+
+    @property
+    def returncode(self) -> int | None:
+        return self._process.exitcode
+
+    def poll(self) -> int | None:
+        return self._process.exitcode
+
+    def wait(self, timeout: float | None = None) -> int:
+        self._process.join(timeout)
+        if self._process.exitcode is None:
+            raise subprocess.TimeoutExpired(f"services.{self._name}", timeout or 0.0)
+        return self._process.exitcode
+
+    def send_signal(self, sig: int) -> None:
+        if self._process.exitcode is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, sig)
+
+    def kill(self) -> None:
+        self._process.kill()
+
+
+def _forkserver() -> multiprocessing.context.BaseContext:
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(PRELOAD)  # no effect once it runs: it has them already
+    return context
+
+
+def fork_service(name: str, argv: list[str], env: dict[str, str], log_path: Path) -> ServiceProcess:
+    """The service as a fork of the forkserver (started, with its imports, at the first call)."""
+    process = _forkserver().Process(
+        target=serve, args=(name, argv, env, str(log_path)), name=f"umay-{name}"
+    )
+    process.start()
+    return ForkedService(process, name)
+
+
+def serve(name: str, argv: list[str], env: dict[str, str], log_path: str) -> None:
+    """In the forked child: take the service's environment, output and name, then run it as
+    ``python -m services.NAME`` would."""
+    # ps, top and /proc show the command line an exec'd service would have, not the
+    # forkserver's. Before the environment is replaced: the title takes the room of the
+    # original environment's strings, and finds none to take once they were moved.
+    setproctitle.setproctitle(" ".join([sys.executable, "-m", f"services.{name}", *argv]))
+    setproctitle.setthreadtitle(f"umay-{name}")
+    os.environ.clear()
+    os.environ.update(env)
+    fd = os.open(log_path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115 - the process's own
+    sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
+    node = importlib.import_module(f"services.{name}.node")
+    raise SystemExit(node.main(argv))

@@ -1,0 +1,71 @@
+"""A service forked from the supervisor's forkserver behaves as one exec'd: its arguments,
+environment, log, exit code, command line, and a clean stop."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+from common.config import SupervisorConfig
+from common.keys import Keys
+from common.session import free_tcp_endpoint, open_session
+from deploy.launch.status import collect
+from deploy.supervisor import Supervisor
+
+
+def wait_exit(sup: Supervisor, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not sup.exited():
+        assert time.monotonic() < deadline, "the service did not exit"
+        time.sleep(0.02)
+
+
+@pytest.mark.parametrize("launch", ["fork", "exec"])
+def test_a_bad_override_ends_the_service_with_exit_2_and_says_why_in_its_log(
+    tmp_path: Path, launch: str
+) -> None:
+    sup = Supervisor(
+        None, f"test/{os.getpid()}bad{launch}", "tcp/127.0.0.1:1", tmp_path,
+        overrides=["controller.gain=-1"], services=("controller",),
+        config=SupervisorConfig(launch=launch),
+    )  # fmt: skip
+    sup.start()
+    wait_exit(sup, 30)
+    assert sup.children["controller"].exit_codes == [2]
+    assert "controller.gain" in (tmp_path / "controller.log").read_text()
+
+
+def test_a_forked_service_has_its_arguments_environment_and_command_line(tmp_path: Path) -> None:
+    endpoint = free_tcp_endpoint()
+    session = open_session(connect=[], listen=[endpoint])
+    keys = Keys(f"test/{os.getpid()}forked")
+    sup = Supervisor(
+        None, keys.prefix, endpoint, tmp_path, services=("actuation",),
+        config=SupervisorConfig(launch="fork"),
+    )  # fmt: skip
+    try:
+        sup.start()
+        pid = sup.pids()["actuation"]
+        # It answers under its prefix (--prefix), through the endpoint it was given in its
+        # environment (UMAY_ZENOH_CONNECT): it has both.
+        deadline = time.monotonic() + 30
+        views = []
+        while time.monotonic() < deadline:
+            views = [v for v in collect(session, keys, 0.3) if v.status is not None]
+            if views:
+                break
+        assert [v.status.pid for v in views] == [pid], views
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        assert f"-m services.actuation --prefix {keys.prefix}" in cmdline
+        assert Path(f"/proc/{pid}/comm").read_text().strip() == "umay-actuation"
+        parent = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        assert parent != os.getpid()  # the forkserver's child, not this process's
+        sup.stop()
+        assert sup.children["actuation"].exit_codes == [0]  # SIGTERM: a clean stop
+        assert "actuation running under" in (tmp_path / "actuation.log").read_text()
+    finally:
+        sup.stop()
+        session.close()
