@@ -300,6 +300,9 @@ class Supervisor:
             name: {
                 "pid": c.process.pid if c.process else None,
                 "running": c.process is not None,
+                # Its current process has answered a status query: until then it is starting,
+                # and judged hung only after start_timeout_s.
+                "answered": c.process is not None and (name, c.process.pid) in self._heard,
                 "restarts": c.restarts,
                 "last_exit_codes": c.exit_codes[-5:],
                 "policy": self.config.policy(name).value,

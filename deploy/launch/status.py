@@ -136,6 +136,8 @@ def children_text(children: dict[str, dict[str, Any]]) -> str:
     clauses = []
     for name, c in children.items():
         words = [f"pid {c.get('pid')}", "running" if c.get("running") else "not running"]
+        if c.get("running") and c.get("answered") is False:
+            words.append("starting (no status answer yet)")
         words.append(f"restarts {c.get('restarts', 0)}")
         if c.get("policy", "always") != "always":
             words.append(f"restart policy {c['policy']}")

@@ -193,7 +193,14 @@ def test_kill_each_service_it_comes_back_and_the_hand_still_converges(umay_up) -
     assert sup_status.fields["cpu_wakeup_latency"] == "not requested", sup_status.fields
 
     # A process that hangs without exiting (here frozen by SIGSTOP: it answers nothing) is
-    # killed after supervisor.hang_timeout_s (5 s) and restarted like one that died.
+    # killed after supervisor.hang_timeout_s (5 s) and restarted like one that died. Frozen
+    # once the supervisor has heard it: one it never heard is still starting for it, and is
+    # judged only after supervisor.start_timeout_s (20 s).
+    def heard_by_the_supervisor():
+        s = views().get("supervisor")
+        return s is not None and s.status and s.status.fields["children"]["vision"]["answered"]
+
+    assert wait_for(heard_by_the_supervisor, 20, 0.1), "the supervisor never heard vision"
     frozen_pid = views()["vision"].status.pid
     os.kill(frozen_pid, signal.SIGSTOP)
     frozen = time.monotonic()

@@ -88,18 +88,21 @@ def test_the_supervisors_children_read_as_a_clause_each() -> None:
 
     sup = view("supervisor")
     child = {
-        "pid": 12, "running": True, "restarts": 0, "last_exit_codes": [], "policy": "always",
-        "given_up": False, "hang_kills": 0, "last_hang": "", "log": "out/logs/sim.log",
+        "pid": 12, "running": True, "answered": True, "restarts": 0, "last_exit_codes": [],
+        "policy": "always", "given_up": False, "hang_kills": 0, "last_hang": "",
+        "log": "out/logs/sim.log",
     }  # fmt: skip
     gone = {
         **child, "pid": None, "running": False, "restarts": 3, "last_exit_codes": [1, -9],
         "given_up": True,
     }  # fmt: skip
-    sup.status.fields["children"] = {"sim": child, "vision": gone}
+    starting = {**child, "pid": 13, "answered": False}
+    sup.status.fields["children"] = {"sim": child, "vision": gone, "controller": starting}
     out = io.StringIO()
     Console(file=out, width=200, color_system=None).print(status_display([sup], KEYS))
     text = out.getvalue()
     assert "supervisor: sim pid 12, running, restarts 0; vision pid None, not running, " in text
+    assert "controller pid 13, running, starting (no status answer yet), restarts 0" in text
     assert "restarts 3, given up, exit codes [1, -9]" in text and "sim.log" not in text
     # Its own fields come first, set apart from the children's clauses.
     sup.status.fields = {"cpu_wakeup_latency": "held: 0 µs", **sup.status.fields}
