@@ -292,26 +292,22 @@ def cmd_status(args: argparse.Namespace) -> int:
     session = open_session(connect=args.connect)
     try:
         time.sleep(0.3)  # let the session connect and learn the peers
+        # Ctrl-C and SIGTERM end a watch after its current query: raised inside one, the
+        # interrupt could leave the session's close waiting for good.
         if args.watch and args.json:  # one JSON document a line, every second (jq, a log)
-            try:
-                while True:
+            with stop_requested() as stop:
+                while not stop.is_set():
                     print(json.dumps(as_json(collect(session, keys, args.timeout))), flush=True)
-                    time.sleep(1.0)
-            except KeyboardInterrupt:
-                pass
+                    stop.wait(1.0)
             return 0
         if args.watch:
 
             def now() -> RenderableType:
                 return status_display(collect(session, keys, args.timeout), keys)
 
-            with Live(now(), console=Console()) as live:
-                try:
-                    while True:
-                        time.sleep(1.0)
-                        live.update(now())
-                except KeyboardInterrupt:
-                    pass
+            with stop_requested() as stop, Live(now(), console=Console()) as live:
+                while not stop.wait(1.0):
+                    live.update(now())
             return 0
         views = collect(session, keys, args.timeout)
     finally:
