@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from common.config import ScenarioError
+from deploy.consoles import progress_console
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.domains.cli import add_domains_parser
@@ -100,7 +101,6 @@ def add_compare_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from rich.console import Console
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -118,7 +118,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from deploy.experiments.compare.summary import format_cell
     from deploy.paths import OutputPathError, check_output_dir
 
-    console = Console(stderr=True)
+    console = progress_console()
 
     def bad(message: str) -> int:
         print(f"umay compare: {message}", file=sys.stderr)
@@ -262,7 +262,6 @@ def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_campaign(args: argparse.Namespace) -> int:
     """Exit 0 when every run has a named cause (whatever it is), 2 on bad input, 130 when
     interrupted."""
-    from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from deploy.experiments.campaign.causes import failure_cause
@@ -279,7 +278,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from deploy.experiments.compare.summary import format_cell
     from deploy.paths import OutputPathError, check_output_dir
 
-    console = Console(stderr=True)
+    console = progress_console()
     try:
         modes = parse_modes(args.modes)
         check_jobs(args.jobs)

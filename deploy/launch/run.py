@@ -13,7 +13,6 @@ from typing import TypeVar
 
 import numpy as np
 from pydantic import BaseModel
-from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 from rich.text import Text
@@ -25,6 +24,7 @@ from common.keys import Keys
 from common.messages import EndEffectorTwist, SimTruth
 from common.runtime import parse_overrides
 from common.session import DEFAULT_ENDPOINT, free_tcp_endpoint, open_session
+from deploy.consoles import progress_console
 from deploy.launch.evaluate import RunResult, pose
 from deploy.launch.reachability import check_scenario
 from deploy.launch.run_end import EndLimits, HoldState, RunEnd, judge_twist, run_result
@@ -164,7 +164,7 @@ def run_once(
     wall_limit = wall_timeout_s or max(120.0, 20.0 * scenario.run.timeout_s)
     reason, detail = "error", ""
     last_print = 0.0
-    live = None if quiet else Live(Text("starting the services..."), console=Console(stderr=True))
+    live = None if quiet else Live(Text("starting the services..."), console=progress_console())
     try:
         if live is not None:
             live.start()

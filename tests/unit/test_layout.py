@@ -17,7 +17,15 @@ ROOT = Path(__file__).resolve().parents[2]
 # deploy/, from the bottom up: a folder (or top-level module) may import its own layer's
 # members only when they are itself, and any layer below.
 DEPLOY_LAYERS: list[set[str]] = [
-    {"paths", "exit_codes", "arguments", "interrupts", "cpu_latency", "service_process"},
+    {
+        "paths",
+        "exit_codes",
+        "arguments",
+        "interrupts",
+        "consoles",
+        "cpu_latency",
+        "service_process",
+    },
     {"supervisor"},
     {"recording"},
     {"foxglove"},

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+from deploy.consoles import progress_console
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OK
 from deploy.interrupts import stop_requested
 
@@ -92,7 +93,6 @@ def parse_cells(text: str | None, n: int) -> range:
 def cmd_domains(args: argparse.Namespace) -> int:
     """Exit 0 when the study completed (whatever its runs' outcomes), 2 on bad input, 130
     when interrupted (the finished runs are written)."""
-    from rich.console import Console
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -116,7 +116,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
     )
     from deploy.paths import OutputPathError, check_output_dir
 
-    console = Console(stderr=True)
+    console = progress_console()
     try:
         modes = parse_modes(args.modes)
         check_jobs(args.jobs)
