@@ -143,6 +143,7 @@ class Supervisor:
         self.config = config or SupervisorConfig()
         self.log_dir = log_dir
         self.cpu_wakeup = CpuWakeupLatency(None)  # the request is made by start()
+        self.fork_refused = ""  # why the services are exec'd though launch is "fork"
         common_args = ["--prefix", prefix]
         if scenario_path:
             common_args += ["--scenario", str(scenario_path)]
@@ -151,6 +152,13 @@ class Supervisor:
         self.children = {
             name: Child(name, common_args, log_dir / f"{name}.log") for name in services
         }
+
+    @property
+    def launch(self) -> str:
+        """How the services are started: ``fork``, ``exec``, or ``exec`` and why not forked."""
+        if self.config.launch == "fork" and self.fork_refused:
+            return f"exec (fork refused: {self.fork_refused})"
+        return self.config.launch
 
     def _env(self) -> dict[str, str]:
         env = dict(os.environ)
@@ -166,8 +174,13 @@ class Supervisor:
         env = self._env()
         if child.command is not None:
             child.process = exec_command(child.command, env, child.log_path)
-        elif self.config.launch == "fork":
-            child.process = fork_service(child.name, child.args, env, child.log_path)
+        elif self.config.launch == "fork" and not self.fork_refused:
+            try:
+                child.process = fork_service(child.name, child.args, env, child.log_path)
+            except OSError as exc:  # no forkserver here (a sandbox without Unix sockets...)
+                self.fork_refused = f"{type(exc).__name__}: {exc}"
+                log.warning("cannot fork the services (%s); exec'ing them", self.fork_refused)
+                child.process = exec_service(child.name, child.args, env, child.log_path)
         else:
             child.process = exec_service(child.name, child.args, env, child.log_path)
         child.started_s = time.monotonic()

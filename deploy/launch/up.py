@@ -46,7 +46,11 @@ def run_up(
         "supervisor",
         keys,
         session,
-        lambda: {"cpu_wakeup_latency": sup.cpu_wakeup.state, "children": sup.summary()},
+        lambda: {
+            "cpu_wakeup_latency": sup.cpu_wakeup.state,
+            "launch": sup.launch,
+            "children": sup.summary(),
+        },
     )
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():

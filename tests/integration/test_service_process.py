@@ -69,3 +69,22 @@ def test_a_forked_service_has_its_arguments_environment_and_command_line(tmp_pat
     finally:
         sup.stop()
         session.close()
+
+
+def test_where_no_forkserver_starts_the_services_are_execd_and_status_says_why(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def refused(*_args: object) -> None:
+        raise PermissionError("Unix sockets not allowed here")
+
+    monkeypatch.setattr("deploy.supervisor.fork_service", refused)
+    sup = Supervisor(
+        None, f"test/{os.getpid()}refused", "tcp/127.0.0.1:1", tmp_path,
+        overrides=["controller.gain=-1"], services=("controller",),
+    )  # fmt: skip
+    assert sup.launch == "fork"
+    sup.start()
+    wait_exit(sup, 30)
+    assert sup.children["controller"].exit_codes == [2]  # exec'd: it ran, and said why it ended
+    assert "controller.gain" in (tmp_path / "controller.log").read_text()
+    assert sup.launch == "exec (fork refused: PermissionError: Unix sockets not allowed here)"

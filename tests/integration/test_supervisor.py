@@ -191,6 +191,7 @@ def test_kill_each_service_it_comes_back_and_the_hand_still_converges(umay_up) -
     assert all(children[n]["restarts"] == 1 for n in SERVICES), children
     # The default scenario leaves the host's power management alone, and says so.
     assert sup_status.fields["cpu_wakeup_latency"] == "not requested", sup_status.fields
+    assert sup_status.fields["launch"] == "fork", sup_status.fields  # the default
 
     # A process that hangs without exiting (here frozen by SIGSTOP: it answers nothing) is
     # killed after supervisor.hang_timeout_s (5 s) and restarted like one that died. Frozen
