@@ -39,7 +39,7 @@ from common.queries import status_from_reply
 from common.runtime import ENV_SUPERVISOR_PID
 from common.session import ENV_CONFIG, ENV_CONNECT
 from deploy.cpu_latency import CpuWakeupLatency
-from deploy.service_process import ServiceProcess, exec_command, exec_service, fork_service
+from deploy.service_process import ServiceProcess, exec_service, fork_service
 
 log = logging.getLogger("umay.supervisor")
 
@@ -99,7 +99,6 @@ class Child:
     name: str
     args: list[str]  # the service's own arguments
     log_path: Path
-    command: list[str] | None = None  # a command line run instead of the service (tests)
     process: ServiceProcess | None = None
     restarts: int = 0
     exit_codes: list[int] = field(default_factory=list)
@@ -172,9 +171,7 @@ class Supervisor:
 
     def start_child(self, child: Child) -> None:
         env = self._env()
-        if child.command is not None:
-            child.process = exec_command(child.command, env, child.log_path)
-        elif self.config.launch == "fork" and not self.fork_refused:
+        if self.config.launch == "fork" and not self.fork_refused:
             try:
                 child.process = fork_service(child.name, child.args, env, child.log_path)
             except OSError as exc:  # no forkserver here (a sandbox without Unix sockets...)

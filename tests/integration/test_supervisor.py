@@ -23,15 +23,27 @@ from common.messages import ServiceStatus
 from common.node import Node
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
+from deploy.service_process import exec_command
 from deploy.supervisor import Supervisor
 from tests.conftest import launch_umay_up, processes_mentioning
 
 
-def test_tick_restarts_with_a_cap(tmp_path: Path) -> None:
+def stand_in(monkeypatch: pytest.MonkeyPatch, command: list[str]) -> None:
+    """The supervisor starts ``command`` (its environment and log as a service's) instead of
+    any service, forked or exec'd."""
+
+    def start(_name: str, _args: list[str], env: dict[str, str], log_path: Path):
+        return exec_command(command, env, log_path)
+
+    monkeypatch.setattr("deploy.supervisor.fork_service", start)
+    monkeypatch.setattr("deploy.supervisor.exec_service", start)
+
+
+def test_tick_restarts_with_a_cap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     cfg = SupervisorConfig(backoff_initial_s=0.0, max_restarts=2, restart_window_s=60.0)
     sup = Supervisor(None, "test/x", "tcp/127.0.0.1:1", tmp_path, services=("sim",), config=cfg)
     child = sup.children["sim"]
-    child.command = [sys.executable, "-c", "import sys; sys.exit(3)"]
+    stand_in(monkeypatch, [sys.executable, "-c", "import sys; sys.exit(3)"])
     sup.start()
     events: list[str] = []
     deadline = time.monotonic() + 20
@@ -43,19 +55,21 @@ def test_tick_restarts_with_a_cap(tmp_path: Path) -> None:
     assert any("giving up" in e for e in events)
 
 
-def test_the_frame_ring_of_a_child_killed_outright_is_removed(tmp_path: Path) -> None:
+def test_the_frame_ring_of_a_child_killed_outright_is_removed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A sim killed by SIGKILL cannot unlink its shared-memory frame ring: the supervisor
     removes it when it sees the child gone."""
     sup = Supervisor(None, "test/x", "tcp/127.0.0.1:1", tmp_path, services=("sim",))
     child = sup.children["sim"]
-    child.command = [sys.executable, "-c", textwrap.dedent("""
+    stand_in(monkeypatch, [sys.executable, "-c", textwrap.dedent("""
         import os, signal, numpy as np
         from common.frame_ring import RingWriter
         ring = RingWriter()
         ring.write(np.zeros(64, np.uint8), (8, 8), "uint8")
         print(ring.segment, flush=True)
         os.kill(os.getpid(), signal.SIGKILL)
-        """)]  # fmt: skip
+        """)])  # fmt: skip
     sup.start()
     pid = child.process.pid
     deadline = time.monotonic() + 20
@@ -68,7 +82,9 @@ def test_the_frame_ring_of_a_child_killed_outright_is_removed(tmp_path: Path) ->
     assert child.exit_codes == [-9]
 
 
-def test_a_child_stuck_in_one_step_is_killed_and_its_run_says_why(tmp_path: Path) -> None:
+def test_a_child_stuck_in_one_step_is_killed_and_its_run_says_why(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # A stand-in child (it sleeps) and a queryable answering for it, as a service whose event
     # loop is stuck in a handler would: alive, answering, loop_busy_s growing.
     session = open_session(connect=[], listen=[free_tcp_endpoint()])
@@ -79,7 +95,7 @@ def test_a_child_stuck_in_one_step_is_killed_and_its_run_says_why(tmp_path: Path
         session=session,
     )  # fmt: skip
     child = sup.children["vision"]
-    child.command = [sys.executable, "-c", "import time; time.sleep(60)"]
+    stand_in(monkeypatch, [sys.executable, "-c", "import time; time.sleep(60)"])
     started = time.monotonic()
 
     def answer(query) -> None:
