@@ -80,8 +80,13 @@ def status_display(views: list[ServiceView], keys: Keys) -> RenderableType:
     terminal, numbers to four significant digits (``--json`` has them whole); not a column of
     the table, which at 80 to 120 columns folds them into a strip."""
     t = Table(title=f"umay status  {keys.prefix}  {time.strftime('%H:%M:%S')}")
-    for col in ("service", "condition", "pid", "up s", "in (Hz, age s)", "out (Hz)", "rej"):
+    # Names and numbers whole (a service's name folded at 80 columns read "actuatio / n");
+    # the key lists take what width is left, folding at their slashes' length.
+    for col in ("service", "condition", "pid", "up s"):
+        t.add_column(col, no_wrap=True)
+    for col in ("in (Hz, age s)", "out (Hz)"):
         t.add_column(col, overflow="fold")
+    t.add_column("rej", overflow="fold")
     t.add_column("p50/p99 ms", overflow="fold", no_wrap=True)
     details: list[RenderableType] = []
     for v in views:

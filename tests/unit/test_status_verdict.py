@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from common.keys import SERVICES, Keys
-from common.messages import ServiceStatus
+from common.messages import ServiceStatus, TopicStats
 from common.session import DEFAULT_ENDPOINT, ENV_CONFIG, ENV_CONNECT, where_connecting
 from deploy.launch.status import ServiceView, field_text, status_display, verdict
 
@@ -67,6 +67,10 @@ def test_the_display_fits_80_columns_and_rounds_the_fields() -> None:
     from rich.console import Console
 
     views = [view(n) for n in SERVICES]
+    traffic = TopicStats(count=300, rate_hz=30.0, age_s=0.01)
+    for v in views:  # as the services report theirs: several keys in, several out
+        v.status.received = {KEYS.joint_state: traffic, KEYS.rgb: traffic}
+        v.status.published = {f"{KEYS.prefix}/{v.name}/joint_command": traffic}
     views[0].status.fields.update(
         manipulability=0.0137295287779395, saturated_joints=[1, 2], gains={"a": 1.23456789}
     )
@@ -75,6 +79,8 @@ def test_the_display_fits_80_columns_and_rounds_the_fields() -> None:
     Console(file=out, width=80, color_system=None).print(status_display(views, KEYS))
     text = out.getvalue()
     assert max(len(line) for line in text.splitlines()) <= 80
+    rows = [line for line in text.splitlines() if line.startswith("│ ")]
+    assert [r.split("│")[1].strip() for r in rows if r.split("│")[1].strip()] == list(SERVICES)
     assert "manipulability=0.01373" in text and "saturated_joints=[1, 2]" in text
     assert "gains={a: 1.235}" in text
     assert f"{views[1].name}: marker not usable (target: lost, no blob)" in text
