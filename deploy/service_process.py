@@ -99,12 +99,22 @@ def _forkserver() -> multiprocessing.context.BaseContext:
     return context
 
 
+class ForkUnavailable(RuntimeError):
+    """The forkserver cannot start a service from this process; the message says why."""
+
+
 def fork_service(name: str, argv: list[str], env: dict[str, str], log_path: Path) -> ServiceProcess:
-    """The service as a fork of the forkserver (started, with its imports, at the first call)."""
+    """The service as a fork of the forkserver (started, with its imports, at the first call).
+    :class:`ForkUnavailable` where it cannot be: nothing is started then."""
+    if multiprocessing.current_process().daemon:  # multiprocessing forbids it children
+        raise ForkUnavailable("this process is a daemonic worker (a Dask worker, say)")
     process = _forkserver().Process(
         target=serve, args=(name, argv, env, str(log_path)), name=f"umay-{name}"
     )
-    process.start()
+    try:
+        process.start()
+    except OSError as exc:  # no forkserver here (a sandbox without Unix sockets...)
+        raise ForkUnavailable(f"{type(exc).__name__}: {exc}") from exc
     return ForkedService(process, name)
 
 

@@ -39,7 +39,7 @@ from common.queries import status_from_reply
 from common.runtime import ENV_SUPERVISOR_PID
 from common.session import ENV_CONFIG, ENV_CONNECT
 from deploy.cpu_latency import CpuWakeupLatency
-from deploy.service_process import ServiceProcess, exec_service, fork_service
+from deploy.service_process import ForkUnavailable, ServiceProcess, exec_service, fork_service
 
 log = logging.getLogger("umay.supervisor")
 
@@ -55,6 +55,8 @@ def backoff_s(recent_restarts: int, config: SupervisorConfig) -> float:
     """Exponential: initial, 2·initial, 4·initial, ... capped at backoff_max_s."""
     return min(config.backoff_initial_s * 2.0**recent_restarts, config.backoff_max_s)
 
+
+_FORK_REFUSALS_SAID: set[str] = set()  # why services could not be forked, as logged
 
 HEALTH_CHECK_S = 1.0  # how often the supervisor asks the services for their status
 
@@ -174,9 +176,11 @@ class Supervisor:
         if self.config.launch == "fork" and not self.fork_refused:
             try:
                 child.process = fork_service(child.name, child.args, env, child.log_path)
-            except OSError as exc:  # no forkserver here (a sandbox without Unix sockets...)
-                self.fork_refused = f"{type(exc).__name__}: {exc}"
-                log.warning("cannot fork the services (%s); exec'ing them", self.fork_refused)
+            except ForkUnavailable as exc:
+                self.fork_refused = str(exc)
+                if self.fork_refused not in _FORK_REFUSALS_SAID:  # once a process, not a run
+                    _FORK_REFUSALS_SAID.add(self.fork_refused)
+                    log.warning("cannot fork the services (%s); exec'ing them", exc)
                 child.process = exec_service(child.name, child.args, env, child.log_path)
         else:
             child.process = exec_service(child.name, child.args, env, child.log_path)

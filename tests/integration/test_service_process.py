@@ -3,6 +3,7 @@ environment, log, exit code, command line, and a clean stop."""
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import time
 from pathlib import Path
@@ -13,6 +14,7 @@ from common.config import SupervisorConfig
 from common.keys import Keys
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
+from deploy.service_process import ForkUnavailable
 from deploy.supervisor import Supervisor
 
 
@@ -75,7 +77,7 @@ def test_where_no_forkserver_starts_the_services_are_execd_and_status_says_why(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     def refused(*_args: object) -> None:
-        raise PermissionError("Unix sockets not allowed here")
+        raise ForkUnavailable("PermissionError: Unix sockets not allowed here")
 
     monkeypatch.setattr("deploy.supervisor.fork_service", refused)
     sup = Supervisor(
@@ -88,3 +90,29 @@ def test_where_no_forkserver_starts_the_services_are_execd_and_status_says_why(
     assert sup.children["controller"].exit_codes == [2]  # exec'd: it ran, and said why it ended
     assert "controller.gain" in (tmp_path / "controller.log").read_text()
     assert sup.launch == "exec (fork refused: PermissionError: Unix sockets not allowed here)"
+
+
+def _supervise_in_a_daemon(log_dir: str, results: multiprocessing.Queue) -> None:
+    sup = Supervisor(
+        None, f"test/{os.getpid()}daemon", "tcp/127.0.0.1:1", Path(log_dir),
+        overrides=["controller.gain=-1"], services=("controller",),
+    )  # fmt: skip
+    sup.start()
+    wait_exit(sup, 30)
+    results.put((sup.launch, sup.children["controller"].exit_codes))
+
+
+def test_a_supervisor_in_a_daemonic_worker_execs_its_services(tmp_path: Path) -> None:
+    """A Dask worker is a daemonic process, which multiprocessing lets start no children of
+    its own: a distributed run there (umay domains --cluster) execs its services."""
+    context = multiprocessing.get_context("fork")
+    results = context.Queue()
+    worker = context.Process(
+        target=_supervise_in_a_daemon, args=(str(tmp_path), results), daemon=True
+    )
+    worker.start()
+    launch, exit_codes = results.get(timeout=60)
+    worker.join(30)
+    assert launch == "exec (fork refused: this process is a daemonic worker (a Dask worker, say))"
+    assert exit_codes == [2]
+    assert "controller.gain" in (tmp_path / "controller.log").read_text()
