@@ -113,6 +113,8 @@ def fork_service(name: str, argv: list[str], env: dict[str, str], log_path: Path
     )
     try:
         process.start()
+    except ChildProcessError as exc:  # multiprocessing looks for its parent's forkserver
+        raise ForkUnavailable("forked from a process whose forkserver it cannot use") from exc
     except OSError as exc:  # no forkserver here (a sandbox without Unix sockets...)
         raise ForkUnavailable(f"{type(exc).__name__}: {exc}") from exc
     return ForkedService(process, name)

@@ -92,7 +92,8 @@ def test_where_no_forkserver_starts_the_services_are_execd_and_status_says_why(
     assert sup.launch == "exec (fork refused: PermissionError: Unix sockets not allowed here)"
 
 
-def _supervise_in_a_daemon(log_dir: str, results: multiprocessing.Queue) -> None:
+def _supervise_here(log_dir: str, results: multiprocessing.Queue) -> None:
+    """In a child process: a controller with a bad override, and how it was started."""
     sup = Supervisor(
         None, f"test/{os.getpid()}daemon", "tcp/127.0.0.1:1", Path(log_dir),
         overrides=["controller.gain=-1"], services=("controller",),
@@ -107,12 +108,30 @@ def test_a_supervisor_in_a_daemonic_worker_execs_its_services(tmp_path: Path) ->
     its own: a distributed run there (umay domains --cluster) execs its services."""
     context = multiprocessing.get_context("fork")
     results = context.Queue()
-    worker = context.Process(
-        target=_supervise_in_a_daemon, args=(str(tmp_path), results), daemon=True
-    )
+    worker = context.Process(target=_supervise_here, args=(str(tmp_path), results), daemon=True)
     worker.start()
     launch, exit_codes = results.get(timeout=60)
     worker.join(30)
     assert launch == "exec (fork refused: this process is a daemonic worker (a Dask worker, say))"
     assert exit_codes == [2]
     assert "controller.gain" in (tmp_path / "controller.log").read_text()
+
+
+def test_a_supervisor_forked_from_one_that_forked_services_execs_them(tmp_path: Path) -> None:
+    """multiprocessing's forkserver belongs to the process that started it: a process forked
+    from that one (a pool's worker, say) cannot use it, and execs its services."""
+    sup = Supervisor(
+        None, f"test/{os.getpid()}first", "tcp/127.0.0.1:1", tmp_path / "first",
+        overrides=["controller.gain=-1"], services=("controller",),
+    )  # fmt: skip
+    sup.start()  # this process now has a forkserver
+    wait_exit(sup, 30)
+    assert sup.launch == "fork"
+    context = multiprocessing.get_context("fork")
+    results = context.Queue()
+    worker = context.Process(target=_supervise_here, args=(str(tmp_path), results))
+    worker.start()
+    launch, exit_codes = results.get(timeout=60)
+    worker.join(30)
+    assert launch == "exec (fork refused: forked from a process whose forkserver it cannot use)"
+    assert exit_codes == [2]
