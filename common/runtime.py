@@ -9,8 +9,9 @@ import select
 import signal
 import sys
 import threading
+import time
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import zenoh
@@ -105,16 +106,40 @@ def supervisor_pid(env: Mapping[str, str]) -> int | None:
     return pid if pid > 1 else None
 
 
-def process_end_watch(pid: int) -> Callable[[], bool]:
-    """A check that says whether process ``pid`` has ended. Through a pidfd where Linux has one
-    (the process itself, even if its pid is later reused); else whether the pid still exists."""
-    try:
-        pidfd = os.pidfd_open(pid)
-    except ProcessLookupError:
-        return lambda: True
-    except (AttributeError, OSError):  # no pidfd here: Python or kernel too old
-        return lambda: not _pid_exists(pid)
-    return lambda: bool(select.select([pidfd], [], [], 0)[0])  # readable once it has ended
+class ProcessEnd:
+    """Whether process ``pid`` has ended: called, it answers at once or within ``timeout_s``.
+    Through a pidfd where Linux has one (that very process, whoever it is a child of, even if
+    its pid is later reused), else by whether the pid still exists."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self._pidfd: int | None = None
+        self._ended = False
+        try:
+            self._pidfd = os.pidfd_open(pid)
+        except ProcessLookupError:
+            self._ended = True
+        except (AttributeError, OSError):  # no pidfd here: Python or kernel too old
+            pass
+
+    def __call__(self, timeout_s: float | None = 0.0) -> bool:
+        """``timeout_s``: how long to wait for the end (None: until it comes)."""
+        if not self._ended:
+            if self._pidfd is not None:  # readable once the process has ended
+                self._ended = bool(select.select([self._pidfd], [], [], timeout_s)[0])
+            else:
+                deadline = None if timeout_s is None else time.monotonic() + timeout_s
+                while _pid_exists(self.pid) and (deadline is None or time.monotonic() < deadline):
+                    time.sleep(0.01)
+                self._ended = not _pid_exists(self.pid)
+            if self._ended:
+                self.close()
+        return self._ended
+
+    def close(self) -> None:
+        if self._pidfd is not None:
+            os.close(self._pidfd)
+            self._pidfd = None
 
 
 def _pid_exists(pid: int) -> bool:
@@ -160,7 +185,7 @@ class ServiceContext:
 
     def _stop_without(self, supervisor: int) -> None:
         """Set ``stop`` once the process ``supervisor`` has ended."""
-        ended = process_end_watch(supervisor)
+        ended = ProcessEnd(supervisor)
         while not self.stop.wait(SUPERVISOR_CHECK_S):
             if ended():
                 log.warning("supervisor (pid %d) is gone; stopping", supervisor)

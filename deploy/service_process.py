@@ -20,14 +20,17 @@ import contextlib
 import importlib
 import multiprocessing
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Protocol
 
 import setproctitle
 
 from common.keys import SERVICES
+from common.runtime import ProcessEnd
 
 # What the forkserver imports before its first fork: every service's node and what it imports.
 # "__main__": the launching program's main module (a script, such as the ``umay`` entry point),
@@ -64,33 +67,46 @@ def exec_service(name: str, argv: list[str], env: dict[str, str], log_path: Path
 
 
 class ForkedService:
-    """A service forked by the forkserver, seen through ``Popen``'s methods."""
+    """A service forked by the forkserver, seen through ``Popen``'s methods. Its exit code
+    comes from the forkserver, whose child it is; whether it has ended, from the process
+    itself: a forkserver killed alone reports its children ended (255), and the supervisor
+    would start a second set beside the first, which still runs."""
+
+    UNKNOWN_EXIT = 255  # what multiprocessing reports when the forkserver is gone
 
     def __init__(self, process: multiprocessing.process.BaseProcess, name: str) -> None:
         self._process = process
         self._name = name
         self.pid: int = process.pid  # type: ignore[assignment]  # set once started
+        self._ended = ProcessEnd(self.pid)
 
     @property
     def returncode(self) -> int | None:
-        return self._process.exitcode
+        return self.poll()
 
     def poll(self) -> int | None:
-        return self._process.exitcode
+        code = self._process.exitcode
+        if code is None or not self._ended():
+            return None
+        return code
 
     def wait(self, timeout: float | None = None) -> int:
-        self._process.join(timeout)
-        if self._process.exitcode is None:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        self._process.join(timeout)  # at its exit, or at once if the forkserver is gone
+        left = None if deadline is None else max(0.0, deadline - time.monotonic())
+        if not self._ended(left):
             raise subprocess.TimeoutExpired(f"services.{self._name}", timeout or 0.0)
-        return self._process.exitcode
+        self._process.join(1.0)  # ended: the forkserver's report of its code is on its way
+        code = self._process.exitcode
+        return self.UNKNOWN_EXIT if code is None else code
 
     def send_signal(self, sig: int) -> None:
-        if self._process.exitcode is None:
+        if not self._ended():
             with contextlib.suppress(ProcessLookupError):
                 os.kill(self.pid, sig)
 
     def kill(self) -> None:
-        self._process.kill()
+        self.send_signal(signal.SIGKILL)
 
 
 def _forkserver() -> multiprocessing.context.BaseContext:

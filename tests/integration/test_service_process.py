@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from common.config import SupervisorConfig
 from common.keys import Keys
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
-from deploy.service_process import ForkUnavailable
+from deploy.service_process import ForkedService, ForkUnavailable
 from deploy.supervisor import Supervisor
 
 
@@ -135,3 +136,47 @@ def test_a_supervisor_forked_from_one_that_forked_services_execs_them(tmp_path: 
     worker.join(30)
     assert launch == "exec (fork refused: forked from a process whose forkserver it cannot use)"
     assert exit_codes == [2]
+
+
+def _answering_pids(session, keys: Keys) -> list[int]:
+    return [v.status.pid for v in collect(session, keys, 0.3) if v.status is not None]
+
+
+def test_a_killed_forkserver_neither_ends_nor_doubles_its_services(tmp_path: Path) -> None:
+    """The forkserver killed alone: multiprocessing reports its children ended (255), but the
+    service still runs, so it is not started a second time; when it does end, a new
+    forkserver forks its successor."""
+    endpoint = free_tcp_endpoint()
+    session = open_session(connect=[], listen=[endpoint])
+    keys = Keys(f"test/{os.getpid()}fsk")
+    sup = Supervisor(
+        None, keys.prefix, endpoint, tmp_path, services=("actuation",),
+        config=SupervisorConfig(launch="fork", backoff_initial_s=0.0),
+    )  # fmt: skip
+    try:
+        sup.start()
+        pid = sup.pids()["actuation"]
+        deadline = time.monotonic() + 30
+        while _answering_pids(session, keys) != [pid]:
+            assert time.monotonic() < deadline, "the service never answered"
+        forkserver = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        os.kill(forkserver, signal.SIGKILL)
+        time.sleep(1.0)
+        assert sup.tick() == [] and sup.pids()["actuation"] == pid  # still its one service
+        assert _answering_pids(session, keys) == [pid]
+        os.kill(pid, signal.SIGKILL)
+        deadline = time.monotonic() + 30
+        events: list[str] = []
+        while sup.pids()["actuation"] in (pid, None):
+            assert time.monotonic() < deadline, events
+            events += sup.tick()
+            time.sleep(0.05)
+        successor = sup.pids()["actuation"]
+        assert sup.children["actuation"].exit_codes == [ForkedService.UNKNOWN_EXIT], events
+        deadline = time.monotonic() + 30
+        while _answering_pids(session, keys) != [successor]:
+            assert time.monotonic() < deadline, "the successor never answered"
+        assert sup.launch == "fork"
+    finally:
+        sup.stop()
+        session.close()

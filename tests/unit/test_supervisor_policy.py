@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 
 from common.config import RestartPolicy, SupervisorConfig
-from common.runtime import ENV_SUPERVISOR_PID, process_end_watch, supervisor_pid
+from common.runtime import ENV_SUPERVISOR_PID, ProcessEnd, supervisor_pid
 from deploy.supervisor import Heard, backoff_s, hang_reason, wants_restart
 
 
@@ -48,15 +47,12 @@ def test_a_watched_process_is_seen_to_end() -> None:
     process = subprocess.Popen(
         [sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE
     )
-    ended = process_end_watch(process.pid)
-    assert not ended()
+    ended = ProcessEnd(process.pid)
+    assert not ended() and not ended(0.05)
     process.stdin.close()  # it reads EOF and exits
+    assert ended(10)
     process.wait(10)
-    deadline = time.monotonic() + 5
-    while not ended() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert ended()
-    assert process_end_watch(process.pid)()  # reaped: no such process any more
+    assert ProcessEnd(process.pid)()  # reaped: no such process any more
 
 
 def test_a_child_that_never_answers_is_judged_after_the_start_timeout() -> None:
