@@ -122,7 +122,7 @@ class ForkUnavailable(RuntimeError):
 def fork_service(name: str, argv: list[str], env: dict[str, str], log_path: Path) -> ServiceProcess:
     """The service as a fork of the forkserver (started, with its imports, at the first call).
     :class:`ForkUnavailable` where it cannot be: nothing is started then."""
-    if multiprocessing.current_process().daemon:  # multiprocessing forbids it children
+    if multiprocessing.current_process().daemon:  # multiprocessing lets it start no children
         raise ForkUnavailable("this process is a daemonic worker (a Dask worker, say)")
     process = _forkserver().Process(
         target=serve, args=(name, argv, env, str(log_path)), name=f"umay-{name}"
