@@ -107,7 +107,7 @@ def _supervise_here(log_dir: str, results: multiprocessing.Queue) -> None:
 def test_a_supervisor_in_a_daemonic_worker_execs_its_services(tmp_path: Path) -> None:
     """A Dask worker is a daemonic process, which multiprocessing lets start no children of
     its own: a distributed run there (umay domains --cluster) execs its services."""
-    context = multiprocessing.get_context("fork")
+    context = multiprocessing.get_context("spawn")  # a fresh interpreter, as a Dask worker
     results = context.Queue()
     worker = context.Process(target=_supervise_here, args=(str(tmp_path), results), daemon=True)
     worker.start()
