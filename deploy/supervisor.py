@@ -173,17 +173,16 @@ class Supervisor:
 
     def start_child(self, child: Child) -> None:
         env = self._env()
+        process = None
         if self.config.launch == "fork" and not self.fork_refused:
             try:
-                child.process = fork_service(child.name, child.args, env, child.log_path)
+                process = fork_service(child.name, child.args, env, child.log_path)
             except ForkUnavailable as exc:
                 self.fork_refused = str(exc)
                 if self.fork_refused not in _FORK_REFUSALS_SAID:  # once a process, not a run
                     _FORK_REFUSALS_SAID.add(self.fork_refused)
                     log.warning("cannot fork the services (%s); exec'ing them", exc)
-                child.process = exec_service(child.name, child.args, env, child.log_path)
-        else:
-            child.process = exec_service(child.name, child.args, env, child.log_path)
+        child.process = process or exec_service(child.name, child.args, env, child.log_path)
         child.started_s = time.monotonic()
         child.restart_due_s = None
         child.killed_as_hung = False

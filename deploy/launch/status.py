@@ -84,9 +84,8 @@ def status_display(views: list[ServiceView], keys: Keys) -> RenderableType:
     # the key lists take what width is left, folding at their slashes' length.
     for col in ("service", "condition", "pid", "up s"):
         t.add_column(col, no_wrap=True)
-    for col in ("in (Hz, age s)", "out (Hz)"):
+    for col in ("in (Hz, age s)", "out (Hz)", "rej"):
         t.add_column(col, overflow="fold")
-    t.add_column("rej", overflow="fold")
     t.add_column("p50/p99 ms", overflow="fold", no_wrap=True)
     details: list[RenderableType] = []
     for v in views:
