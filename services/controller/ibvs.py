@@ -40,6 +40,7 @@ from services.controller.interaction import (
     points3d_control_matrix,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
+from services.controller.stability import constant_goal_stability
 
 FloatArray = NDArray[np.float64]
 
@@ -148,6 +149,9 @@ class IbvsController:
     # by 180° about the optical axis is servoed as such, not as the least turn.
     oriented_markers: bool = False
     l_constant: FloatArray | None = None  # 8×6, rows in the target's own corner labelling
+    # The frozen matrix's local stability at the goal it was built at (.stability; constant
+    # only, None before): at or below 0 the law drives the hand away from its own goal.
+    goal_stability: float | None = None
     # s − s* (px, 2N) of the last frames servoed on a still, seen goal: convergence's window
     recent_errors_px: list[FloatArray] = field(default_factory=list)
     last_target: Marker | None = None
@@ -233,7 +237,10 @@ class IbvsController:
         self.hold_since_s = None
         target = desired_observation(target, self.approach_height_m, k)
         if self.l_constant is None:
-            self.l_constant = constant_interaction_matrix(target, k, self.config.constant_depth)
+            depth = self.config.constant_depth
+            self.l_constant = constant_interaction_matrix(target, k, depth)
+            if self.config.mode is JacobianMode.CONSTANT:
+                self.goal_stability = constant_goal_stability(target, k, depth)
         if self.oriented_markers:
             self.pairing = 0
         else:

@@ -7,6 +7,8 @@ itself is :func:`services.controller.step.control_step` (pure); this shell pairs
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from common.messages import EndEffectorTwist, Features, JointState
@@ -16,6 +18,8 @@ from common.runtime import ServiceContext
 from services.controller.ibvs import IbvsController, describe_hold, is_stuck
 from services.controller.progress import Progress, describe_stall
 from services.controller.step import control_step, twist_message
+
+log = logging.getLogger("umay.controller")
 
 
 class ControllerService:
@@ -74,6 +78,8 @@ class ControllerService:
             # servoing on the hand's last view carried along the encoders (vision cannot use it)
             "hand_predicted": self.hand_predicted,
             "hand_predicted_since_s": self.controller.hand_memory.carried_since_s,
+            # constant: the frozen matrix's local stability at its goal (≤ 0: it leaves it)
+            "goal_stability": self.controller.goal_stability,
         }
 
     def stuck(self) -> bool:
@@ -94,7 +100,16 @@ class ControllerService:
         )
 
     def on_pair(self, features: Features, joints: JointState) -> None:
+        frozen = self.controller.goal_stability
         out = control_step(self.controller, features, joints.position_rad)
+        stability = self.controller.goal_stability
+        if frozen is None and stability is not None and stability <= 0.0:
+            log.warning(
+                "the constant matrix frozen at this goal makes it unstable (least real part "
+                "of the eigenvalues of L_c+ L* %.2f): expect the hand to leave it; "
+                "controller.constant_depth = 'per_corner' builds one that holds it",
+                stability,
+            )
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
         self.hold_reason, self.phase = out.hold_reason, out.phase
