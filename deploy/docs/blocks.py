@@ -20,7 +20,12 @@ from deploy.docs.bench_tables import (
     bench_startup,
     bench_workflows,
 )
-from deploy.docs.campaign_tables import campaign_goals, campaign_summary, campaign_taxonomy
+from deploy.docs.campaign_tables import (
+    campaign_goals,
+    campaign_stability,
+    campaign_summary,
+    campaign_taxonomy,
+)
 from deploy.docs.domains_tables import (
     domains_bands,
     domains_executors,
@@ -34,6 +39,7 @@ from deploy.docs.sources import (
     BENCH_DIR,
     CAMPAIGN_DIR,
     CAMPAIGN_JSON,
+    CAMPAIGN_STARTS_JSON,
     DOMAINS_JSON,
     EXECUTORS_DIR,
     HOSTS_DIR,
@@ -74,6 +80,7 @@ BLOCKS: dict[str, Block] = {
     "bench-hosts": Block(bench_hosts, f"{BENCH_DIR}/{LOCKSTEP_RUN}.json, {HOSTS_DIR}/*.json"),
     "campaign-summary": Block(campaign_summary, CAMPAIGN_SOURCES),
     "campaign-taxonomy": Block(campaign_taxonomy, CAMPAIGN_SOURCES),
+    "campaign-stability": Block(campaign_stability, f"{CAMPAIGN_STARTS_JSON}, {CAMPAIGN_SOURCES}"),
     "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_SOURCES}, {RESULTS_JSON}"),
     "vision-accuracy": Block(vision_accuracy, ACCURACY_JSON),
     "domains-summary": Block(domains_summary, DOMAINS_JSON),

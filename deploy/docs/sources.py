@@ -28,6 +28,7 @@ DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain s
 ACCURACY_JSON = "docs/vision/accuracy.json"  # umay accuracy on the suite's target placements
 CAMPAIGN_DIR = "docs/campaign"
 CAMPAIGN_JSON = f"{CAMPAIGN_DIR}/causes.json"  # the random-start campaign: one cause per run
+CAMPAIGN_STARTS_JSON = f"{CAMPAIGN_DIR}/starts.json"  # its starts, as drawn
 # The same starts again with one of constant's settings changed (``umay campaign --modes
 # constant --set ... --out docs/campaign/<folder>``, the command in docs/campaign.md): each
 # folder's runs are one more row of the campaign's taxonomy, under this label, and of the
@@ -95,6 +96,7 @@ class Inputs:
     domains: Any = None  # the domain study (deploy.experiments.domains.report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
+    campaign_starts: Sequence[Mapping[str, Any]] = ()  # its starts (CAMPAIGN_STARTS_JSON)
     variants: Sequence[CampaignVariant] = ()  # constant's variants run (CONSTANT_VARIANTS)
     accuracy: Sequence[Mapping[str, Any]] = ()  # vision's accuracy, one record per condition
     # The suite's rows per camera (SUITE_CAMERAS), where both have been run.
@@ -148,6 +150,7 @@ def load_inputs(root: Path) -> Inputs:
             for path in sorted((root / EXECUTORS_DIR).glob("*/domains.json"))
         ]
         campaign = _records(root / CAMPAIGN_JSON)
+        campaign_starts = _records(root / CAMPAIGN_STARTS_JSON)
         variants = [
             CampaignVariant(folder, label, runs, in_summary)
             for folder, label, in_summary in CONSTANT_VARIANTS
@@ -170,6 +173,7 @@ def load_inputs(root: Path) -> Inputs:
         domains=domains,
         executors=executors,
         campaign=campaign,
+        campaign_starts=campaign_starts,
         variants=variants,
         accuracy=accuracy,
         suite_cameras=suite_cameras if len(suite_cameras) == len(SUITE_CAMERAS) else (),

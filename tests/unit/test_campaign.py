@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from common import kinematics as kin
-from common.config import load_scenario
+from common.config import ConstantDepth, load_scenario
+from common.runtime import parse_overrides
 from deploy.experiments.campaign.causes import CAUSES, cause_family, failure_cause, waited_for
 from deploy.experiments.campaign.report import taxonomy_markdown
+from deploy.experiments.campaign.stability import goal_stability_of
 from deploy.experiments.campaign.starts import DEFAULT_DISTRIBUTION, draw_start, load_distribution
 from deploy.experiments.compare.rows import CompareRow
 from deploy.launch.reachability import (
@@ -21,6 +23,7 @@ from deploy.launch.reachability import (
     view_angle_deg,
 )
 from services.controller.progress import stall_detail
+from services.pipeline import Pipeline
 from tests.conftest import CliResult
 
 DIST, BASE_PATH = load_distribution(DEFAULT_DISTRIBUTION)
@@ -129,6 +132,10 @@ def test_taxonomy_counts_every_start_and_run() -> None:
     low = 100.0 * ok / (ok + 1.959964**2)  # Wilson's lower bound of n out of n: n / (n + z²)
     assert f"| dynamic | {ok} | {ok} | 100.0% | {low:.1f}–100.0% |" in md
     assert f"{len(starts)} starts drawn (seed {DIST.seed}" in md
+    stabilities = [s.constant_goal_stability for s in starts if not s.refused]
+    assert all(v is not None and v > 0.0 for v in stabilities)  # starts 0–2: constant holds
+    assert f"0 of the {ok} goals run are unstable under the constant strategy's" in md
+    assert "| dynamic | " + f"{ok}/{ok} (100.0%) | – |" in md
 
 
 def test_the_first_starts_runs_are_recorded_for_the_figures_unless_none_are_wanted(
@@ -210,3 +217,30 @@ def test_bad_campaign_input_exits_2_before_any_start_is_drawn(
     assert refused.returncode == 2, refused.stderr
     assert message in refused.stderr
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("index", [0, 102])  # a goal constant holds, and one it leaves
+def test_a_starts_goal_stability_is_what_the_controller_measures_there(index: int) -> None:
+    """The campaign judges each goal from the true geometry; the controller computes the same
+    from the target it measured when it freezes its matrix (in-process lockstep)."""
+    start = draw_start(DIST, BASE, index)
+    assert not start.refused and start.constant_goal_stability is not None
+    items = [*start.overrides(), "controller.mode='constant'"]
+    scenario = load_scenario(BASE_PATH, parse_overrides(items))
+    with Pipeline(scenario, truth=False) as pipeline:
+        for _ in range(40):
+            pipeline.step()
+            if pipeline.controller.goal_stability is not None:
+                break
+    measured = pipeline.controller.goal_stability
+    assert measured is not None
+    assert measured == pytest.approx(start.constant_goal_stability, abs=0.1)
+    assert (measured > 0.0) == (index == 0)
+    per_corner = scenario.model_copy(
+        update={
+            "controller": scenario.controller.model_copy(
+                update={"constant_depth": ConstantDepth.PER_CORNER}
+            )
+        }
+    )
+    assert goal_stability_of(per_corner) == pytest.approx(1.0)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from deploy.experiments.campaign.tally import (
+    STABILITY_HEADERS,
     TALLY_HEADERS,
     RunOutcome,
     StrategyTally,
+    goal_stability_cells,
 )
 
 OUTCOMES = [
@@ -55,3 +57,26 @@ def test_a_strategy_without_runs_has_no_share_and_no_medians() -> None:
     refused = StrategyTally.tally("constant", [RunOutcome("refused at start")] * 3)
     assert (refused.runs, refused.on_goal, refused.family_count("refused at start")) == (0, 0, 3)
     assert refused.cells() == ["constant", "0", "0", "–", "–", "–", "–"]
+
+
+def test_runs_are_split_by_whether_constants_frozen_matrix_holds_the_goal() -> None:
+    stability = {"a": 1.0, "b": 0.4, "c": -1.5, "d": 0.0, "e": None, "f": 1.0}
+    outcomes = [
+        ("a", "converged"),
+        ("b", "joint limit"),
+        ("c", "converged"),
+        ("d", "marker left the image"),  # 0: not held
+        ("e", "converged"),  # no stability known: in neither column
+        ("f", "refused at start"),  # never ran
+    ]
+    assert STABILITY_HEADERS[0] == "strategy"
+    assert goal_stability_cells("constant", outcomes, stability) == [
+        "constant",
+        "1/2 (50.0%)",
+        "1/2 (50.0%)",
+    ]
+    assert goal_stability_cells("pmj", [("a", "converged")], stability) == [
+        "pmj",
+        "1/1 (100.0%)",
+        "–",
+    ]

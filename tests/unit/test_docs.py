@@ -483,6 +483,39 @@ def test_the_campaign_taxonomy_and_goals_count_every_cause_from_causes_json() ->
     assert "| 1 of 5 | 0 |" in BLOCKS["campaign-goals"].render(Inputs(campaign=runs), "docs")
 
 
+def test_the_stability_block_splits_every_row_by_the_goals_constant_leaves() -> None:
+    from deploy.docs.blocks import BLOCKS
+    from deploy.docs.sources import CampaignVariant
+
+    runs = [
+        {"start": "s1", "mode": "constant", "cause": "converged"},
+        {"start": "s2", "mode": "constant", "cause": "marker left the image"},
+        {"start": "s3", "mode": "constant", "cause": "converged"},
+        {"start": "s1", "mode": "dynamic", "cause": "converged"},
+        {"start": "s2", "mode": "dynamic", "cause": "converged"},
+        {"start": "s3", "mode": "dynamic", "cause": "joint limit"},
+        {"start": "s4", "mode": "dynamic", "cause": "refused at start"},
+    ]
+    starts = [
+        {"name": "s1", "constant_goal_stability": 1.0},
+        {"name": "s2", "constant_goal_stability": -1.5},
+        {"name": "s3", "constant_goal_stability": 0.2},
+        {"name": "s4", "constant_goal_stability": None},
+    ]
+    assert "Not run yet" in BLOCKS["campaign-stability"].render(Inputs(campaign=runs), "")
+    table = BLOCKS["campaign-stability"].render(Inputs(campaign=runs, campaign_starts=starts), "")
+    assert "| constant | 2/2 (100.0%) | 0/1 (0.0%) |" in table
+    assert "| dynamic | 1/2 (50.0%) | 1/1 (100.0%) |" in table  # the refused start left out
+    # a variant's runs are split by the campaign's starts too
+    per_corner = [{**r, "mode": "constant"} for r in runs[3:6]]
+    variant = CampaignVariant("constant_per_corner", "constant, per_corner depths", per_corner)
+    inputs = Inputs(campaign=runs, campaign_starts=starts, variants=[variant])
+    table = BLOCKS["campaign-stability"].render(inputs, "docs")
+    assert "| constant, per_corner depths | 1/2 (50.0%) | 1/1 (100.0%) |" in table
+    assert "*1 of the 3 goals run are unstable" in table
+    assert "[`starts.json`](campaign/starts.json)" in table
+
+
 def test_the_accuracy_block_renders_each_condition_from_its_json() -> None:
     from deploy.docs.blocks import BLOCKS
 

@@ -14,9 +14,12 @@ from deploy.experiments.campaign.causes import CAUSES, close_at_end, failure_cau
 from deploy.experiments.campaign.starts import Distribution, Start
 from deploy.experiments.campaign.tally import (
     ON_GOAL,
+    STABILITY_HEADERS,
     TALLY_HEADERS,
     RunOutcome,
     StrategyTally,
+    goal_stability_cells,
+    unstable_goals,
 )
 from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
 from deploy.experiments.compare.summary import format_cell, markdown_table
@@ -99,9 +102,31 @@ def taxonomy_markdown(
         "",
     ]
     parts += [f"- {n} × {reason}" for reason, n in reasons.most_common()] or ["None."]
+    parts += ["", "## The constant strategy's frozen matrix at the goal", ""]
+    parts += stability_section(starts, crows, modes)
     parts += ["", "## Runs that did not end on their goal", ""]
     parts += [f"- {r.start} · {r.mode}: **{r.cause}**; {r.detail}" for r in failures] or ["None."]
     return "\n".join(parts) + "\n"
+
+
+def stability_section(
+    starts: Sequence[Start], crows: Sequence[CampaignRow], modes: Sequence[str]
+) -> list[str]:
+    """campaign.md's lines on the goals the constant strategy's frozen matrix makes unstable
+    (docs/campaign.md): how many, which, and every strategy's success on either kind."""
+    stability = {s.name: s.constant_goal_stability for s in starts}
+    unstable, known = unstable_goals(stability)
+    body = [
+        goal_stability_cells(mode, [(r.start, r.cause) for r in crows if r.mode == mode], stability)
+        for mode in modes
+    ]
+    return [
+        f"{len(unstable)} of the {known} goals run are unstable under the constant strategy's "
+        "frozen matrix (an eigenvalue of `L_c⁺ L*` with a real part at or below 0, from the "
+        "true geometry): " + (", ".join(unstable) or "none") + ".",
+        "",
+        markdown_table(list(STABILITY_HEADERS), body),
+    ]
 
 
 def starts_json(starts: Sequence[Start]) -> str:

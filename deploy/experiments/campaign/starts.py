@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common import kinematics as kin
 from common.config import Scenario, ScenarioError
+from deploy.experiments.campaign.stability import goal_stability_of
 from deploy.experiments.compare import CompareError
 from deploy.launch.reachability import (
     MAX_VIEW_ANGLE_DEG,
@@ -106,6 +107,9 @@ class Start:
     refused: str
     draws: int  # draws it took
     redrawn: dict[str, int]  # why the draws before it were drawn again (REDRAW_*)
+    # The constant strategy's stability at the goal (.stability; ≤ 0: its frozen matrix drives
+    # the hand away from it); None for a start not run.
+    constant_goal_stability: float | None = None
 
     def overrides(self) -> tuple[str, ...]:
         """The scenario overrides that make the base scenario this start."""
@@ -223,7 +227,14 @@ def draw_start(dist: Distribution, base: Scenario, index: int) -> Start:
             continue
         except ScenarioError as exc:
             refused = str(exc)
-        return replace(start, q0_rad=q0, refused=refused, redrawn=dict(redrawn))
+        stability = None if refused else goal_stability_of(scenario)
+        return replace(
+            start,
+            q0_rad=q0,
+            refused=refused,
+            redrawn=dict(redrawn),
+            constant_goal_stability=stability,
+        )
     return Start(
         index, name, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), 0.0, None,
         f"no start drawn in {dist.max_draws} draws", dist.max_draws, dict(redrawn),

@@ -106,3 +106,42 @@ class StrategyTally:
     def family_count(self, family: str) -> int:
         """How many of the outcomes fell in the cause ``family`` (0 where none)."""
         return self.families.get(family, 0)
+
+
+# The columns of the table that splits each strategy's runs by the constant strategy's
+# stability at the start's goal (:func:`goal_stability_cells`).
+STABILITY_HEADERS = (
+    "strategy",
+    "on goal, goals constant's matrix holds",
+    "on goal, goals it leaves",
+)
+
+
+def goal_stability_cells(
+    label: str, outcomes: Iterable[tuple[str, str]], stability: Mapping[str, float | None]
+) -> list[str]:
+    """A row under :data:`STABILITY_HEADERS`: ``label``, then the runs on goal out of those
+    from starts whose goal the constant strategy's frozen matrix holds (``stability`` of the
+    start above 0, :mod:`services.controller.stability`) and out of those whose goal it makes
+    unstable. ``outcomes``: each run's start and cause; refused starts, and starts without a
+    stability, are left out."""
+    every = list(outcomes)
+    cells = [label]
+    for holds in (True, False):
+        own = [
+            cause
+            for start, cause in every
+            if cause != REFUSED
+            and (value := stability.get(start)) is not None
+            and (value > 0.0) == holds
+        ]
+        won = sum(cause == ON_GOAL for cause in own)
+        cells.append(f"{won}/{len(own)} ({100.0 * won / len(own):.1f}%)" if own else "–")
+    return cells
+
+
+def unstable_goals(stability: Mapping[str, float | None]) -> tuple[list[str], int]:
+    """The starts whose goal the constant strategy's frozen matrix makes unstable (a stability
+    at or below 0), in order, and how many starts have a stability at all (those run)."""
+    unstable = [start for start, value in stability.items() if value is not None and value <= 0]
+    return unstable, sum(value is not None for value in stability.values())
