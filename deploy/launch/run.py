@@ -26,6 +26,7 @@ from common.runtime import parse_overrides
 from common.session import DEFAULT_ENDPOINT, free_tcp_endpoint, open_session
 from deploy.consoles import progress_console
 from deploy.launch.evaluate import RunResult, pose
+from deploy.launch.goal_stability import unstable_goal_warning
 from deploy.launch.reachability import check_scenario
 from deploy.launch.run_end import EndLimits, HoldState, RunEnd, judge_twist, run_result
 from deploy.supervisor import Supervisor
@@ -57,6 +58,8 @@ def prepare(scenario_path: str | None, overrides: list[str]) -> Scenario:
     """Validate everything before anything starts (raises ScenarioError)."""
     scenario = load_scenario(scenario_path, parse_overrides(overrides))
     check_scenario(scenario)
+    if warning := unstable_goal_warning(scenario):
+        log.warning("%s", warning)
     return scenario
 
 

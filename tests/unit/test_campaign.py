@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from pathlib import Path
 
@@ -13,15 +14,16 @@ from common.config import ConstantDepth, load_scenario
 from common.runtime import parse_overrides
 from deploy.experiments.campaign.causes import CAUSES, cause_family, failure_cause, waited_for
 from deploy.experiments.campaign.report import taxonomy_markdown
-from deploy.experiments.campaign.stability import goal_stability_of
 from deploy.experiments.campaign.starts import DEFAULT_DISTRIBUTION, draw_start, load_distribution
 from deploy.experiments.compare.rows import CompareRow
+from deploy.launch.goal_stability import goal_stability_of
 from deploy.launch.reachability import (
     check_scenario,
     goal_pose,
     marker_in_image,
     view_angle_deg,
 )
+from deploy.launch.run import prepare
 from services.controller.progress import stall_detail
 from services.pipeline import Pipeline
 from tests.conftest import CliResult
@@ -244,3 +246,25 @@ def test_a_starts_goal_stability_is_what_the_controller_measures_there(index: in
         }
     )
     assert goal_stability_of(per_corner) == pytest.approx(1.0)
+
+
+def test_a_constant_run_whose_goal_its_matrix_leaves_is_warned_of_before_launch(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    unstable, stable = draw_start(DIST, BASE, 102), draw_start(DIST, BASE, 0)
+    with caplog.at_level(logging.WARNING, logger="umay.run"):
+        prepare(str(BASE_PATH), [*unstable.overrides(), "controller.mode='constant'"])
+    assert "makes this goal unstable" in caplog.text and "-1.4" in caplog.text
+    caplog.clear()
+    for items in (
+        [*unstable.overrides(), "controller.mode='dynamic'"],  # inverts L* at its goal
+        [
+            *unstable.overrides(),
+            "controller.mode='constant'",
+            "controller.constant_depth='per_corner'",
+        ],
+        [*stable.overrides(), "controller.mode='constant'"],
+    ):
+        with caplog.at_level(logging.WARNING, logger="umay.run"):
+            prepare(str(BASE_PATH), items)
+        assert "unstable" not in caplog.text, items

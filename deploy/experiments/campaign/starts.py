@@ -18,8 +18,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common import kinematics as kin
 from common.config import Scenario, ScenarioError
-from deploy.experiments.campaign.stability import goal_stability_of
 from deploy.experiments.compare import CompareError
+from deploy.launch.goal_stability import goal_stability_of
 from deploy.launch.reachability import (
     MAX_VIEW_ANGLE_DEG,
     ArmInsideScenery,
