@@ -5,7 +5,9 @@ object's top face 35 mm from its goal; with the clearance lifting its twist stra
 at 23 px. ``umay run`` ends it as stalled within stall_after_s of its best error, naming the
 clearance; under ``umay up`` the controller's status says it is stalled, since when, and that
 the clearance holds the hand. With the default correction (the law's least squares under the
-clearance) the same start converges."""
+clearance) the same start converges. Start 3's goal is one constant's frozen matrix makes
+unstable (services/controller/stability.py): its unstable direction is what lowers the hand,
+and both ``umay run`` before launch and the controller's status say so."""
 
 from __future__ import annotations
 
@@ -49,6 +51,7 @@ def test_umay_run_ends_a_stalled_law_early_naming_its_best_error(tmp_path: Path)
     proc, r = umay_run(tmp_path, *start_3())
     assert r is not None, proc.stderr
     assert proc.returncode == 1 and r["reason"] == "stalled", r
+    assert "makes this goal unstable" in proc.stderr, proc.stderr  # warned before launch
     assert r["sim_time_s"] < 10.0, r  # not the 40 s timeout
     assert "not below" in r["detail"] and HELD_BY_CLEARANCE in r["detail"], r
     assert r["final_pixel_rms"] > 5.0, r
@@ -69,6 +72,7 @@ def test_umay_up_keeps_going_and_status_says_it_is_stalled(tmp_path: Path) -> No
         assert reason.startswith("stalled: image error"), fields
         assert reason.endswith(HELD_BY_CLEARANCE), reason
         assert not fields["converged"] and not fields["holding"], fields
+        assert fields["goal_stability"] < 0.0, fields  # the frozen matrix leaves this goal
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=30)
