@@ -268,3 +268,12 @@ def test_a_constant_run_whose_goal_its_matrix_leaves_is_warned_of_before_launch(
         with caplog.at_level(logging.WARNING, logger="umay.run"):
             prepare(str(BASE_PATH), items)
         assert "unstable" not in caplog.text, items
+
+
+def test_every_goal_of_the_suite_is_one_constants_frozen_matrix_holds() -> None:
+    """What docs/results.md says: the suite's twelve goals are stable under constant."""
+    suite = sorted(BASE_PATH.parent.glob("*.toml"))  # the base is the suite's first
+    assert len(suite) == 12
+    for path in suite:
+        scenario = load_scenario(path, parse_overrides(["controller.mode='constant'"]))
+        assert goal_stability_of(scenario) > 0.0, path.name
