@@ -3,7 +3,7 @@ gone, and whether the hand is what hides it. Pure."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 from common.camera import CameraIntrinsics, project
 from common.kinematics import cross
 from common.marker import Marker
+from common.motion import MarkerMotion
 
 FloatArray = NDArray[np.float64]
 
@@ -62,3 +63,38 @@ def may_be_behind_the_hand(target: Marker) -> bool:
     """Seen partly, or with something in front: what moving the hand away can uncover (a
     target simply gone, with nothing in front of it, cannot be)."""
     return target.state == "partial" or target.occluded
+
+
+@dataclass
+class TargetMemory:
+    """The target's last usable view and its motion estimated from its recent views.
+
+    As the hand closes in it necessarily hides the target from the fixed camera. While vision
+    can fit the partly hidden square it is used as seen; when it cannot, the goal comes from
+    the last view carried along the target's estimated velocity, but only while vision sees
+    something in front of the target (``occluded``) and the hand is near it. ``predicted``:
+    the goal is where that motion says a hidden target went, unconfirmed since, so not a goal
+    to stop on."""
+
+    last: Marker | None = None
+    motion: MarkerMotion = field(default_factory=MarkerMotion)
+    predicted: bool = False
+
+    def now(
+        self, target: Marker, hand: Marker, k: CameraIntrinsics, t_s: float
+    ) -> tuple[Marker, bool, bool]:
+        """``(target, remembered, seen_again)``: the target as seen (remembered when usable),
+        or its last view carried to ``t_s`` where the hand hides it (``remembered``);
+        ``seen_again``: usable again after a prediction."""
+        if target.usable:
+            seen_again = self.predicted
+            self.last, self.predicted = target, False
+            self.motion = self.motion.seen(t_s, target.points_m)
+            return target, False, seen_again
+        if target.occluded and self.last is not None:
+            shift = self.motion.shift_m(t_s)
+            expected = carried(self.last, shift, k)
+            if hand_hides_target(hand, expected):
+                self.predicted = self.predicted or bool(np.any(shift))
+                return expected, True, False
+        return target, False, False

@@ -18,15 +18,13 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode
-from common.kinematics import BASE_UP, cross, skew
+from common.kinematics import BASE_UP
 from common.marker import Marker
-from common.motion import MarkerMotion
 from services.controller import acquisition as acq
 from services.controller.convergence import Plateau, settled_error_px_rms
 from services.controller.goal import (
-    carried,
+    TargetMemory,
     desired_observation,
-    hand_hides_target,
     may_be_behind_the_hand,
 )
 from services.controller.hand import HandMemory
@@ -41,43 +39,9 @@ from services.controller.interaction import (
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
 from services.controller.stability import constant_goal_stability
+from services.controller.twist import camera_twist_to_base_ee, clamp_twist
 
 FloatArray = NDArray[np.float64]
-
-
-def camera_twist_to_base_ee(
-    twist_cam: FloatArray, t_base_cam: FloatArray, p_ee_base_m: FloatArray
-) -> FloatArray:
-    """Carry a hand twist from the camera frame (referenced at the camera origin) to the base
-    frame, referenced at the end-effector origin: ``ω_b = R ω``, ``v_e = R v + ω_b × (p_e - t)``.
-    """
-    rot, origin = t_base_cam[:3, :3], t_base_cam[:3, 3]
-    omega_b = rot @ twist_cam[3:]
-    v_e = rot @ twist_cam[:3] + cross(omega_b, p_ee_base_m - origin)
-    return np.concatenate([v_e, omega_b])
-
-
-def twist_matrix_base_ee_to_cam(t_base_cam: FloatArray, p_ee_base_m: FloatArray) -> FloatArray:
-    """The 6×6 inverse of :func:`camera_twist_to_base_ee` as a matrix: a hand twist in the base
-    frame at the end-effector origin to the camera frame at the camera origin,
-    ``ω = Rᵀ ω_b``, ``v = Rᵀ (v_e + [p_e − t]× ω_b)``."""
-    rot, origin = t_base_cam[:3, :3], t_base_cam[:3, 3]
-    out = np.zeros((6, 6))
-    out[:3, :3] = rot.T
-    out[:3, 3:] = rot.T @ skew(np.asarray(p_ee_base_m, dtype=float) - origin)
-    out[3:, 3:] = rot.T
-    return out
-
-
-def clamp_twist(twist: FloatArray, max_linear_m_s: float, max_angular_rad_s: float) -> FloatArray:
-    """Scale the whole twist down (direction kept) so both norms respect their limits."""
-    scale = 1.0
-    lin, ang = np.linalg.norm(twist[:3]), np.linalg.norm(twist[3:])
-    if lin > max_linear_m_s:
-        scale = min(scale, max_linear_m_s / lin)
-    if ang > max_angular_rad_s:
-        scale = min(scale, max_angular_rad_s / ang)
-    return twist * scale
 
 
 @dataclass(frozen=True)
@@ -132,13 +96,10 @@ class IbvsController:
     """Per-frame IBVS step.
 
     State: the frozen constant Jacobian, the errors convergence is judged on, the last usable
-    view of the target and its recent motion. As the hand closes in it necessarily hides the
-    target from the fixed camera: while vision can fit the partly hidden square it is used as
-    seen; when it cannot, the desired features come from the last view carried along the
-    target's estimated velocity, but only while vision sees something in front of the target
-    (``occluded``) and the hand is near it. Otherwise, while either marker is not usable, the
-    controller holds (zero twist, ``valid`` False, ``hold_reason`` says why) and resumes when it
-    is back.
+    views of both markers (the target's with its recent motion, :class:`.goal.TargetMemory`;
+    the hand's, :class:`.hand.HandMemory`), the corner pairing and target acquisition. While
+    either marker is not usable (and cannot be remembered), the controller holds (zero twist,
+    ``valid`` False, ``hold_reason`` says why) and resumes when it is back.
     """
 
     config: ControllerConfig
@@ -154,11 +115,9 @@ class IbvsController:
     goal_stability: float | None = None
     # s − s* (px, 2N) of the last frames servoed on a still, seen goal: convergence's window
     recent_errors_px: list[FloatArray] = field(default_factory=list)
-    last_target: Marker | None = None
     pairing: int | None = None  # hand corner i goes to target corner (i + pairing) % 4
-    motion: MarkerMotion = field(default_factory=MarkerMotion)  # the target's
-    # The hidden target is where its motion predicts, unconfirmed since: not a goal to stop on.
-    predicted: bool = False
+    # The target's last usable view and motion, and whether the goal is a prediction.
+    target_memory: TargetMemory = field(default_factory=TargetMemory)
     hold_since_s: float | None = None  # sim time the current hold began
     acquisition: acq.Acquisition | None = None
     acquisitions: int = 0  # attempts made since the last convergence
@@ -183,25 +142,15 @@ class IbvsController:
         pose ``t_base_ee``, 4×4, to carry a hand vision cannot use; None: hold instead) and
         the elbow at ``elbow_base_m`` (for acquisition's directions; None: image directions
         alone)."""
-        remembered = False
-        seen = target
         hand_predicted = False
         if t_base_ee is not None:
             hand, hand_predicted = self.hand_memory.now(
                 hand, t_base_ee, self.t_base_cam, k, t_s, self.config.predict_hand_s
             )
-        if target.usable:
-            if self.predicted:  # the window's errors were against the prediction: afresh
-                self.recent_errors_px, self.plateau = [], None
-            self.last_target = target
-            self.motion = self.motion.seen(t_s, target.points_m)
-            self.predicted = False
-        elif target.occluded and self.last_target is not None:
-            shift = self.motion.shift_m(t_s)
-            expected = carried(self.last_target, shift, k)
-            if hand_hides_target(hand, expected):
-                target, remembered = expected, True
-                self.predicted = self.predicted or bool(np.any(shift))
+        seen = target
+        target, remembered, seen_again = self.target_memory.now(target, hand, k, t_s)
+        if seen_again:  # the window's errors were against the prediction: afresh
+            self.recent_errors_px, self.plateau = [], None
         if self.acquisition is not None:
             if seen.usable or not hand.usable or not self.config.acquire:
                 self.acquisition = None  # uncovered (or the hand lost): back to the rules
@@ -212,29 +161,58 @@ class IbvsController:
         # the marker's true edges to a fraction of a pixel, pins the pose down and shows most
         # of the marker, so a fitted hand's corners are as good as a whole one's.
         if not (hand.usable and target.usable):
-            self.recent_errors_px, self.plateau = [], None
-            which = "hand" if not hand.usable else "target"
-            state = hand.state if not hand.usable else target.state
-            if self.hold_since_s is None:
-                self.hold_since_s = t_s
-            reason = f"{which} {state}"
-            # A target never seen at all is in the image (the pre-launch check makes sure):
-            # something, most likely the arm, is in front of it.
-            behind = may_be_behind_the_hand(seen) or self.last_target is None
-            if hand.usable and behind and self.config.acquire:
-                if self.acquisition_failed:
-                    reason = self.acquisition_failed
-                elif t_s - self.hold_since_s >= self.config.acquire_after_s:
-                    started = self._start_acquisition(
-                        reason, hand, k, p_ee_base_m, t_s, elbow_base_m
-                    )
-                    if started is not None:
-                        return started
-                    reason = self.acquisition_failed
-            return ControlOutput(
-                self._zero.copy(), False, 0.0, False, False, reason, "holding", self.hold_since_s
-            )
+            return self._hold(hand, target, seen, k, p_ee_base_m, t_s, elbow_base_m)
         self.hold_since_s = None
+        return self._servo(
+            hand, target, k, p_ee_base_m, t_s, elbow_base_m, remembered, hand_predicted
+        )
+
+    def _hold(
+        self,
+        hand: Marker,
+        target: Marker,
+        seen: Marker,
+        k: CameraIntrinsics,
+        p_ee_base_m: FloatArray,
+        t_s: float,
+        elbow_base_m: FloatArray | None,
+    ) -> ControlOutput:
+        """A marker cannot be used (``target``: as used, ``seen``: as vision saw it): hold,
+        or begin uncovering a target the hand may be in front of."""
+        self.recent_errors_px, self.plateau = [], None
+        which = "hand" if not hand.usable else "target"
+        state = hand.state if not hand.usable else target.state
+        if self.hold_since_s is None:
+            self.hold_since_s = t_s
+        reason = f"{which} {state}"
+        # A target never seen at all is in the image (the pre-launch check makes sure):
+        # something, most likely the arm, is in front of it.
+        behind = may_be_behind_the_hand(seen) or self.target_memory.last is None
+        if hand.usable and behind and self.config.acquire:
+            if self.acquisition_failed:
+                reason = self.acquisition_failed
+            elif t_s - self.hold_since_s >= self.config.acquire_after_s:
+                started = self._start_acquisition(reason, hand, k, p_ee_base_m, t_s, elbow_base_m)
+                if started is not None:
+                    return started
+                reason = self.acquisition_failed
+        return ControlOutput(
+            self._zero.copy(), False, 0.0, False, False, reason, "holding", self.hold_since_s
+        )
+
+    def _servo(
+        self,
+        hand: Marker,
+        target: Marker,
+        k: CameraIntrinsics,
+        p_ee_base_m: FloatArray,
+        t_s: float,
+        elbow_base_m: FloatArray | None,
+        remembered: bool,
+        hand_predicted: bool,
+    ) -> ControlOutput:
+        """The law's twist on both markers usable (``remembered``: the target from memory;
+        ``hand_predicted``: the hand carried by the encoders), and whether it converged."""
         target = desired_observation(target, self.approach_height_m, k)
         if self.l_constant is None:
             depth = self.config.constant_depth
@@ -249,7 +227,7 @@ class IbvsController:
             )
         target = rolled(target, self.pairing)
         track = self.config.track_target_motion
-        velocity = self.motion.velocity_m_s(t_s) if track else np.zeros(3)
+        velocity = self.target_memory.motion.velocity_m_s(t_s) if track else np.zeros(3)
         if self.config.mode is JacobianMode.POINTS3D:
             error, m = self._points3d_law(hand, target)
             target_rate = np.tile(velocity, len(target.points_m))
@@ -274,7 +252,8 @@ class IbvsController:
         else:
             self.recent_errors_px = []
         settled = self._settled(t_s)
-        converged = settled and not self.predicted
+        predicted = self.target_memory.predicted
+        converged = settled and not predicted
         if converged:
             self.acquisitions, self.acquisition_failed = 0, ""
         # On a prediction the hand can sit forever: once it has settled there (as it would
@@ -282,7 +261,7 @@ class IbvsController:
         # whether it is really there. Judged like convergence, on the averaged error or its
         # plateau: a hand wobbling a few hundredths of a pixel about 0.25 px was never under
         # it for five frames in a row, and sat on the prediction until it was reported stalled.
-        if settled and self.predicted and self.config.acquire:
+        if settled and predicted and self.config.acquire:
             self.recent_errors_px, self.plateau = [], None
             why = "predicted target unconfirmed"
             started = self._start_acquisition(why, hand, k, p_ee_base_m, t_s, elbow_base_m)

@@ -72,7 +72,7 @@ class ControllerService:
             "stalled": self.stalled(),
             "target_remembered": self.target_remembered,
             # servoing on where its motion says a hidden target went, not yet seen there
-            "target_predicted": self.controller.predicted,
+            "target_predicted": self.controller.target_memory.predicted,
             "target_speed_m_s": self.target_speed_m_s,
             "clearance_lifts": self.clearance_lifts,
             # servoing on the hand's last view carried along the encoders (vision cannot use it)
@@ -128,7 +128,7 @@ class ControllerService:
         )
         self.pub.put(self.last_output)
         # For status only: after the twist is out, off the loop's latency.
-        velocity = self.controller.motion.velocity_m_s(features.header.sim_time_s)
+        velocity = self.controller.target_memory.motion.velocity_m_s(features.header.sim_time_s)
         self.target_speed_m_s = float(np.linalg.norm(velocity))
 
     def on_event(self, key: str, msg: Features | JointState) -> None:

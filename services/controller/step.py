@@ -20,12 +20,8 @@ from common.marker import Marker
 from common.messages import EndEffectorTwist, Features, Header
 from services.controller import clearance
 from services.controller.constrained import least_feature_change
-from services.controller.ibvs import (
-    ControlOutput,
-    IbvsController,
-    clamp_twist,
-    twist_matrix_base_ee_to_cam,
-)
+from services.controller.ibvs import ControlOutput, IbvsController
+from services.controller.twist import clamp_twist, twist_matrix_base_ee_to_cam
 
 ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
 
@@ -58,7 +54,7 @@ def above_the_target(
     ``controller.clearance_correction = "lift"``, or a twist not the law's: lifted alone);
     unchanged while holding or before any view."""
     cfg = controller.config
-    last = controller.last_target
+    last = controller.target_memory.last
     if not out.valid or not cfg.keep_above_target or last is None:
         return out
     plane = clearance.target_top_plane(last.points_m, controller.t_base_cam)

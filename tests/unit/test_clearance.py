@@ -19,12 +19,9 @@ from services.controller.clearance import (
     lift_short,
     target_top_plane,
 )
-from services.controller.ibvs import (
-    ControlOutput,
-    IbvsController,
-    twist_matrix_base_ee_to_cam,
-)
+from services.controller.ibvs import ControlOutput, IbvsController
 from services.controller.step import above_the_target, twist_message
+from services.controller.twist import twist_matrix_base_ee_to_cam
 
 FLOOR = Plane(np.zeros(3), np.array([0.0, 1.0, 0.0]))  # y up, as the arm's base frame
 # A hand box lying flat, its lowest face 10 mm above the floor; the end-effector origin above it.
@@ -93,7 +90,7 @@ def above_a_square() -> tuple[IbvsController, np.ndarray, np.ndarray, np.ndarray
     square = np.array([[x - 0.03, floor_y, z - 0.03], [x + 0.03, floor_y, z - 0.03],
                        [x + 0.03, floor_y, z + 0.03], [x - 0.03, floor_y, z + 0.03]])  # fmt: skip
     controller = IbvsController(ControllerConfig(), np.eye(4))
-    controller.last_target = Marker.seen_at(square, load_scenario(None).camera.intrinsics())
+    controller.target_memory.last = Marker.seen_at(square, load_scenario(None).camera.intrinsics())
     return controller, t_ee, corners, square
 
 

@@ -15,12 +15,7 @@ from common.messages import MarkerState
 from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
 from services.controller.convergence import settled_error_px_rms
 from services.controller.goal import desired_observation
-from services.controller.ibvs import (
-    IbvsController,
-    camera_twist_to_base_ee,
-    clamp_twist,
-    twist_matrix_base_ee_to_cam,
-)
+from services.controller.ibvs import IbvsController
 from services.controller.interaction import (
     USES_CURRENT,
     USES_DESIRED,
@@ -30,6 +25,11 @@ from services.controller.interaction import (
     point_feature_jacobian,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2
+from services.controller.twist import (
+    camera_twist_to_base_ee,
+    clamp_twist,
+    twist_matrix_base_ee_to_cam,
+)
 
 K = CameraIntrinsics.from_fov(640, 480, 57.0)
 RNG = np.random.default_rng(7)
@@ -261,12 +261,12 @@ def test_no_convergence_on_a_predicted_target_until_it_is_seen_again() -> None:
         assert out.valid and not out.converged
         if t - last_seen_s < PREDICTION_HORIZON_S:
             assert out.target_remembered and out.phase == "servoing"
-    assert ctrl.predicted and out.phase == "acquiring"
+    assert ctrl.target_memory.predicted and out.phase == "acquiring"
     assert out.hold_reason.startswith("acquiring: predicted target unconfirmed")
     for _ in range(6):  # seen again where predicted: done
         t += dt
         out = ctrl.step(hand, observe(square_points(predicted)), K, np.zeros(3), t)
-    assert not ctrl.predicted and out.converged
+    assert not ctrl.target_memory.predicted and out.converged
 
 
 def test_a_hand_settled_just_above_the_threshold_on_a_prediction_goes_to_confirm_it() -> None:

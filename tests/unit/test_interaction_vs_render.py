@@ -12,11 +12,11 @@ import numpy as np
 
 from common import kinematics as kin
 from common.camera import pixel_to_normalized
-from services.controller.ibvs import twist_matrix_base_ee_to_cam
 from services.controller.interaction import (
     interaction_matrix,
     point_feature_jacobian,
 )
+from services.controller.twist import twist_matrix_base_ee_to_cam
 from services.vision.measurement import measure_markers
 
 
