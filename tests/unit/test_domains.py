@@ -280,3 +280,21 @@ def test_starts_are_drawn_on_the_scenario_the_runs_see() -> None:
     target = with_target(cued, start.target_position_m, start.target_yaw_rad)
     hand = kin.forward_kinematics(np.array(start.q0_rad)) @ kin.hand_marker_in_ee()
     assert kin.rotation_error_rad(hand[:3, :3], goal_pose(target)[:3, :3]) < 1e-3
+
+
+def test_every_published_goal_holds_for_constants_frozen_matrix() -> None:
+    """What docs/domains.md says: no goal of the study is one the constant strategy's frozen
+    matrix makes unstable (some of the random starts' goals are)."""
+    import json
+
+    from deploy.experiments.campaign.starts import with_target
+    from deploy.launch.goal_stability import goal_stability_of
+
+    study = json.loads(
+        (Path(__file__).resolve().parents[2] / "docs/domains/domains.json").read_text()
+    )
+    runnable = [s for s in study["starts"] if not s["refused"]]
+    assert len(runnable) > 100
+    for s in runnable:  # the base's constant_depth: the thesis's single depth
+        placed = with_target(BASE, s["target_position_m"], s["target_yaw_rad"])
+        assert goal_stability_of(placed) > 0.0, s["name"]
