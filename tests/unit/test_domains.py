@@ -295,6 +295,7 @@ def test_every_published_goal_holds_for_constants_frozen_matrix() -> None:
     )
     runnable = [s for s in study["starts"] if not s["refused"]]
     assert len(runnable) > 100
-    for s in runnable:  # the base's constant_depth: the thesis's single depth
+    assert BASE.controller.constant_depth == "single"  # the thesis's: what can leave a goal
+    for s in runnable:
         placed = with_target(BASE, s["target_position_m"], s["target_yaw_rad"])
         assert goal_stability_of(placed) > 0.0, s["name"]
