@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from common.config import ScenarioError
-from deploy.consoles import progress_console
+from deploy.consoles import progress_bar, progress_console
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.domains.cli import add_domains_parser
@@ -104,7 +104,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
-        Progress,
         TextColumn,
         TimeElapsedColumn,
         TimeRemainingColumn,
@@ -154,7 +153,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     rows: list[CompareRow] = []
     running: set[str] = set()
     # Ctrl-C and SIGTERM: the running pipelines are stopped, nothing is left behind.
-    with stop_requested() as stop, Progress(*columns, console=console, transient=False) as bar:
+    with stop_requested() as stop, progress_bar(console, *columns) as bar:
         task = bar.add_task("compare", total=len(the_plan.jobs))
 
         def on_start(job: Job) -> None:
@@ -200,7 +199,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def draw_figures(plan_: Plan, out_dir: Path, console: Console) -> list[Path]:
     """The comparison's figures (:func:`~deploy.experiments.compare.run.make_figures`) with a
     progress bar: after the runs they take a second or two per strategy."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
     from deploy.experiments.compare.run import make_figures
 
@@ -209,7 +208,7 @@ def draw_figures(plan_: Plan, out_dir: Path, console: Console) -> list[Path]:
     columns = (
         TextColumn("[bold]figures"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
     )  # fmt: skip
-    with Progress(*columns, console=console, transient=True) as bar:
+    with progress_bar(console, *columns, transient=True) as bar:
         task = bar.add_task("figures", total=len(plan_.modes) + 1)  # and the overlay
         return make_figures(plan_, out_dir, lambda _name: bar.advance(task))
 
@@ -262,7 +261,7 @@ def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_campaign(args: argparse.Namespace) -> int:
     """Exit 0 when every run has a named cause (whatever it is), 2 on bad input, 130 when
     interrupted."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
     from deploy.experiments.campaign.causes import failure_cause
     from deploy.experiments.campaign.run import (
@@ -287,7 +286,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         campaign_inputs(args.n, Path(args.distribution), args.seed, args.set)
         out_dir = check_output_dir("--out", args.out)
         columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn())
-        with Progress(*columns, TimeElapsedColumn(), console=console, transient=True) as bar:
+        with progress_bar(console, *columns, TimeElapsedColumn(), transient=True) as bar:
             drawing = bar.add_task("drawing starts", total=len(only) or args.n)
             cplan = plan_campaign(
                 args.n, modes, Path(args.distribution), args.seed, args.set,
@@ -335,8 +334,6 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
 
 def cmd_accuracy(args: argparse.Namespace) -> int:
-    from rich.progress import Progress
-
     from common.config import load_scenario
     from common.runtime import parse_overrides
 
@@ -355,7 +352,7 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     from deploy.experiments.accuracy import default_conditions, evaluate, format_table
 
     conditions = default_conditions(args.seed)
-    with Progress(transient=True) as bar:
+    with progress_bar(progress_console(), transient=True) as bar:
         task = bar.add_task("postures", total=args.frames * len(scenarios))
         results = evaluate(
             scenarios,

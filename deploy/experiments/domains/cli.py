@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from deploy.consoles import progress_console
+from deploy.consoles import progress_bar, progress_console
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OK
 from deploy.interrupts import stop_requested
 
@@ -96,7 +96,6 @@ def cmd_domains(args: argparse.Namespace) -> int:
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
-        Progress,
         TextColumn,
         TimeElapsedColumn,
         TimeRemainingColumn,
@@ -149,7 +148,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
             for c in cells
             for d in range(study.draws)
         ]
-        with Progress(*columns, console=console) as bar:
+        with progress_bar(console, *columns) as bar:
             task = bar.add_task("drawing starts", total=len(items))
             drawn = gather(executor, draw_one, items, stop, lambda _i, _v: bar.advance(task))
         starts = [drawn[i] for i in sorted(drawn)]
@@ -179,7 +178,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
             f"{args.pipeline} pipeline, {executor.name}"
         )
         counts = {"converged": 0, "failed": 0}
-        with Progress(*columns, console=console) as bar, jsonl.open("a") as sink:
+        with progress_bar(console, *columns) as bar, jsonl.open("a") as sink:
             progress = bar.add_task("runs", total=len(todo))
 
             def on_done(_i: int, rec: dom.DomainRecord) -> None:
