@@ -100,16 +100,8 @@ class ControllerService:
         )
 
     def on_pair(self, features: Features, joints: JointState) -> None:
-        frozen = self.controller.goal_stability
+        frozen_before = self.controller.goal_stability is not None
         out = control_step(self.controller, features, joints.position_rad)
-        stability = self.controller.goal_stability
-        if frozen is None and stability is not None and stability <= 0.0:
-            log.warning(
-                "the constant matrix frozen at this goal makes it unstable (least real part "
-                "of the eigenvalues of L_c+ L* %.2f): expect the hand to leave it; "
-                "controller.constant_depth = 'per_corner' builds one that holds it",
-                stability,
-            )
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
         self.hold_reason, self.phase = out.hold_reason, out.phase
@@ -127,9 +119,22 @@ class ControllerService:
             self.controller.config.mode.value,
         )
         self.pub.put(self.last_output)
-        # For status only: after the twist is out, off the loop's latency.
+        # For status and the log only: after the twist is out, off the loop's latency.
+        if not frozen_before:
+            self.warn_if_goal_unstable()
         velocity = self.controller.target_memory.motion.velocity_m_s(features.header.sim_time_s)
         self.target_speed_m_s = float(np.linalg.norm(velocity))
+
+    def warn_if_goal_unstable(self) -> None:
+        """Once, when the constant strategy has frozen a matrix that leaves its goal."""
+        stability = self.controller.goal_stability
+        if stability is not None and stability <= 0.0:
+            log.warning(
+                "the constant matrix frozen at this goal makes it unstable (least real part "
+                "of the eigenvalues of L_c+ L* %.2f): expect the hand to leave it; "
+                "controller.constant_depth = 'per_corner' builds one that holds it",
+                stability,
+            )
 
     def on_event(self, key: str, msg: Features | JointState) -> None:
         if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:

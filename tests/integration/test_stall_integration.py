@@ -52,6 +52,8 @@ def test_umay_run_ends_a_stalled_law_early_naming_its_best_error(tmp_path: Path)
     assert r is not None, proc.stderr
     assert proc.returncode == 1 and r["reason"] == "stalled", r
     assert "makes this goal unstable" in proc.stderr, proc.stderr  # warned before launch
+    # ... and by the controller, from the target it measured, when it froze its matrix
+    assert "makes it unstable" in (tmp_path / "logs" / "controller.log").read_text()
     assert r["sim_time_s"] < 10.0, r  # not the 40 s timeout
     assert "not below" in r["detail"] and HELD_BY_CLEARANCE in r["detail"], r
     assert r["final_pixel_rms"] > 5.0, r
