@@ -3,20 +3,19 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+COMPILED := $(VENV)/.compiled
 
 .PHONY: run test test-unit lint format docs clean
 
-# uv installs the same versions as pip in a third of the time (wheels fetched in parallel), byte-
-# code compiled as pip does (CI sets PYTHONDONTWRITEBYTECODE: no process would cache it). uv comes
-# from the machine's own pip into a folder of the venv, so the venv is made without a pip of its
-# own (ensurepip takes longer than fetching uv); should uv not install or run here, the venv gets
-# its pip after all and installs with it.
+# uv installs the same versions as pip in a third of the time (wheels fetched in parallel). uv
+# comes from the machine's own pip into a folder of the venv, so the venv is made without a pip of
+# its own (ensurepip takes longer than fetching uv); should uv not install or run here, the venv
+# gets its pip after all and installs with it.
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv --without-pip $(VENV)
 	( PIP_ROOT_USER_ACTION=ignore $(PYTHON) -m pip install --quiet --disable-pip-version-check \
 	    --upgrade --target $(VENV)/uv uv && \
-	  $(VENV)/uv/bin/uv pip install --quiet --compile-bytecode --python $(BIN)/python \
-	    -e '.[dev,cluster]' ) || \
+	  $(VENV)/uv/bin/uv pip install --quiet --python $(BIN)/python -e '.[dev,cluster]' ) || \
 	( $(BIN)/python -m ensurepip --default-pip && \
 	  $(BIN)/python -m pip install --quiet -e '.[dev,cluster]' )
 	touch $(STAMP)
@@ -25,13 +24,20 @@ $(STAMP): pyproject.toml
 # PYTHONDONTWRITEBYTECODE is set (CI's image sets it) each process would compile the project again.
 COMPILE := $(BIN)/python -m compileall -q common services deploy
 
+# The installed packages' byte-code, for the suite only: its hundreds of Python processes would
+# each compile numpy, pydantic and the rest again where PYTHONDONTWRITEBYTECODE is set, while the
+# few processes of a run gain less than compiling everything costs (docs/performance.md).
+$(COMPILED): $(STAMP)
+	$(BIN)/python -m compileall -q -j 0 $(VENV)/lib
+	touch $(COMPILED)
+
 run: $(STAMP)
 	@$(COMPILE)
 	$(BIN)/umay run --result out/result.json
 
 # Two pytest workers (pytest-xdist), as many as CI's cores; every test has its own key prefix,
 # port and temporary directory, so they never cross.
-test: $(STAMP)
+test: $(COMPILED)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	@$(COMPILE)
