@@ -83,9 +83,9 @@ class TargetMemory:
     def now(
         self, target: Marker, hand: Marker, k: CameraIntrinsics, t_s: float
     ) -> tuple[Marker, bool, bool]:
-        """``(target, remembered, seen_again)``: the target as seen (remembered when usable),
-        or its last view carried to ``t_s`` where the hand hides it (``remembered``);
-        ``seen_again``: usable again after a prediction."""
+        """``(target, remembered, seen_again)``: the target as seen (kept as the last view
+        when usable), or its last view carried to ``t_s`` where the hand hides it
+        (``remembered``); ``seen_again``: usable again after a prediction."""
         if target.usable:
             seen_again = self.predicted
             self.last, self.predicted = target, False
