@@ -61,9 +61,14 @@ def exec_command(command: list[str], env: dict[str, str], log_path: Path) -> Ser
         return subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, env=env)
 
 
+def service_command(name: str, argv: list[str]) -> list[str]:
+    """``python -m services.NAME ARGV``: what is exec'd, and what a forked one shows in ps."""
+    return [sys.executable, "-m", f"services.{name}", *argv]
+
+
 def exec_service(name: str, argv: list[str], env: dict[str, str], log_path: Path) -> ServiceProcess:
-    """``python -m services.NAME ARGV``, its output appended to ``log_path``."""
-    return exec_command([sys.executable, "-m", f"services.{name}", *argv], env, log_path)
+    """:func:`service_command`, its output appended to ``log_path``."""
+    return exec_command(service_command(name, argv), env, log_path)
 
 
 class ForkedService:
@@ -142,7 +147,7 @@ def serve(name: str, argv: list[str], env: dict[str, str], log_path: str) -> Non
     # ps, top and /proc show the command line an exec'd service would have, not the
     # forkserver's. Before the environment is replaced: the title takes the room of the
     # original environment's strings, and finds none to take once they were moved.
-    setproctitle.setproctitle(" ".join([sys.executable, "-m", f"services.{name}", *argv]))
+    setproctitle.setproctitle(" ".join(service_command(name, argv)))
     setproctitle.setthreadtitle(f"umay-{name}")
     os.environ.clear()
     os.environ.update(env)

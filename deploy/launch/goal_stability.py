@@ -16,7 +16,7 @@ import numpy as np
 from common import kinematics as kin
 from common.config import JacobianMode, Scenario
 from common.marker import Marker
-from deploy.launch.reachability import goal_pose
+from deploy.launch.reachability import camera_points, goal_pose
 from services.controller.stability import constant_goal_stability
 
 
@@ -24,8 +24,7 @@ def goal_stability_of(scenario: Scenario) -> float:
     """:func:`~services.controller.stability.constant_goal_stability` at the scenario's goal,
     with its ``controller.constant_depth``."""
     corners_base = kin.marker_corners(goal_pose(scenario), scenario.marker.size_m)
-    base_to_cam = np.linalg.inv(scenario.camera.pose())
-    points = corners_base @ base_to_cam[:3, :3].T + base_to_cam[:3, 3]
+    points = camera_points(corners_base, scenario)
     k = scenario.camera.intrinsics()
     goal = Marker.seen_at(points, k, np.zeros(len(points)))
     return constant_goal_stability(goal, k, scenario.controller.constant_depth)

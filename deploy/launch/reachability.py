@@ -37,13 +37,19 @@ class ArmInsideScenery(ScenarioError):
     draws such a start again rather than refusing it: it is no posture at all)."""
 
 
+def camera_points(points_base: np.ndarray, scenario: Scenario) -> np.ndarray:
+    """Base-frame points (N×3) in the optical frame of the camera's true mount (N×3)."""
+    homogeneous = np.column_stack([points_base, np.ones(len(points_base))])
+    return (np.linalg.inv(scenario.camera.pose()) @ homogeneous.T).T[:, :3]
+
+
 def marker_in_image(corners_base: np.ndarray, scenario: Scenario) -> bool:
     cam = scenario.camera
-    cam_pts = (np.linalg.inv(cam.pose()) @ np.column_stack([corners_base, np.ones(4)]).T).T
+    cam_pts = camera_points(corners_base, scenario)
     if np.any(cam_pts[:, 2] <= cam.near_m):
         return False
     k = cam.intrinsics()
-    uv = project(cam_pts[:, :3], k)
+    uv = project(cam_pts, k)
     return bool(
         np.all(uv >= IMAGE_MARGIN_PX)
         and np.all(uv[:, 0] <= k.width_px - 1 - IMAGE_MARGIN_PX)

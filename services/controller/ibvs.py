@@ -38,7 +38,7 @@ from services.controller.interaction import (
     points3d_control_matrix,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
-from services.controller.stability import constant_goal_stability
+from services.controller.stability import frozen_matrix_stability
 from services.controller.twist import camera_twist_to_base_ee, clamp_twist
 
 FloatArray = NDArray[np.float64]
@@ -218,7 +218,7 @@ class IbvsController:
             depth = self.config.constant_depth
             self.l_constant = constant_interaction_matrix(target, k, depth)
             if self.config.mode is JacobianMode.CONSTANT:
-                self.goal_stability = constant_goal_stability(target, k, depth)
+                self.goal_stability = frozen_matrix_stability(self.l_constant, target, k)
         if self.oriented_markers:
             self.pairing = 0
         else:

@@ -38,10 +38,15 @@ def goal_stability(m_goal: FloatArray, l_goal: FloatArray) -> float:
     return float(np.linalg.eigvals(np.asarray(m_goal) @ np.asarray(l_goal)).real.min())
 
 
-def constant_goal_stability(desired: Marker, k: CameraIntrinsics, depth: ConstantDepth) -> float:
-    """:func:`goal_stability` of the constant strategy's frozen matrix built with ``depth``
-    from the desired features ``desired``, against the interaction matrix at the goal with
+def frozen_matrix_stability(l_frozen: FloatArray, desired: Marker, k: CameraIntrinsics) -> float:
+    """:func:`goal_stability` of the law ``M = L_frozen⁺`` (2N×6, rows as ``desired``'s
+    corners) at the desired features ``desired``, against the interaction matrix there with
     each desired corner's own depth."""
     l_goal = interaction_matrix(pixel_to_normalized(desired.corners_px, k), desired.depth_m)
-    m_goal = np.linalg.pinv(constant_interaction_matrix(desired, k, depth))
-    return goal_stability(m_goal, l_goal)
+    return goal_stability(np.linalg.pinv(l_frozen), l_goal)
+
+
+def constant_goal_stability(desired: Marker, k: CameraIntrinsics, depth: ConstantDepth) -> float:
+    """:func:`frozen_matrix_stability` of the constant strategy's matrix built with ``depth``
+    from the desired features ``desired``."""
+    return frozen_matrix_stability(constant_interaction_matrix(desired, k, depth), desired, k)

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common import kinematics as kin
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ConstantDepth, ControllerConfig, JacobianMode
 from common.marker import Marker
 from services.controller.ibvs import IbvsController
 from services.controller.interaction import constant_interaction_matrix
 from services.controller.stability import constant_goal_stability, goal_stability
+from tests.unit.test_ibvs import moved
 
 K = CameraIntrinsics.from_fov(640, 480, 57.0)
 SIZE_M = 0.06
@@ -30,17 +30,6 @@ def tilted_square(tilt_deg: float, centre_m: tuple[float, float, float] = (0.0, 
 
 def seen(points_m: np.ndarray) -> Marker:
     return Marker.seen_at(points_m, K, np.zeros(4))
-
-
-def moved(points_m: np.ndarray, twist: np.ndarray, dt_s: float) -> np.ndarray:
-    """Points riding on the hand after a twist (v, ω; camera frame, camera origin) for dt."""
-    axis_angle = twist[3:] * dt_s
-    angle = float(np.linalg.norm(axis_angle))
-    rot = np.eye(3)
-    if angle > 0.0:
-        s = kin.skew(axis_angle / angle)
-        rot = np.eye(3) + np.sin(angle) * s + (1 - np.cos(angle)) * s @ s
-    return points_m @ rot.T + twist[:3] * dt_s
 
 
 def error_after(goal_m: np.ndarray, depth: ConstantDepth, seconds: float) -> tuple[float, float]:

@@ -5,29 +5,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.camera import CameraIntrinsics
 from common.marker import Marker
 from services.controller.goal import TargetMemory
-
-K = CameraIntrinsics.from_fov(640, 480, 57.0)
+from tests.unit.test_ibvs import K, observe, square_points
 
 
 def square(centre: tuple[float, float, float]) -> np.ndarray:
-    h = 0.03
-    return np.array(centre) + np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
-
-
-def seen(points: np.ndarray) -> Marker:
-    return Marker.seen_at(points, K)
+    return square_points(np.array(centre))
 
 
 def test_a_hidden_target_moving_is_carried_and_when_seen_again_said_so() -> None:
     memory = TargetMemory()
-    hand_near = seen(square((0.0, 0.0, 0.48)))
+    hand_near = observe(square((0.0, 0.0, 0.48)))
     hidden = Marker.unseen("lost", occluded=True)
     for i in range(10):  # sliding along x at 2 cm/s, seen at 30 Hz
         t = i / 30
-        target, remembered, again = memory.now(seen(square((0.02 * t, 0.0, 0.5))), hand_near, K, t)
+        target, remembered, again = memory.now(
+            observe(square((0.02 * t, 0.0, 0.5))), hand_near, K, t
+        )
         assert not remembered and not again and memory.last is target
     t = 1.0
     target, remembered, again = memory.now(hidden, hand_near, K, t)
@@ -35,7 +30,7 @@ def test_a_hidden_target_moving_is_carried_and_when_seen_again_said_so() -> None
     # carried along its velocity since the last view (at 9/30 s)
     expected_x = 0.02 * (9 / 30) + 0.02 * (t - 9 / 30)
     assert np.allclose(target.points_m.mean(axis=0), [expected_x, 0.0, 0.5], atol=1e-4)
-    back = seen(square((0.02 * 1.1, 0.0, 0.5)))
+    back = observe(square((0.02 * 1.1, 0.0, 0.5)))
     target, remembered, again = memory.now(back, hand_near, K, 1.1)
     assert target is back and not remembered and again and not memory.predicted
     assert not memory.now(back, hand_near, K, 1.15)[2]  # said once
@@ -43,11 +38,11 @@ def test_a_hidden_target_moving_is_carried_and_when_seen_again_said_so() -> None
 
 def test_a_target_gone_without_the_hand_in_front_is_not_remembered() -> None:
     memory = TargetMemory()
-    memory.now(seen(square((0.0, 0.0, 0.5))), seen(square((0.2, 0.1, 0.45))), K, 0.0)
-    hand_far = seen(square((0.2, 0.1, 0.45)))
+    memory.now(observe(square((0.0, 0.0, 0.5))), observe(square((0.2, 0.1, 0.45))), K, 0.0)
+    hand_far = observe(square((0.2, 0.1, 0.45)))
     lost = Marker.unseen("lost", occluded=True)
     target, remembered, _ = memory.now(lost, hand_far, K, 0.1)
     assert target is lost and not remembered  # the hand is not what hides it
     gone = Marker.unseen("lost")  # nothing in front of it: gone, not hidden
-    target, remembered, _ = memory.now(gone, seen(square((0.0, 0.0, 0.48))), K, 0.2)
+    target, remembered, _ = memory.now(gone, observe(square((0.0, 0.0, 0.48))), K, 0.2)
     assert target is gone and not remembered and not memory.predicted
