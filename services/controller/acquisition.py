@@ -22,17 +22,21 @@ limits, speed and acceleration limits). Directions, in order:
 6. and 7. up and to either side, diagonally.
 
 Directions more downward than sideways are left out: at constant depth they would press the
-hand onto the table the target lies on.
+hand onto the table the target lies on. Those with any downward share come after the others,
+in the same order: what the hand hides, and the object under it, lie below the hand, and a
+slide down and sideways can run the hand into the object's side.
 
 Each attempt ends when the hand reaches its goal, comes near the image border, or after
 ``acquire_attempt_s``; the next one starts from wherever the hand is. After
 ``acquire_attempts`` (counted over the run by the controller) the acquisition has failed. A
-goal is pulled in so that the hand marker stays inside the image (a margin), and a direction
-that leaves less than 30 % of the clearance is skipped.
+goal is pulled in so that the hand marker stays inside the image (a margin), each image axis
+by itself (up and a little right, beside the right border, is up); a direction that leaves
+less than 30 % of the clearance, or is bent more than 45° by the border, is skipped.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,6 +59,7 @@ IMAGE_MARGIN_FRACTION = 0.08
 REACHED_PX = 3.0  # an attempt is over when every corner is this close to its goal
 BORDER_HYSTERESIS_PX = 4.0  # nearer the border than at its start by this much: the attempt ends
 MIN_SHARE = 0.3  # a direction allowing less than this share of the clearance is skipped
+MAX_BEND_DEG = 45.0  # ... or turned further than this from its direction by the image border
 DOWN_LIMIT = 0.7  # directions more downward than this (cosine with the image's down) are left out
 # A corner inside the image's margin band is pulled back in as if its goal were this many times
 # its depth into the band further in (acquisition_error).
@@ -89,7 +94,8 @@ def uncover_directions(
     """Unit image directions to try, best first (see the module doc). ``up_px``: the image
     direction of the world's vertical at the hand; a direction going down (towards the table
     the target lies on) more than sideways is left out, since at constant depth it would press
-    the hand onto the table; near-duplicates are dropped. Without the elbow's image, up,
+    the hand onto the table, and one going down at all comes after the rest; near-duplicates
+    are dropped. Without the elbow's image, up,
     left, right (then the diagonals, given ``up_px``)."""
     up = None
     if up_px is not None and np.linalg.norm(up_px) > 1e-9:
@@ -115,6 +121,8 @@ def uncover_directions(
         ]
         candidates = [*candidates[:2], up, *candidates[2:], *diagonals]
         candidates = [d for d in candidates if d @ up >= -DOWN_LIMIT]
+        # What the hand hides lies below it: slides with a downward share come last.
+        candidates = sorted(candidates, key=lambda d: bool(d @ up < -1e-9))
     distinct: list[FloatArray] = []
     for d in candidates:
         if all(d @ e < 0.99 for e in distinct):
@@ -149,23 +157,30 @@ def near_border(corners_px: FloatArray, k: CameraIntrinsics, start_px: float) ->
 def goal_corners(
     corners_px: FloatArray, direction: FloatArray, distance_px: float, k: CameraIntrinsics
 ) -> FloatArray | None:
-    """``corners_px`` slid along ``direction`` by ``distance_px``, or less so that every corner
-    stays :data:`IMAGE_MARGIN_PX` inside the image; None when less than :data:`MIN_SHARE` of
-    the distance is left."""
+    """``corners_px`` slid along ``direction`` by ``distance_px``, each image axis's share of
+    the slide cut to the room the image leaves (every corner :func:`image_margin_px` inside
+    it); None when less than :data:`MIN_SHARE` of the distance is left, or the slide so cut
+    points more than :data:`MAX_BEND_DEG` away from ``direction``.
+
+    Cut per axis, not as a whole: a hand near the right border asked to go up and a little to
+    the right goes straight up. Scaled down as a whole, the same slide would end after the few
+    pixels the right border leaves, and that direction would be skipped; yet going up is what
+    lifts the hand and its forearm off a target beside the border (the domain study's starts
+    with the hand on the target's right-hand part)."""
     c = np.asarray(corners_px, dtype=float)
     d = np.asarray(direction, dtype=float)
     margin = image_margin_px(k)
-    low = np.array([margin, margin])
-    high = np.array([k.width_px - 1 - margin, k.height_px - 1 - margin])
-    allowed = distance_px
-    for axis in range(2):
-        if d[axis] > 1e-9:
-            allowed = min(allowed, float(np.min(high[axis] - c[:, axis])) / d[axis])
-        elif d[axis] < -1e-9:
-            allowed = min(allowed, float(np.min(c[:, axis] - low[axis])) / -d[axis])
-    if allowed < MIN_SHARE * distance_px:
+    room_low = np.maximum(c.min(axis=0) - margin, 0.0)  # how far each axis may go down
+    room_high = np.maximum(
+        np.array([k.width_px - 1, k.height_px - 1]) - margin - c.max(axis=0), 0.0
+    )
+    slide = np.clip(distance_px * d, -room_low, room_high)
+    length = float(np.linalg.norm(slide))
+    if length < MIN_SHARE * distance_px:
         return None
-    return c + allowed * d
+    if slide @ d < math.cos(math.radians(MAX_BEND_DEG)) * length * float(np.linalg.norm(d)):
+        return None
+    return c + slide
 
 
 def start(

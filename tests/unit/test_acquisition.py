@@ -16,15 +16,16 @@ K = CameraIntrinsics.from_fov(640, 480, 57.0)
 DT_S = 1 / 30
 
 
-def test_directions_go_across_the_forearm_rising_side_first_and_never_down() -> None:
+def test_directions_go_across_the_forearm_rising_side_first_downward_last() -> None:
     hand, elbow = np.array([300.0, 200.0]), np.array([400.0, 250.0])  # forearm to the right
     up = np.array([0.0, -1.0])  # the world's vertical points up in the image
     dirs = acq.uncover_directions(hand, elbow, up)
     back = np.array([2.0, 1.0]) / np.sqrt(5)
     across_rising = np.array([1.0, -2.0]) / np.sqrt(5)
     diagonals = [np.array([1.0, -1.0]) / np.sqrt(2), np.array([-1.0, -1.0]) / np.sqrt(2)]
-    # across the other way goes mostly down (onto the table): left out
-    expected = [across_rising, up, back, -back, *diagonals]
+    # across the other way goes mostly down (onto the table): left out; back, towards the
+    # elbow, goes down a little (towards what the hand hides): last
+    expected = [across_rising, up, -back, *diagonals, back]
     assert len(dirs) == len(expected)
     for d, e in zip(dirs, expected, strict=True):
         np.testing.assert_allclose(d, e, atol=1e-12)
@@ -43,6 +44,22 @@ def test_goal_slides_the_square_and_stays_inside_the_image() -> None:
     assert up is not None and np.isclose(up[:, 1].min(), acq.image_margin_px(K))
     # Less than MIN_SHARE of the clearance left: that direction is skipped.
     assert acq.goal_corners(corners, np.array([0.0, -1.0]), 700.0, K) is None
+
+
+def test_a_goal_beside_the_border_keeps_the_room_the_other_axis_has() -> None:
+    """Asked up and to the right with the right border near, the hand goes straight up:
+    the border cuts the slide's rightward share only; a direction the border bends by more
+    than 45° is skipped."""
+    margin = acq.image_margin_px(K)
+    right = K.width_px - 1 - margin
+    corners = np.array([[560.0, 300.0], [600.0, 300.0], [600.0, 340.0], [560.0, 340.0]])
+    up_right = np.array([0.38, -0.92])
+    goal = acq.goal_corners(corners, up_right, 150.0, K)
+    assert goal is not None
+    np.testing.assert_allclose(goal[:, 0].max(), right)  # cut at the margin
+    np.testing.assert_allclose(goal[:, 1] - corners[:, 1], -0.92 * 150.0)  # up in full
+    # Mostly to the right: the border leaves the upward share alone, bent by over 45°.
+    assert acq.goal_corners(corners, np.array([0.92, -0.38]), 150.0, K) is None
 
 
 def test_the_law_slides_the_hand_image_to_its_goal_without_turning_it() -> None:
