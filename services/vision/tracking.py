@@ -31,7 +31,7 @@ from common.camera import CameraIntrinsics, back_project, pixel_to_normalized, p
 from common.config import VisionConfig
 from common.marker import Marker
 from common.motion import MarkerMotion
-from services.vision.cue import label_corners
+from services.vision.cue import cue_mask, label_corners
 from services.vision.depth import (
     FloatArray,
     PlaneFit,
@@ -224,15 +224,16 @@ def _fit_partial(
     depth: DepthImage,
     cfg: VisionConfig,
     marker_size_m: float,
+    cue_rgb: np.ndarray | None = None,
 ) -> _PartialFit | None:
     """A partly hidden marker's corners from its visible edges (see
     :mod:`services.vision.partial`), its known size and remembered plane; None if the fit
-    does not hold."""
+    does not hold. ``cue_rgb``: the colour frame, when the markers carry a cue."""
     if memory is None or memory.plane is None or quad.area_px <= 0:
         return None
     points = back_project(memory.corners_px, memory.depth_m, k)
     square = SquareOnPlane.from_corners(points, marker_size_m)
-    return _fit_on_plane(quad, memory.plane, [square], False, k, depth, cfg, marker_size_m)
+    return _fit_on_plane(quad, memory.plane, [square], False, k, depth, cfg, marker_size_m, cue_rgb)
 
 
 def _fit_own(
@@ -241,10 +242,12 @@ def _fit_own(
     depth: DepthImage,
     cfg: VisionConfig,
     marker_size_m: float,
+    cue_rgb: np.ndarray | None = None,
 ) -> _PartialFit | None:
     """A partly hidden marker's corners from its visible edges on the plane of its own depth
     in this frame (:mod:`services.vision.own_depth`), starting from its quadrilateral when
-    colour found one, else from its outline; None if the fit does not hold."""
+    colour found one, else from its outline; None if the fit does not hold. ``cue_rgb``: as
+    :func:`_fit_partial`."""
     if quad.area_px <= 0:
         return None
     plane = blob_plane(quad.mask, depth.depth_m, k, depth.intrinsics)
@@ -255,7 +258,7 @@ def _fit_own(
         points = on_plane(plane, quad.corners_px, k)
         if points is not None:
             guesses.append(SquareOnPlane.from_corners(points, marker_size_m))
-    return _fit_on_plane(quad, plane, guesses, True, k, depth, cfg, marker_size_m)
+    return _fit_on_plane(quad, plane, guesses, True, k, depth, cfg, marker_size_m, cue_rgb)
 
 
 def _fit_on_plane(
@@ -267,10 +270,15 @@ def _fit_on_plane(
     depth: DepthImage,
     cfg: VisionConfig,
     marker_size_m: float,
+    cue_rgb: np.ndarray | None = None,
 ) -> _PartialFit | None:
     """The square on ``plane`` fitted to the blob's true edges (those bordering nothing in
     front of that plane), from the first of ``guesses`` that fits (and, ``from_outline``,
-    a guess from the blob's outline after them); None if none holds."""
+    a guess from the blob's outline after them); None if none holds.
+
+    ``cue_rgb`` (markers with a cue): the outline is taken with the cue's pixels counted as
+    the marker's. The cue is a hole in the colour's mask; where something in front cuts
+    through it, the hole opens into the blob's outline, and its sides are not the square's."""
     reach_px = dropout_reach_px(cfg.occlusion_ring_px, k, depth.intrinsics)
     bounds = mask_bounds(quad.mask, 2 * reach_px + 2)
     if bounds is None:
@@ -279,7 +287,8 @@ def _fit_on_plane(
     depth_crop = _depth_under(depth, k, bounds)
     occluder = occluder_map(depth_crop, plane_depth_image(plane, k, bounds), reach_px)
     mask = quad.mask[r0:r1, c0:c1]
-    points, true_edge = outline(mask, occluder, (c0, r0))
+    face = mask if cue_rgb is None else mask | cue_mask(cue_rgb[r0:r1, c0:c1], cfg)
+    points, true_edge = outline(face, occluder, (c0, r0))
     edges = points[true_edge]
     moments = cv2.moments(mask, binaryImage=True)
     centre = np.array([moments["m10"], moments["m01"]]) / moments["m00"] + (c0, r0)
@@ -373,9 +382,10 @@ def _fit(
     """A partly hidden marker (one of :data:`FITTED`) fitted from its visible edges: on the
     target's remembered plane when it has one, else on the plane of its own depth in this
     frame, which for the hand must show most of its marker (:data:`HAND_MIN_SEEN_FRACTION`)."""
+    cue_rgb = rgb if orientation_cue else None
     if name == "target" and memory is not None and memory.plane is not None:
-        return _fit_partial(quad, memory, k, depth, cfg, marker_size_m)
-    fit = _fit_own(quad, k, depth, cfg, marker_size_m)
+        return _fit_partial(quad, memory, k, depth, cfg, marker_size_m, cue_rgb)
+    fit = _fit_own(quad, k, depth, cfg, marker_size_m, cue_rgb)
     if fit is None:
         return None
     if name == "hand" and quad.area_px < HAND_MIN_SEEN_FRACTION * quad_area_px2(fit.corners_px):
