@@ -327,6 +327,13 @@ class ControllerConfig(_Strict):
     acquire_max_linear_m_s: float = Field(
         0.06, gt=0.0, le=0.5, description="twist clamp while acquiring, linear (m/s)"
     )
+    acquire_gain: float = Field(
+        3.0,
+        gt=0.0,
+        le=20.0,
+        description="λ of the acquisition's slide (1/s): the hand slides at its clamp "
+        "(acquire_max_linear_m_s) and slows only near the attempt's goal",
+    )
     stuck_after_s: float = Field(
         4.0,
         gt=0.0,

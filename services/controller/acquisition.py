@@ -13,7 +13,10 @@ image direction, through the same interaction-matrix machinery as the servo but 
 translation only (``v = λ · L_v⁺ · e``, L at the current points and depths, ``ω = 0``; ``e``
 the offset from the goal plus a pull away from the image border for corners near it), so the
 twist goes to actuation like any other and meets its whole safety chain (deadman, joint
-limits, speed and acceleration limits). Directions, in order:
+limits, speed and acceleration limits). λ is the acquisition's own (``acquire_gain``), above
+the servo's: the twist's clamp sets the speed, and the hand slows only near the attempt's goal
+(at the servo's 1/s an attempt spent most of its time creeping up to it). Directions, in
+order:
 
 1. and 2. across the forearm's image, the side where the hand rises first: the hand and the
    forearm behind it both leave the image area they covered;

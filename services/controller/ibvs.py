@@ -358,7 +358,7 @@ class IbvsController:
             )  # fmt: skip
         self.acquisition = after
         twist_cam = acq.acquisition_twist_cam(
-            hand.corners_px, hand.depth_m, after.goal_px, k, cfg.gain
+            hand.corners_px, hand.depth_m, after.goal_px, k, cfg.acquire_gain
         )
         twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
         twist = clamp_twist(

@@ -10,6 +10,7 @@ from common.config import ControllerConfig
 from common.marker import Marker
 from services.controller import acquisition as acq
 from services.controller.ibvs import ACQUISITION_FAILED, IbvsController
+from services.controller.twist import clamp_twist
 from tests.unit.test_ibvs import moved, not_seen, observe, square_points
 
 K = CameraIntrinsics.from_fov(640, 480, 57.0)
@@ -73,6 +74,32 @@ def test_the_law_slides_the_hand_image_to_its_goal_without_turning_it() -> None:
         points = moved(points, twist, DT_S)
     np.testing.assert_allclose(project(points, K), goal, atol=0.5)
     assert np.ptp(points[:, 2]) < 1e-3  # still facing the camera as before
+
+
+def seconds_to_reach(gain: float, cfg: ControllerConfig) -> float:
+    """Kinematic loop: one attempt's slide of CLEARANCE_DIAGONALS diagonals, the twist
+    clamped as the controller clamps it; sim s until every corner is within REACHED_PX."""
+    points = square_points(np.array([0.0, 0.02, 0.45]))
+    corners = project(points, K)
+    goal = acq.goal_corners(corners, np.array([-1.0, 0.0]), 1.6 * acq.diagonal_px(corners), K)
+    assert goal is not None
+    for step in range(int(cfg.acquire_attempt_s / DT_S)):
+        now = project(points, K)
+        if np.all(np.linalg.norm(now - goal, axis=1) < acq.REACHED_PX):
+            return step * DT_S
+        twist = acq.acquisition_twist_cam(now, points[:, 2], goal, K, gain)
+        points = moved(points, clamp_twist(twist, cfg.acquire_max_linear_m_s, 1.0), DT_S)
+    return cfg.acquire_attempt_s
+
+
+def test_an_attempt_slides_at_its_clamp_and_reaches_its_goal_in_time() -> None:
+    """With the acquisition's own gain an attempt reaches its goal within its time, most of
+    the way at the clamp's speed; at the servo's gain it creeps up to it and runs out of
+    time first (the next attempt would start short of this one's goal)."""
+    cfg = ControllerConfig()
+    at_clamp_s = 1.6 * 0.06 * np.sqrt(2) / cfg.acquire_max_linear_m_s  # the slide, in metres
+    assert seconds_to_reach(cfg.acquire_gain, cfg) < at_clamp_s + 0.5
+    assert seconds_to_reach(cfg.gain, cfg) >= cfg.acquire_attempt_s
 
 
 def test_a_hand_near_the_border_is_pulled_back_in_by_a_slide_never_a_turn() -> None:
