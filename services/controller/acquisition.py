@@ -98,8 +98,8 @@ def uncover_directions(
     direction of the world's vertical at the hand; a direction going down (towards the table
     the target lies on) more than sideways is left out, since at constant depth it would press
     the hand onto the table, and one going down at all comes after the rest; near-duplicates
-    are dropped. Without the elbow's image, up,
-    left, right (then the diagonals, given ``up_px``)."""
+    are dropped. Without the elbow's image, up, left, right (then the diagonals, given
+    ``up_px``)."""
     up = None
     if up_px is not None and np.linalg.norm(up_px) > 1e-9:
         up = np.asarray(up_px, dtype=float) / np.linalg.norm(up_px)
