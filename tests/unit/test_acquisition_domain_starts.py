@@ -2,7 +2,7 @@
 the hand over the target's right-hand part beside the image border, the orientation cue on.
 Each is the published start (docs/domains/domains.json) run by the study's own lockstep
 in-process pipeline, which the distributed one equals frame for frame
-(test_pipeline_vs_distributed.py)."""
+(integration/test_pipeline_vs_distributed.py)."""
 
 from __future__ import annotations
 
