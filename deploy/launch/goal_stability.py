@@ -17,7 +17,7 @@ from common import kinematics as kin
 from common.config import JacobianMode, Scenario
 from common.marker import Marker
 from deploy.launch.reachability import camera_points, goal_pose
-from services.controller.stability import constant_goal_stability
+from services.controller.stability import constant_goal_stability, unstable_goal_consequence
 
 
 def goal_stability_of(scenario: Scenario) -> float:
@@ -40,7 +40,5 @@ def unstable_goal_warning(scenario: Scenario) -> str:
         return ""
     return (
         f"controller.mode: constant's frozen matrix ({scenario.controller.constant_depth.value} "
-        f"depth) makes this goal unstable (least real part of the eigenvalues of L_c+ L* "
-        f"{stability:.2f}): the law may drive the hand away from it; "
-        "controller.constant_depth = 'per_corner' holds it (docs/campaign.md)"
+        f"depth) makes this goal unstable {unstable_goal_consequence(stability)}"
     )

@@ -17,6 +17,7 @@ from common.pairing import FramePairer
 from common.runtime import ServiceContext
 from services.controller.ibvs import IbvsController, describe_hold, is_stuck
 from services.controller.progress import Progress, describe_stall
+from services.controller.stability import unstable_goal_consequence
 from services.controller.step import control_step, twist_message
 
 log = logging.getLogger("umay.controller")
@@ -130,10 +131,8 @@ class ControllerService:
         stability = self.controller.goal_stability
         if stability is not None and stability <= 0.0:
             log.warning(
-                "the constant matrix frozen at this goal makes it unstable (least real part "
-                "of the eigenvalues of L_c+ L* %.2f): expect the hand to leave it; "
-                "controller.constant_depth = 'per_corner' builds one that holds it",
-                stability,
+                "the constant matrix frozen at this goal makes it unstable %s",
+                unstable_goal_consequence(stability),
             )
 
     def on_event(self, key: str, msg: Features | JointState) -> None:

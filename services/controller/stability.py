@@ -50,3 +50,14 @@ def constant_goal_stability(desired: Marker, k: CameraIntrinsics, depth: Constan
     """:func:`frozen_matrix_stability` of the constant strategy's matrix built with ``depth``
     from the desired features ``desired``."""
     return frozen_matrix_stability(constant_interaction_matrix(desired, k, depth), desired, k)
+
+
+def unstable_goal_consequence(stability: float) -> str:
+    """What a stability at or below 0 means and what holds the goal instead, for the
+    warnings of the controller and of ``umay run``: ``(least real part ... -1.42): the law
+    may drive the hand away from it; ...``."""
+    return (
+        f"(least real part of the eigenvalues of L_c+ L* {stability:.2f}): the law may drive "
+        "the hand away from it; controller.constant_depth = 'per_corner' holds it "
+        "(docs/campaign.md)"
+    )

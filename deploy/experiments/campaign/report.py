@@ -16,6 +16,7 @@ from deploy.experiments.campaign.tally import (
     ON_GOAL,
     STABILITY_HEADERS,
     TALLY_HEADERS,
+    UNSTABLE_MEANS,
     RunOutcome,
     StrategyTally,
     goal_stability_cells,
@@ -122,8 +123,7 @@ def stability_section(
     ]
     return [
         f"{len(unstable)} of the {known} goals run are unstable under the constant strategy's "
-        "frozen matrix (an eigenvalue of `L_c⁺ L*` with a real part at or below 0, from the "
-        "true geometry): " + (", ".join(unstable) or "none") + ".",
+        f"frozen matrix ({UNSTABLE_MEANS}): " + (", ".join(unstable) or "none") + ".",
         "",
         markdown_table(list(STABILITY_HEADERS), body),
     ]

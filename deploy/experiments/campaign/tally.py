@@ -108,6 +108,8 @@ class StrategyTally:
         return self.families.get(family, 0)
 
 
+# What "unstable" means in the tables that split runs by it (campaign.md, docs/campaign.md).
+UNSTABLE_MEANS = "an eigenvalue of `L_c⁺ L*` with a real part at or below 0, from the true geometry"
 # The columns of the table that splits each strategy's runs by the constant strategy's
 # stability at the start's goal (:func:`goal_stability_cells`).
 STABILITY_HEADERS = (
