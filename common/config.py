@@ -310,6 +310,12 @@ class ControllerConfig(_Strict):
         description="while vision cannot use the hand marker, servo on its last view carried "
         "along the encoders' motion for at most this long (sim s; 0: hold at once)",
     )
+    reachable_pairing: bool = Field(
+        True,
+        description="pair the squares' corners by the least turn among the pairings whose goal "
+        "posture the arm reaches from its first posture servoed, within the joint limits "
+        "(services/controller/reach.py); false: the least turn whatever the limits",
+    )
     acquire: bool = Field(
         True,
         description="when the target cannot be used because something (the hand) is in front "

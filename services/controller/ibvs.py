@@ -38,6 +38,7 @@ from services.controller.interaction import (
     points3d_control_matrix,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
+from services.controller.reach import reachable_pairings
 from services.controller.stability import frozen_matrix_stability
 from services.controller.twist import camera_twist_to_base_ee, clamp_twist
 
@@ -116,6 +117,9 @@ class IbvsController:
     # s − s* (px, 2N) of the last frames servoed on a still, seen goal: convergence's window
     recent_errors_px: list[FloatArray] = field(default_factory=list)
     pairing: int | None = None  # hand corner i goes to target corner (i + pairing) % 4
+    # Which pairings' goal postures the arm reaches from where it first servoed (.reach; None
+    # before, or without the joint angles): the least turn is chosen among those.
+    reachable: list[bool] | None = None
     # The target's last usable view and motion, and whether the goal is a prediction.
     target_memory: TargetMemory = field(default_factory=TargetMemory)
     hold_since_s: float | None = None  # sim time the current hold began
@@ -136,12 +140,14 @@ class IbvsController:
         t_s: float = 0.0,
         elbow_base_m: FloatArray | None = None,
         t_base_ee: FloatArray | None = None,
+        q_rad: FloatArray | None = None,
     ) -> ControlOutput:
         """One control step on the markers seen in the camera frame taken at sim time ``t_s``
         with the end effector (encoders, forward kinematics) at ``p_ee_base_m`` (its whole
-        pose ``t_base_ee``, 4×4, to carry a hand vision cannot use; None: hold instead) and
-        the elbow at ``elbow_base_m`` (for acquisition's directions; None: image directions
-        alone)."""
+        pose ``t_base_ee``, 4×4, to carry a hand vision cannot use; None: hold instead), the
+        elbow at ``elbow_base_m`` (for acquisition's directions; None: image directions alone)
+        and the joints at ``q_rad`` (to leave out pairings whose goal posture is beyond a
+        joint limit; None: every pairing counts)."""
         hand_predicted = False
         if t_base_ee is not None:
             hand, hand_predicted = self.hand_memory.now(
@@ -163,9 +169,17 @@ class IbvsController:
         if not (hand.usable and target.usable):
             return self._hold(hand, target, seen, k, p_ee_base_m, t_s, elbow_base_m)
         self.hold_since_s = None
+        if self.reachable is None and q_rad is not None and self._pairing_open():
+            goal = desired_observation(target, self.approach_height_m, k)
+            self.reachable = reachable_pairings(hand, goal, self.t_base_cam, q_rad)
         return self._servo(
             hand, target, k, p_ee_base_m, t_s, elbow_base_m, remembered, hand_predicted
         )
+
+    def _pairing_open(self) -> bool:
+        """Whether the corner pairing is a choice to make (a plain square) and the goal
+        postures are to be checked for it."""
+        return not self.oriented_markers and self.config.reachable_pairing
 
     def _hold(
         self,
@@ -222,9 +236,10 @@ class IbvsController:
         if self.oriented_markers:
             self.pairing = 0
         else:
-            self.pairing = choose_pairing(
-                pairing_costs_px2(hand.corners_px, target.corners_px), self.pairing
-            )
+            costs = pairing_costs_px2(hand.corners_px, target.corners_px)
+            if self.reachable is not None and any(self.reachable):
+                costs = np.where(self.reachable, costs, np.inf)
+            self.pairing = choose_pairing(costs, self.pairing)
         target = rolled(target, self.pairing)
         track = self.config.track_target_motion
         velocity = self.target_memory.motion.velocity_m_s(t_s) if track else np.zeros(3)

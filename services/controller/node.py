@@ -81,6 +81,10 @@ class ControllerService:
             "hand_predicted_since_s": self.controller.hand_memory.carried_since_s,
             # constant: the frozen matrix's local stability at its goal (≤ 0: it leaves it)
             "goal_stability": self.controller.goal_stability,
+            # hand corner i goes to target corner (i + pairing) % 4, chosen among the pairings
+            # whose goal posture the arm reaches (None: not checked, every pairing counts)
+            "pairing": self.controller.pairing,
+            "pairings_reachable": self.controller.reachable,
         }
 
     def stuck(self) -> bool:
@@ -102,6 +106,7 @@ class ControllerService:
 
     def on_pair(self, features: Features, joints: JointState) -> None:
         frozen_before = self.controller.goal_stability is not None
+        reach_known = self.controller.reachable is not None
         out = control_step(self.controller, features, joints.position_rad)
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
@@ -123,6 +128,8 @@ class ControllerService:
         # For status and the log only: after the twist is out, off the loop's latency.
         if not frozen_before:
             self.warn_if_goal_unstable()
+        if not reach_known:
+            self.log_unreachable_pairings()
         velocity = self.controller.target_memory.motion.velocity_m_s(features.header.sim_time_s)
         self.target_speed_m_s = float(np.linalg.norm(velocity))
 
@@ -133,6 +140,17 @@ class ControllerService:
             log.warning(
                 "the constant matrix frozen at this goal makes it unstable %s",
                 unstable_goal_consequence(stability),
+            )
+
+    def log_unreachable_pairings(self) -> None:
+        """Once, when the pairings' goal postures have been checked and some are out of reach."""
+        reachable = self.controller.reachable
+        if reachable is not None and not all(reachable):
+            beyond = [k for k, ok in enumerate(reachable) if not ok]
+            log.info(
+                "corner pairings %s left out: their goal postures are beyond the joint limits%s",
+                beyond,
+                "" if any(reachable) else " (all of them: the least turn is kept)",
             )
 
     def on_event(self, key: str, msg: Features | JointState) -> None:

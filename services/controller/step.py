@@ -40,6 +40,7 @@ def control_step(
         features.header.sim_time_s,
         elbow_base_m=frames[ELBOW_FRAME][:3, 3],
         t_base_ee=frames[-1],
+        q_rad=np.asarray(q_rad, dtype=float),
     )
     return above_the_target(controller, out, frames[-1])
 

@@ -1,0 +1,78 @@
+"""Which corner pairings the arm can reach: the goal posture of each, solved from the encoders
+and the measured corners. Pure.
+
+A plain square looks the same turned by 90°, so the hand may end in any of four postures, and
+the controller takes the one needing the least turn (:mod:`.pairing`). For some starts that
+posture lies beyond a joint limit while a quarter turn the other way is well inside them: the
+law then drives the hand into the limit and stops there. Here each pairing's goal is carried
+into a posture of the arm: the rigid motion taking the hand's measured corners onto the
+target's paired goal corners (Kabsch), applied to the end effector's pose from the encoders,
+then a damped least-squares inverse kinematics seeded at the joints' present angles, so that
+the posture found is the nearby one the servo's path would lead to.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from common import kinematics as kin
+from common.marker import Marker
+
+FloatArray = NDArray[np.float64]
+
+# Iterations of the inverse kinematics per pairing: from the present posture the nearby solution
+# is found within a few tens; more only polish one that is already inside the tolerances.
+IK_ITERATIONS = 100
+# A posture counts as reached when it puts the end effector this close to its goal: the goal
+# comes from measured corners, and a posture beyond a limit misses by centimetres (the IK
+# clips every step at the limits).
+REACH_TOLERANCE_M = 2e-3
+REACH_TOLERANCE_RAD = np.deg2rad(1.0)
+
+
+def rigid_motion(source: FloatArray, destination: FloatArray) -> FloatArray:
+    """The 4×4 proper rigid motion taking the points ``source`` (N×3) onto ``destination``
+    (N×3) in the least-squares sense (Kabsch's algorithm, the reflection excluded)."""
+    src_c, dst_c = source.mean(axis=0), destination.mean(axis=0)
+    u, _, vt = np.linalg.svd((source - src_c).T @ (destination - dst_c))
+    flip = np.sign(np.linalg.det(vt.T @ u.T))
+    rotation = vt.T @ np.diag([1.0, 1.0, flip]) @ u.T
+    return kin.homogeneous(rotation, dst_c - rotation @ src_c)
+
+
+def to_base(points_cam_m: FloatArray, t_base_cam: FloatArray) -> FloatArray:
+    """Camera-frame points (N×3) in the base frame, through the assumed camera pose."""
+    return points_cam_m @ t_base_cam[:3, :3].T + t_base_cam[:3, 3]
+
+
+def goal_posture(
+    hand: Marker,
+    goal: Marker,
+    pairing: int,
+    t_base_cam: FloatArray,
+    q_rad: FloatArray,
+) -> tuple[FloatArray, bool]:
+    """The joint angles putting hand corner ``i`` on goal corner ``(i + pairing) % 4`` (the
+    goal's 3-D corners, camera frame), found from the posture ``q_rad``, and whether they reach
+    it within the joint limits."""
+    hand_base = to_base(hand.points_m, t_base_cam)
+    goal_base = to_base(np.roll(goal.points_m, -pairing, axis=0), t_base_cam)
+    t_base_ee = kin.forward_kinematics(q_rad)
+    t_goal_ee = rigid_motion(hand_base, goal_base) @ t_base_ee
+    q, position_error_m, rotation_error_rad = kin.inverse_kinematics(
+        t_goal_ee, q_rad, iterations=IK_ITERATIONS
+    )
+    reached = bool(
+        position_error_m < REACH_TOLERANCE_M and rotation_error_rad < REACH_TOLERANCE_RAD
+    )
+    return q, reached
+
+
+def reachable_pairings(
+    hand: Marker, goal: Marker, t_base_cam: FloatArray, q_rad: FloatArray
+) -> list[bool]:
+    """For each of the four cyclic pairings (hand corner i → goal corner (i + k) % 4), whether
+    the arm reaches its goal posture from ``q_rad`` within the joint limits."""
+    q = np.asarray(q_rad, dtype=float)
+    return [goal_posture(hand, goal, k, t_base_cam, q)[1] for k in range(4)]

@@ -1,0 +1,115 @@
+"""The corner pairings' goal postures (services/controller/reach.py), and the published campaign
+starts where the least turn's goal lies beyond a joint limit: each is the start from
+docs/campaign/starts.json run by the campaign's lockstep in-process pipeline, which the
+distributed one equals frame for frame (integration/test_pipeline_vs_distributed.py)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common import kinematics as kin
+from common.camera import CameraIntrinsics, project
+from common.config import load_scenario
+from common.marker import Marker
+from common.runtime import parse_overrides
+from deploy.experiments.campaign.starts import start_overrides
+from deploy.launch.run_inprocess import run_scenario_inprocess
+from services.controller.pairing import pairing_costs_px2
+from services.controller.reach import goal_posture, reachable_pairings, rigid_motion
+
+ROOT = Path(__file__).resolve().parents[2]
+K = CameraIntrinsics.from_fov(640, 480, 62.0)
+SIZE_M = 0.06
+
+
+def seen(points_cam_m: np.ndarray) -> Marker:
+    return Marker.seen_at(points_cam_m, K, np.full(4, 1e-3))
+
+
+def test_rigid_motion_recovers_a_turn_and_a_shift() -> None:
+    rng = np.random.default_rng(3)
+    source = rng.normal(size=(4, 3))
+    motion = kin.homogeneous(kin.rot_z(0.7) @ kin.rot_x(-1.2), np.array([0.1, -0.3, 0.25]))
+    destination = source @ motion[:3, :3].T + motion[:3, 3]
+    found = rigid_motion(source, destination)
+    assert np.allclose(found, motion, atol=1e-12)
+    assert np.linalg.det(found[:3, :3]) == pytest.approx(1.0)
+
+
+def camera_in_front_of(q_rad: np.ndarray) -> np.ndarray:
+    """A camera pose 0.5 m in front of the hand marker at ``q_rad``, looking at it."""
+    marker = kin.forward_kinematics(q_rad) @ kin.hand_marker_in_ee()
+    z_cam = -marker[:3, 2]  # looking at the marker's face
+    x_cam = marker[:3, 0]
+    return kin.homogeneous(
+        np.column_stack([x_cam, np.cross(z_cam, x_cam), z_cam]), marker[:3, 3] - 0.5 * z_cam
+    )
+
+
+def hand_corners_cam(q_rad: np.ndarray, t_base_cam: np.ndarray) -> np.ndarray:
+    marker = kin.forward_kinematics(q_rad) @ kin.hand_marker_in_ee()
+    corners = kin.marker_corners(marker, SIZE_M)
+    return (np.linalg.inv(t_base_cam) @ np.column_stack([corners, np.ones(4)]).T).T[:, :3]
+
+
+def test_the_goal_posture_of_the_pairing_that_fits_is_the_arm_s_own() -> None:
+    """Hand and goal the same marker at two postures: the pairing that lays corner i on corner
+    i is reached at the goal's posture; one that needs the wrist turned a half turn more, past
+    its joint limit, is not."""
+    q_start = np.deg2rad([-20.0, 50.0, -70.0, -95.0, -120.0, -60.0])
+    q_goal = q_start + np.deg2rad([-8.0, 5.0, 12.0, -10.0, 6.0, -5.0])
+    t_base_cam = camera_in_front_of(q_start)
+    hand = seen(hand_corners_cam(q_start, t_base_cam))
+    goal = seen(hand_corners_cam(q_goal, t_base_cam))
+    q, reached = goal_posture(hand, goal, 0, t_base_cam, q_start)
+    assert reached
+    assert np.allclose(q, q_goal, atol=1e-4)
+    # Corner i on corner i + 2: the hand turned by π about its normal, where no single joint
+    # turns it (common/kinematics.py): the wrist's and the forearm's limits stop it.
+    assert reachable_pairings(hand, goal, t_base_cam, q_start)[0]
+    assert not goal_posture(hand, goal, 2, t_base_cam, q_start)[1]
+
+
+def published_start(name: str) -> dict:
+    starts = json.loads((ROOT / "docs/campaign/starts.json").read_text())
+    return next(s for s in starts if s["name"] == name)
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "start_0123",  # the least turn's goal puts the forearm's twist past its limit
+        "start_0314",  # the least turn's goal puts the shoulder's pitch past its limit
+    ],
+)
+def test_a_goal_beyond_the_joint_limits_is_left_for_a_quarter_turn(name: str) -> None:
+    start = published_start(name)
+    overrides = start_overrides(
+        name, start["q0_rad"], start["target_position_m"], start["target_yaw_rad"]
+    )
+    base = ROOT / "deploy/scenarios/suite/01_baseline.toml"
+    reached = {}
+    for choose in (True, False):
+        extra = (f"controller.reachable_pairing={str(choose).lower()}", "controller.mode='dynamic'")
+        scenario = load_scenario(base, parse_overrides([*overrides, *extra]))
+        reached[choose] = run_scenario_inprocess(scenario)
+    assert reached[True].converged, reached[True].detail
+    assert reached[True].final_position_error_m < 0.005
+    assert not reached[False].converged  # the least turn: against the limit
+    assert reached[False].reason != "converged"
+
+
+def test_the_least_turn_is_kept_when_it_is_reachable() -> None:
+    """On a start whose least turn the arm reaches, the pairing chosen is the least turn."""
+    q_start = np.deg2rad([-20.0, 50.0, -70.0, -95.0, -120.0, -60.0])
+    q_goal = q_start + np.deg2rad([-5.0, 4.0, 6.0, -4.0, 3.0, -9.0])
+    t_base_cam = camera_in_front_of(q_start)
+    hand = seen(hand_corners_cam(q_start, t_base_cam))
+    goal = seen(hand_corners_cam(q_goal, t_base_cam))
+    costs = pairing_costs_px2(project(hand.points_m, K), project(goal.points_m, K))
+    reachable = reachable_pairings(hand, goal, t_base_cam, q_start)
+    assert reachable[int(np.argmin(costs))]
