@@ -21,6 +21,7 @@ from common.config import ControllerConfig, JacobianMode
 from common.kinematics import BASE_UP
 from common.marker import Marker
 from services.controller import acquisition as acq
+from services.controller.arm import ArmReading
 from services.controller.convergence import Plateau, settled_error_px_rms
 from services.controller.goal import (
     TargetMemory,
@@ -136,22 +137,15 @@ class IbvsController:
         hand: Marker,
         target: Marker,
         k: CameraIntrinsics,
-        p_ee_base_m: FloatArray,
+        arm: ArmReading,
         t_s: float = 0.0,
-        elbow_base_m: FloatArray | None = None,
-        t_base_ee: FloatArray | None = None,
-        q_rad: FloatArray | None = None,
     ) -> ControlOutput:
         """One control step on the markers seen in the camera frame taken at sim time ``t_s``
-        with the end effector (encoders, forward kinematics) at ``p_ee_base_m`` (its whole
-        pose ``t_base_ee``, 4×4, to carry a hand vision cannot use; None: hold instead), the
-        elbow at ``elbow_base_m`` (for acquisition's directions; None: image directions alone)
-        and the joints at ``q_rad`` (to leave out pairings whose goal posture is beyond a
-        joint limit; None: every pairing counts)."""
+        with the arm as the encoders read it in the same frame (:class:`.arm.ArmReading`)."""
         hand_predicted = False
-        if t_base_ee is not None:
+        if arm.t_base_ee is not None:
             hand, hand_predicted = self.hand_memory.now(
-                hand, t_base_ee, self.t_base_cam, k, t_s, self.config.predict_hand_s
+                hand, arm.t_base_ee, self.t_base_cam, k, t_s, self.config.predict_hand_s
             )
         seen = target
         target, remembered, seen_again = self.target_memory.now(target, hand, k, t_s)
@@ -161,20 +155,18 @@ class IbvsController:
             if seen.usable or not hand.usable or not self.config.acquire:
                 self.acquisition = None  # uncovered (or the hand lost): back to the rules
             else:
-                return self._acquire(hand, k, p_ee_base_m, t_s)
+                return self._acquire(hand, k, arm.p_ee_base_m, t_s)
         # The hand is servoed on when seen whole, or fitted from its edges (its own forearm
         # bordering its marker in the image): vision publishes a fit only when it runs along
         # the marker's true edges to a fraction of a pixel, pins the pose down and shows most
         # of the marker, so a fitted hand's corners are as good as a whole one's.
         if not (hand.usable and target.usable):
-            return self._hold(hand, target, seen, k, p_ee_base_m, t_s, elbow_base_m)
+            return self._hold(hand, target, seen, k, arm, t_s)
         self.hold_since_s = None
-        if self.reachable is None and q_rad is not None and self._pairing_open():
+        if self.reachable is None and arm.q_rad is not None and self._pairing_open():
             goal = desired_observation(target, self.approach_height_m, k)
-            self.reachable = reachable_pairings(hand, goal, self.t_base_cam, q_rad)
-        return self._servo(
-            hand, target, k, p_ee_base_m, t_s, elbow_base_m, remembered, hand_predicted
-        )
+            self.reachable = reachable_pairings(hand, goal, self.t_base_cam, arm.q_rad)
+        return self._servo(hand, target, k, arm, t_s, remembered, hand_predicted)
 
     def _pairing_open(self) -> bool:
         """Whether the corner pairing is a choice to make (a plain square) and the goal
@@ -187,9 +179,8 @@ class IbvsController:
         target: Marker,
         seen: Marker,
         k: CameraIntrinsics,
-        p_ee_base_m: FloatArray,
+        arm: ArmReading,
         t_s: float,
-        elbow_base_m: FloatArray | None,
     ) -> ControlOutput:
         """A marker cannot be used (``target``: as used, ``seen``: as vision saw it): hold,
         or begin uncovering a target the hand may be in front of."""
@@ -206,7 +197,7 @@ class IbvsController:
             if self.acquisition_failed:
                 reason = self.acquisition_failed
             elif t_s - self.hold_since_s >= self.config.acquire_after_s:
-                started = self._start_acquisition(reason, hand, k, p_ee_base_m, t_s, elbow_base_m)
+                started = self._start_acquisition(reason, hand, k, arm, t_s)
                 if started is not None:
                     return started
                 reason = self.acquisition_failed
@@ -219,9 +210,8 @@ class IbvsController:
         hand: Marker,
         target: Marker,
         k: CameraIntrinsics,
-        p_ee_base_m: FloatArray,
+        arm: ArmReading,
         t_s: float,
-        elbow_base_m: FloatArray | None,
         remembered: bool,
         hand_predicted: bool,
     ) -> ControlOutput:
@@ -252,7 +242,7 @@ class IbvsController:
             target_rate = image_feature_rate(xy, target.depth_m, velocity)
         # ė = ṡ − ṡ* = −λe, with ṡ* the goal's own motion fed forward (zero for a still target).
         twist_cam = m @ (self.config.gain * error - target_rate)
-        twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, p_ee_base_m)
+        twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, arm.p_ee_base_m)
         twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
         # s − s* (px, 2N): this frame's error, and its share of convergence's window
         error_px = (np.asarray(hand.corners_px) - np.asarray(target.corners_px)).ravel()
@@ -279,7 +269,7 @@ class IbvsController:
         if settled and predicted and self.config.acquire:
             self.recent_errors_px, self.plateau = [], None
             why = "predicted target unconfirmed"
-            started = self._start_acquisition(why, hand, k, p_ee_base_m, t_s, elbow_base_m)
+            started = self._start_acquisition(why, hand, k, arm, t_s)
             if started is not None:
                 return started
         return ControlOutput(
@@ -313,16 +303,15 @@ class IbvsController:
         why: str,
         hand: Marker,
         k: CameraIntrinsics,
-        p_ee_base_m: FloatArray,
+        arm: ArmReading,
         t_s: float,
-        elbow_base_m: FloatArray | None,
     ) -> ControlOutput | None:
         """Begin uncovering the target (None, with ``acquisition_failed`` set, when no
         attempt is left or no image direction is open)."""
         left = self.config.acquire_attempts - self.acquisitions
         started = None
         if left > 0:
-            elbow_px = self._image_of(elbow_base_m, k)
+            elbow_px = self._image_of(arm.elbow_base_m, k)
             hand_centre_m = hand.points_m.mean(axis=0)
             up_cam = self.t_base_cam[:3, :3].T @ BASE_UP
             up_px = project((hand_centre_m + 0.02 * up_cam)[None, :], k)[0]
@@ -337,7 +326,7 @@ class IbvsController:
         self.acquisitions += 1
         self.hold_since_s = None
         self.recent_errors_px = []
-        return self._acquire(hand, k, p_ee_base_m, t_s)
+        return self._acquire(hand, k, arm.p_ee_base_m, t_s)
 
     def _image_of(self, point_base_m: FloatArray | None, k: CameraIntrinsics) -> FloatArray | None:
         """A point's image through the assumed camera pose (None: unknown or behind)."""

@@ -13,17 +13,15 @@ from dataclasses import replace
 
 import numpy as np
 
-from common import kinematics as kin
 from common.config import ClearanceCorrection
 from common.kinematics import FloatArray
 from common.marker import Marker
 from common.messages import EndEffectorTwist, Features, Header
 from services.controller import clearance
+from services.controller.arm import ArmReading
 from services.controller.constrained import least_feature_change
 from services.controller.ibvs import ControlOutput, IbvsController
 from services.controller.twist import clamp_twist, twist_matrix_base_ee_to_cam
-
-ELBOW_FRAME = 2  # index in kinematics.frame_transforms: DH frame 3, at the end of the upper arm
 
 
 def control_step(
@@ -31,18 +29,16 @@ def control_step(
 ) -> ControlOutput:
     """One control step (``controller`` advances) on ``features`` with the joints at ``q_rad``
     (the joint state of the same frame)."""
-    frames = kin.frame_transforms(np.array(q_rad))
+    arm = ArmReading.from_joints(q_rad)
     out = controller.step(
         Marker.from_wire(features.hand),
         Marker.from_wire(features.target),
         features.intrinsics,
-        frames[-1][:3, 3],
+        arm,
         features.header.sim_time_s,
-        elbow_base_m=frames[ELBOW_FRAME][:3, 3],
-        t_base_ee=frames[-1],
-        q_rad=np.asarray(q_rad, dtype=float),
     )
-    return above_the_target(controller, out, frames[-1])
+    assert arm.t_base_ee is not None  # from_joints gives every form
+    return above_the_target(controller, out, arm.t_base_ee)
 
 
 def above_the_target(

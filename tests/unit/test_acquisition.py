@@ -9,6 +9,7 @@ from common.camera import CameraIntrinsics, project
 from common.config import ControllerConfig
 from common.marker import Marker
 from services.controller import acquisition as acq
+from services.controller.arm import ArmReading
 from services.controller.ibvs import ACQUISITION_FAILED, IbvsController
 from services.controller.twist import clamp_twist
 from tests.unit.test_ibvs import moved, not_seen, observe, square_points
@@ -141,17 +142,17 @@ def test_hold_then_acquire_then_servo_once_the_target_is_seen() -> None:
     ctrl, hand = start_covering(cfg)
     hidden = not_seen("partial", occluded=True)
     t = 0.0
-    out = ctrl.step(hand, hidden, K, np.zeros(3), t)
+    out = ctrl.step(hand, hidden, K, ArmReading(np.zeros(3)), t)
     assert not out.valid and out.phase == "holding" and out.hold_reason == "target partial"
     for _ in range(16):  # holds 0.5 s, then acquires
         t += DT_S
-        out = ctrl.step(hand, hidden, K, np.zeros(3), t)
+        out = ctrl.step(hand, hidden, K, ArmReading(np.zeros(3)), t)
     assert out.valid and out.phase == "acquiring", out
     assert out.hold_reason == "acquiring: target partial, attempt 1/4"
     assert out.status.startswith("acquiring: target partial")
     assert 0 < np.linalg.norm(out.twist_base_ee[:3]) <= cfg.acquire_max_linear_m_s + 1e-12
     target = observe(square_points(np.array([0.0, 0.07, 0.55])))
-    out = ctrl.step(hand, target, K, np.zeros(3), t + DT_S)  # uncovered: servo on it
+    out = ctrl.step(hand, target, K, ArmReading(np.zeros(3)), t + DT_S)  # uncovered: servo on it
     assert out.valid and out.phase == "servoing" and out.error_px_rms > 1.0
     assert ctrl.acquisition is None and ctrl.hold_since_s is None
 
@@ -163,7 +164,7 @@ def test_acquisition_is_bounded_and_then_holds_naming_the_failure() -> None:
     phases = []
     t = 0.0
     while t < 5.0:
-        out = ctrl.step(hand, hidden, K, np.zeros(3), t)
+        out = ctrl.step(hand, hidden, K, ArmReading(np.zeros(3)), t)
         phases.append(out.phase)
         t += DT_S
     assert "acquiring" in phases and phases[-1] == "holding"
@@ -176,9 +177,9 @@ def test_acquisition_is_bounded_and_then_holds_naming_the_failure() -> None:
 def test_a_target_gone_with_nothing_in_front_is_not_acquired() -> None:
     ctrl, hand = start_covering(ControllerConfig(acquire_after_s=0.1))
     target = observe(square_points(np.array([0.1, 0.07, 0.55])))
-    assert ctrl.step(hand, target, K, np.zeros(3), 0.0).phase == "servoing"
+    assert ctrl.step(hand, target, K, ArmReading(np.zeros(3)), 0.0).phase == "servoing"
     for i in range(1, 30):
-        out = ctrl.step(hand, not_seen("lost"), K, np.zeros(3), i * DT_S)
+        out = ctrl.step(hand, not_seen("lost"), K, ArmReading(np.zeros(3)), i * DT_S)
     assert out.phase == "holding" and out.hold_reason == "target lost"
     assert out.hold_since_s == DT_S
 
@@ -188,12 +189,14 @@ def test_a_target_never_seen_at_all_is_acquired() -> None:
     (the arm) is in front of it."""
     ctrl, hand = start_covering(ControllerConfig(acquire_after_s=0.1))
     for i in range(30):
-        out = ctrl.step(hand, not_seen("lost"), K, np.zeros(3), i * DT_S)
+        out = ctrl.step(hand, not_seen("lost"), K, ArmReading(np.zeros(3)), i * DT_S)
     assert out.phase == "acquiring" and out.hold_reason.startswith("acquiring: target lost")
 
 
 def test_acquisition_can_be_switched_off() -> None:
     ctrl, hand = start_covering(ControllerConfig(acquire=False))
     for i in range(60):
-        out = ctrl.step(hand, not_seen("partial", occluded=True), K, np.zeros(3), i * DT_S)
+        out = ctrl.step(
+            hand, not_seen("partial", occluded=True), K, ArmReading(np.zeros(3)), i * DT_S
+        )
     assert out.phase == "holding" and out.hold_since_s == 0.0

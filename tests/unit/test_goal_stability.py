@@ -9,6 +9,7 @@ import pytest
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ConstantDepth, ControllerConfig, JacobianMode
 from common.marker import Marker
+from services.controller.arm import ArmReading
 from services.controller.ibvs import IbvsController
 from services.controller.interaction import constant_interaction_matrix
 from services.controller.stability import constant_goal_stability, goal_stability
@@ -82,7 +83,7 @@ def test_the_controller_reports_the_frozen_matrix_stability_for_constant_only(
     hand = seen(moved(goal, np.array([0.01, 0.0, 0.0, 0.0, 0.0, 0.0]), 1.0))
     controller = IbvsController(ControllerConfig(mode=mode), np.eye(4))
     assert controller.goal_stability is None
-    out = controller.step(hand, target, K, np.zeros(3))
+    out = controller.step(hand, target, K, ArmReading(np.zeros(3)))
     assert out.valid
     if mode is JacobianMode.CONSTANT:
         assert controller.goal_stability == pytest.approx(

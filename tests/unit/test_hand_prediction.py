@@ -8,6 +8,7 @@ import pytest
 from common import kinematics as kin
 from common.config import ControllerConfig, load_scenario
 from common.marker import Marker
+from services.controller.arm import ArmReading
 from services.controller.hand import carried_by_encoders
 from services.controller.ibvs import IbvsController
 
@@ -62,26 +63,26 @@ def test_the_law_servoes_on_the_carried_hand_for_a_bounded_time(predict_hand_s: 
     ctl = controller(predict_hand_s)
     q = np.array(SCENARIO.robot.q0)
     hand, t_ee = seen_hand(q)
-    out = ctl.step(hand, target_marker(), K, t_ee[:3, 3], 0.0, t_base_ee=t_ee)
+    out = ctl.step(hand, target_marker(), K, ArmReading(t_ee[:3, 3], t_base_ee=t_ee), 0.0)
     assert out.valid and not out.hand_predicted
     hidden = Marker.unseen("partial", "occluded", occluded=True)
     for i, t_s in enumerate(np.arange(1, 90) / 30):
         q_now = q + 0.001 * i
         t_now = kin.frame_transforms(q_now)[-1]
-        out = ctl.step(hidden, target_marker(), K, t_now[:3, 3], t_s, t_base_ee=t_now)
+        out = ctl.step(hidden, target_marker(), K, ArmReading(t_now[:3, 3], t_base_ee=t_now), t_s)
         if predict_hand_s > 0 and t_s - 1 / 30 <= predict_hand_s:  # from the first hidden frame
             assert out.valid and out.hand_predicted and not out.converged
             assert np.linalg.norm(out.twist_base_ee) > 0.0
         else:
             assert not out.valid and out.hold_reason == "hand partial"
     # Seen again: the prediction ends and may start afresh later.
-    out = ctl.step(hand, target_marker(), K, t_ee[:3, 3], 3.0, t_base_ee=t_ee)
+    out = ctl.step(hand, target_marker(), K, ArmReading(t_ee[:3, 3], t_base_ee=t_ee), 3.0)
     assert out.valid and not out.hand_predicted and ctl.hand_memory.carried_since_s is None
 
 
 def test_without_the_end_effectors_pose_a_hidden_hand_is_held_on() -> None:
     ctl = controller()
     hand, t_ee = seen_hand(np.array(SCENARIO.robot.q0))
-    ctl.step(hand, target_marker(), K, t_ee[:3, 3], 0.0, t_base_ee=t_ee)
-    out = ctl.step(Marker.unseen("partial"), target_marker(), K, t_ee[:3, 3], 0.1)
+    ctl.step(hand, target_marker(), K, ArmReading(t_ee[:3, 3], t_base_ee=t_ee), 0.0)
+    out = ctl.step(Marker.unseen("partial"), target_marker(), K, ArmReading(t_ee[:3, 3]), 0.1)
     assert not out.valid and out.hold_reason == "hand partial"

@@ -13,6 +13,7 @@ from common.config import ConstantDepth, ControllerConfig, JacobianMode
 from common.marker import Marker
 from common.messages import MarkerState
 from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
+from services.controller.arm import ArmReading
 from services.controller.convergence import settled_error_px_rms
 from services.controller.goal import desired_observation
 from services.controller.ibvs import IbvsController
@@ -93,7 +94,7 @@ def servo_path(mode: JacobianMode, hand: np.ndarray, target: np.ndarray) -> tupl
     for _ in range(600):
         centre = hand.mean(axis=0)
         errors.append(float(np.linalg.norm(hand - goal)))
-        out = ctrl.step(observe(hand), observe(target), K, centre)
+        out = ctrl.step(observe(hand), observe(target), K, ArmReading(centre))
         if out.converged:
             break
         v, w = out.twist_base_ee[:3], out.twist_base_ee[3:]
@@ -164,7 +165,7 @@ def test_every_strategy_converges_in_a_kinematic_loop(mode: JacobianMode) -> Non
     first = None
     for _ in range(600):
         centre = hand.mean(axis=0)
-        out = ctrl.step(observe(hand), observe(target), K, centre)
+        out = ctrl.step(observe(hand), observe(target), K, ArmReading(centre))
         first = first or out.error_px_rms
         if out.converged:
             break
@@ -214,20 +215,20 @@ def test_hold_when_a_marker_is_missing_and_memory_when_the_hand_hides_the_target
     hand_far = observe(square_points(np.array([0.15, -0.1, 0.5])))
     hand_near = observe(square_points(np.array([0.01, 0.05, 0.53])))
     ctrl = IbvsController(ControllerConfig(), np.eye(4))
-    out = ctrl.step(hand_far, not_seen("lost"), K, np.zeros(3))
+    out = ctrl.step(hand_far, not_seen("lost"), K, ArmReading(np.zeros(3)))
     assert not out.valid and out.hold_reason == "target lost"  # never seen: hold
-    assert ctrl.step(hand_far, target, K, np.zeros(3)).valid
-    out = ctrl.step(hand_far, not_seen("lost", occluded=True), K, np.zeros(3))
+    assert ctrl.step(hand_far, target, K, ArmReading(np.zeros(3))).valid
+    out = ctrl.step(hand_far, not_seen("lost", occluded=True), K, ArmReading(np.zeros(3)))
     assert not out.valid and not np.any(out.twist_base_ee)  # hidden far from the hand: hold
-    out = ctrl.step(hand_near, not_seen("partial", occluded=True), K, np.zeros(3))
+    out = ctrl.step(hand_near, not_seen("partial", occluded=True), K, ArmReading(np.zeros(3)))
     assert out.valid and out.target_remembered  # hidden by the hand: remembered
-    out = ctrl.step(hand_near, not_seen("lost"), K, np.zeros(3))
+    out = ctrl.step(hand_near, not_seen("lost"), K, ArmReading(np.zeros(3)))
     assert not out.valid and out.hold_reason == "target lost"  # gone, nothing in front: hold
-    out = ctrl.step(hand_near, target, K, np.zeros(3))
+    out = ctrl.step(hand_near, target, K, ArmReading(np.zeros(3)))
     assert out.valid and not out.target_remembered  # back: resumes
-    out = ctrl.step(not_seen("partial"), target, K, np.zeros(3))
+    out = ctrl.step(not_seen("partial"), target, K, ArmReading(np.zeros(3)))
     assert not out.valid and out.hold_reason == "hand partial"
-    out = ctrl.step(hand_near, not_seen("no_depth"), K, np.zeros(3))
+    out = ctrl.step(hand_near, not_seen("no_depth"), K, ArmReading(np.zeros(3)))
     assert not out.valid and out.hold_reason == "target no_depth"
 
 
@@ -241,7 +242,7 @@ def seen_sliding(ctrl: IbvsController) -> float:
     last seen (s)."""
     for i in range(16):
         where = observe(square_points(SLIDE_START_M + SLIDE_VELOCITY_M_S * i * FRAME_S))
-        ctrl.step(where, where, K, np.zeros(3), i * FRAME_S)
+        ctrl.step(where, where, K, ArmReading(np.zeros(3)), i * FRAME_S)
     return 15 * FRAME_S
 
 
@@ -257,7 +258,7 @@ def test_no_convergence_on_a_predicted_target_until_it_is_seen_again() -> None:
         t += dt
         predicted = start + velocity * (last_seen_s + min(t - last_seen_s, PREDICTION_HORIZON_S))
         hand = observe(square_points(predicted))  # the hand on the prediction, hiding it
-        out = ctrl.step(hand, not_seen("lost", occluded=True), K, np.zeros(3), t)
+        out = ctrl.step(hand, not_seen("lost", occluded=True), K, ArmReading(np.zeros(3)), t)
         assert out.valid and not out.converged
         if t - last_seen_s < PREDICTION_HORIZON_S:
             assert out.target_remembered and out.phase == "servoing"
@@ -265,7 +266,7 @@ def test_no_convergence_on_a_predicted_target_until_it_is_seen_again() -> None:
     assert out.hold_reason.startswith("acquiring: predicted target unconfirmed")
     for _ in range(6):  # seen again where predicted: done
         t += dt
-        out = ctrl.step(hand, observe(square_points(predicted)), K, np.zeros(3), t)
+        out = ctrl.step(hand, observe(square_points(predicted)), K, ArmReading(np.zeros(3)), t)
     assert not ctrl.target_memory.predicted and out.converged
 
 
@@ -288,7 +289,7 @@ def test_a_hand_settled_just_above_the_threshold_on_a_prediction_goes_to_confirm
             replace(on_it, corners_px=on_it.corners_px + wobble),
             not_seen("lost", occluded=True),
             K,
-            np.zeros(3),
+            ArmReading(np.zeros(3)),
             t,
         )
         assert not out.converged
@@ -310,7 +311,7 @@ def test_convergence_is_judged_on_the_error_averaged_over_the_window() -> None:
     for i in range(4):
         sign = 1.0 if i % 2 == 0 else -1.0
         hand = replace(goal, corners_px=goal.corners_px + sign * 0.4)
-        out = ctrl.step(hand, goal, K, np.zeros(3), i / 30)
+        out = ctrl.step(hand, goal, K, ArmReading(np.zeros(3)), i / 30)
         assert out.error_px_rms == pytest.approx(0.4)
         assert out.converged == (i == 3)
     assert settled_error_px_rms([np.full(8, 0.4 + d) for d in (0.4, -0.4, 0.4, -0.4)]) == (
@@ -328,7 +329,7 @@ def test_an_error_settled_under_the_plateau_bound_converges_after_plateau_s() ->
         ctrl = IbvsController(cfg, np.eye(4))
         for i, offset in enumerate(offsets_px):
             hand = replace(goal, corners_px=goal.corners_px + offset)
-            if ctrl.step(hand, goal, K, np.zeros(3), i / 30).converged:
+            if ctrl.step(hand, goal, K, ArmReading(np.zeros(3)), i / 30).converged:
                 return i
         return None
 
@@ -339,7 +340,9 @@ def test_an_error_settled_under_the_plateau_bound_converges_after_plateau_s() ->
     off = ControllerConfig(converged_frames=4, plateau_px=0.0)
     ctrl = IbvsController(off, np.eye(4))
     hand = replace(goal, corners_px=goal.corners_px + 0.4)
-    assert not any(ctrl.step(hand, goal, K, np.zeros(3), i / 30).converged for i in range(90))
+    assert not any(
+        ctrl.step(hand, goal, K, ArmReading(np.zeros(3)), i / 30).converged for i in range(90)
+    )
 
 
 def test_corner_pairing_takes_the_least_turn_and_holds_it_near_45_degrees() -> None:
@@ -371,7 +374,7 @@ def test_the_controller_pairs_corners_whatever_vision_labels_them() -> None:
     for shift in range(4):
         target = observe(np.roll(target_points, shift, axis=0))
         ctrl = IbvsController(ControllerConfig(mode=JacobianMode.CONSTANT), np.eye(4))
-        twists.append(ctrl.step(hand, target, K, np.zeros(3)).twist_base_ee)
+        twists.append(ctrl.step(hand, target, K, ArmReading(np.zeros(3))).twist_base_ee)
     for twist in twists[1:]:
         np.testing.assert_allclose(twist, twists[0], atol=1e-12)
     assert abs(twists[0][5]) < 1e-9  # no turn about the optical axis is asked for
@@ -429,7 +432,7 @@ def test_a_moving_target_is_followed_with_its_motion_fed_forward(track: bool) ->
     for i in range(150):  # 5 s
         t = i * dt
         centre = hand.mean(axis=0)
-        out = ctrl.step(observe(hand), observe(target + velocity * t), K, centre, t)
+        out = ctrl.step(observe(hand), observe(target + velocity * t), K, ArmReading(centre), t)
         assert not out.converged or not track  # never "done" on a target believed to move
         v, w = out.twist_base_ee[:3], out.twist_base_ee[3:]
         hand = centre + v * dt + (_axis_angle_safe(w, dt) @ (hand - centre).T).T
@@ -459,10 +462,10 @@ def test_the_controller_freezes_the_constant_matrix_with_the_configured_depths()
     for depth in ConstantDepth:
         config = ControllerConfig(mode=JacobianMode.CONSTANT, constant_depth=depth)
         ctrl = IbvsController(config, np.eye(4), 0.03)
-        ctrl.step(observe(hand), observe(target), K, hand.mean(axis=0))
+        ctrl.step(observe(hand), observe(target), K, ArmReading(hand.mean(axis=0)))
         desired = desired_observation(observe(target), 0.03, K)
         np.testing.assert_allclose(ctrl.l_constant, constant_interaction_matrix(desired, K, depth))
         moved = observe(target + np.array([0.0, 0.0, 0.2]))  # frozen: later views leave it
         frozen = ctrl.l_constant.copy()
-        ctrl.step(observe(hand), moved, K, hand.mean(axis=0))
+        ctrl.step(observe(hand), moved, K, ArmReading(hand.mean(axis=0)))
         np.testing.assert_array_equal(ctrl.l_constant, frozen)

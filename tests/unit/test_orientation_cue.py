@@ -16,6 +16,7 @@ from common import kinematics as kin
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode, VisionConfig
 from common.marker import Marker
+from services.controller.arm import ArmReading
 from services.controller.ibvs import IbvsController
 from services.vision.cue import (
     CUE_HIDDEN,
@@ -295,7 +296,7 @@ def test_with_oriented_markers_the_controller_pairs_corner_i_with_corner_i() -> 
     for oriented in (False, True):
         ctrl = IbvsController(ControllerConfig(mode=JacobianMode.POINTS3D), np.eye(4))
         ctrl.oriented_markers = oriented
-        out = ctrl.step(obs(hand), obs(target), K, hand.mean(axis=0))
+        out = ctrl.step(obs(hand), obs(target), K, ArmReading(hand.mean(axis=0)))
         turns[oriented] = (ctrl.pairing, out)
     assert turns[False][0] == 2 and turns[True][0] == 0
     assert turns[True][1].valid and turns[False][1].valid

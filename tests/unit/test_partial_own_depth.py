@@ -13,6 +13,7 @@ import pytest
 
 from common.config import ControllerConfig, VisionConfig
 from common.marker import Marker as SeenMarker
+from services.controller.arm import ArmReading
 from services.controller.ibvs import IbvsController
 from services.vision.own_depth import blob_plane, square_from_outline
 from services.vision.partial import outline
@@ -190,9 +191,9 @@ def test_the_controller_servoes_on_a_fitted_hand_and_holds_on_an_unfitted_one() 
     seen_hand, seen_target = measured["hand"], measured["target"]
     assert seen_hand.fitted and seen_target.visible
     ctrl = IbvsController(ControllerConfig(acquire=False), np.eye(4))
-    out = ctrl.step(seen_hand, seen_target, K, hand.points_m.mean(axis=0))
+    out = ctrl.step(seen_hand, seen_target, K, ArmReading(hand.points_m.mean(axis=0)))
     assert out.valid and np.any(out.twist_base_ee)
     unfitted = SeenMarker.unseen("partial", "occluded", occluded=True)
-    out = ctrl.step(unfitted, seen_target, K, hand.points_m.mean(axis=0))
+    out = ctrl.step(unfitted, seen_target, K, ArmReading(hand.points_m.mean(axis=0)))
     assert not out.valid and out.hold_reason == "hand partial"
     assert not replace(seen_hand, fitted=False).usable
