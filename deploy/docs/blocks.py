@@ -21,6 +21,7 @@ from deploy.docs.bench_tables import (
     bench_workflows,
 )
 from deploy.docs.campaign_tables import (
+    campaign_contacts,
     campaign_goals,
     campaign_stability,
     campaign_summary,
@@ -39,6 +40,7 @@ from deploy.docs.sources import (
     BENCH_DIR,
     CAMPAIGN_DIR,
     CAMPAIGN_JSON,
+    CAMPAIGN_RESULTS_JSON,
     CAMPAIGN_STARTS_JSON,
     DOMAINS_JSON,
     EXECUTORS_DIR,
@@ -80,6 +82,7 @@ BLOCKS: dict[str, Block] = {
     "bench-hosts": Block(bench_hosts, f"{BENCH_DIR}/{LOCKSTEP_RUN}.json, {HOSTS_DIR}/*.json"),
     "campaign-summary": Block(campaign_summary, CAMPAIGN_SOURCES),
     "campaign-taxonomy": Block(campaign_taxonomy, CAMPAIGN_SOURCES),
+    "campaign-contacts": Block(campaign_contacts, CAMPAIGN_RESULTS_JSON),
     "campaign-stability": Block(campaign_stability, f"{CAMPAIGN_STARTS_JSON}, {CAMPAIGN_SOURCES}"),
     "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_SOURCES}, {RESULTS_JSON}"),
     "vision-accuracy": Block(vision_accuracy, ACCURACY_JSON),

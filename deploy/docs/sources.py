@@ -29,6 +29,7 @@ ACCURACY_JSON = "docs/vision/accuracy.json"  # umay accuracy on the suite's targ
 CAMPAIGN_DIR = "docs/campaign"
 CAMPAIGN_JSON = f"{CAMPAIGN_DIR}/causes.json"  # the random-start campaign: one cause per run
 CAMPAIGN_STARTS_JSON = f"{CAMPAIGN_DIR}/starts.json"  # its starts, as drawn
+CAMPAIGN_RESULTS_JSON = f"{CAMPAIGN_DIR}/results.json"  # its runs' results, as compare's rows
 # The same starts again with one of constant's settings changed (``umay campaign --modes
 # constant --set ... --out docs/campaign/<folder>``, the command in docs/campaign.md): each
 # folder's runs are one more row of the campaign's taxonomy, under this label, and of the
@@ -97,6 +98,7 @@ class Inputs:
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
     campaign_starts: Sequence[Mapping[str, Any]] = ()  # its starts (CAMPAIGN_STARTS_JSON)
+    campaign_results: Sequence[CompareRow] = ()  # its runs' results (CAMPAIGN_RESULTS_JSON)
     variants: Sequence[CampaignVariant] = ()  # constant's variants run (CONSTANT_VARIANTS)
     accuracy: Sequence[Mapping[str, Any]] = ()  # vision's accuracy, one record per condition
     # The suite's rows per camera (SUITE_CAMERAS), where both have been run.
@@ -151,6 +153,12 @@ def load_inputs(root: Path) -> Inputs:
         ]
         campaign = _records(root / CAMPAIGN_JSON)
         campaign_starts = _records(root / CAMPAIGN_STARTS_JSON)
+        campaign_results_path = root / CAMPAIGN_RESULTS_JSON
+        campaign_results = (
+            rows_from_json(campaign_results_path.read_text())
+            if campaign_results_path.is_file()
+            else []
+        )
         variants = [
             CampaignVariant(folder, label, runs, in_summary)
             for folder, label, in_summary in CONSTANT_VARIANTS
@@ -174,6 +182,7 @@ def load_inputs(root: Path) -> Inputs:
         executors=executors,
         campaign=campaign,
         campaign_starts=campaign_starts,
+        campaign_results=campaign_results,
         variants=variants,
         accuracy=accuracy,
         suite_cameras=suite_cameras if len(suite_cameras) == len(SUITE_CAMERAS) else (),

@@ -277,3 +277,22 @@ def test_every_goal_of_the_suite_is_one_constants_frozen_matrix_holds() -> None:
     for path in suite:
         scenario = load_scenario(path, parse_overrides(["controller.mode='constant'"]))
         assert goal_stability_of(scenario) > 0.0, path.name
+
+
+def test_the_contacts_block_counts_the_runs_on_goal_that_touched_the_scenery() -> None:
+    from deploy.docs.blocks import BLOCKS
+    from deploy.docs.sources import Inputs
+
+    on_goal = dict(converged=True, reason="converged", on_goal=True, final_pixel_rms=0.2)
+    rows = [
+        row(scenario="s1", **on_goal),
+        row(scenario="s2", first_contact_s=0.5, contact_with="object", **on_goal),
+        row(scenario="s3", first_contact_s=0.9, contact_with="table", **on_goal),
+        row(scenario="s4", first_contact_s=0.1, contact_with="object"),  # a failure: not counted
+        row(scenario="s1", mode="pmj", **on_goal),
+    ]
+    table = BLOCKS["campaign-contacts"].render(Inputs(campaign_results=rows), "docs")
+    assert "| dynamic | 3 | 2 (66.7%) | object 1, table 1 | 0.70 |" in table
+    assert "| pmj | 1 | 0 (0.0%) | – | – |" in table
+    assert "[`results.json`](campaign/results.json)" in table
+    assert "Not run yet" in BLOCKS["campaign-contacts"].render(Inputs(), "docs")
