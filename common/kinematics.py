@@ -214,7 +214,10 @@ def inverse_kinematics(
     )
 
 
-# --- the hand and its green marker (shared by the sim's URDF and the reachability check) ---
+# --- the limbs, the hand and its green marker (shared by the sim's URDF, the reachability
+# check, the controller's clearance of the hand box and the live view) ---
+# The upper arm and the forearm: cylinders of this radius between their joints' origins.
+LIMB_RADIUS_M = 0.022
 # The hand is a box rigidly attached to DH frame 6: fingers along +y6 (the forearm direction at
 # q6 = 0), wrist flexion about z6, so the palm's normal is ±x6. The green marker lies on the back
 # of the hand (+x6 side).

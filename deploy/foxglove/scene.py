@@ -46,7 +46,6 @@ FloatArray = np.ndarray
 TABLE_TOP_Y_M = -0.40  # as the sim's world draws it (services/sim/world.py)
 TABLE_CENTRE_M = (0.42, TABLE_TOP_Y_M - 0.02, 0.0)
 TABLE_SIZE_M = (0.56, 0.04, 0.90)
-LIMB_RADIUS_M = 0.022
 FRUSTUM_DEPTH_M = 0.6  # how far the drawn camera frustum reaches
 
 
@@ -131,7 +130,7 @@ def static_scene(scenario: Scenario, t_s: float) -> SceneUpdate:
         nxt = dh[i + 1]
         p_next = kin.rot_x(nxt.alpha_prev_rad) @ np.array([nxt.a_prev_m, 0.0, nxt.d_m])
         if np.linalg.norm(p_next) > 0.03:
-            cyl = _cylinder_between(np.zeros(3), p_next, LIMB_RADIUS_M, GREY)
+            cyl = _cylinder_between(np.zeros(3), p_next, kin.LIMB_RADIUS_M, GREY)
             entities.append(_entity(f"link_{i + 1}", DH_FRAMES[i], t_s, cylinders=[cyl]))
     hand_centre = np.array([0.0, kin.HAND_OFFSET_M + kin.HAND_LENGTH_M / 2, 0.0])
     hand = _cube(

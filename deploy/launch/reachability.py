@@ -19,7 +19,6 @@ IMAGE_MARGIN_PX = 8.0
 # (a 6 cm square at 0.45 m is under a third of its width across): no motion of the servo can
 # start without features, so such a start is refused.
 MAX_VIEW_ANGLE_DEG = 70.0
-LIMB_RADIUS_M = 0.022  # the sim's upper arm and forearm cylinders (services/sim/urdf.py)
 # A line of sight is checked up to this fraction short of the marker: the forearm ends at the
 # wrist, under the hand box the marker lies on.
 SIGHT_CLEARANCE_FRACTION = 0.08
@@ -81,9 +80,10 @@ def segment_distance_m(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.nd
 
 
 def arm_hides_hand_marker(q_rad: np.ndarray, scenario: Scenario) -> bool:
-    """Whether the upper arm or the forearm (cylinders of :data:`LIMB_RADIUS_M` between their
-    joints, as the sim draws them) comes between the camera and a corner or the centre of the
-    hand marker: vision cannot measure a marker the robot's own arm hides."""
+    """Whether the upper arm or the forearm (cylinders of
+    :data:`common.kinematics.LIMB_RADIUS_M` between their joints, as the sim draws them) comes
+    between the camera and a corner or the centre of the hand marker: vision cannot measure a
+    marker the robot's own arm hides."""
     frames = kin.frame_transforms(np.asarray(q_rad, dtype=float))
     marker = frames[-1] @ kin.hand_marker_in_ee()
     points = np.vstack([kin.marker_corners(marker, scenario.marker.size_m), marker[:3, 3]])
@@ -92,7 +92,7 @@ def arm_hides_hand_marker(q_rad: np.ndarray, scenario: Scenario) -> bool:
     for p in points:
         end = camera + (1.0 - SIGHT_CLEARANCE_FRACTION) * (p - camera)  # short of the marker
         for a, b in limbs:
-            if segment_distance_m(camera, end, a, b) < LIMB_RADIUS_M:
+            if segment_distance_m(camera, end, a, b) < kin.LIMB_RADIUS_M:
                 return True
     return False
 

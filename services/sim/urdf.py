@@ -109,7 +109,7 @@ def robot_urdf(marker_size_m: float, orientation_cue: bool = False) -> str:
         nxt = dh[i + 1]
         p_next = kin.rot_x(nxt.alpha_prev_rad) @ np.array([nxt.a_prev_m, 0.0, nxt.d_m])
         if np.linalg.norm(p_next) > 0.03:
-            shapes[names[i]] += _cylinder_between(np.zeros(3), p_next, 0.022, GREY)
+            shapes[names[i]] += _cylinder_between(np.zeros(3), p_next, kin.LIMB_RADIUS_M, GREY)
     # The upper arm: link_2 → joint_3 origin (0.264 m); forearm: link_4 → joint_5 (0.212 m).
     # The hand: a box on ee_link, the green marker on its back (visual only).
     hand_centre = np.array([0.0, kin.HAND_OFFSET_M + kin.HAND_LENGTH_M / 2, 0.0])
