@@ -82,8 +82,8 @@ def published_start(name: str) -> dict:
 @pytest.mark.parametrize(
     "name",
     [
-        "start_0123",  # the least turn's goal puts the forearm's twist past its limit
-        "start_0314",  # the least turn's goal puts the shoulder's pitch past its limit
+        "start_0123",  # the least turn's goal puts the forearm twist and wrist past their limits
+        "start_0314",  # the least turn's goal puts the shoulder's roll and yaw past their limits
     ],
 )
 def test_a_goal_beyond_the_joint_limits_is_left_for_a_quarter_turn(name: str) -> None:
