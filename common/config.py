@@ -313,8 +313,9 @@ class ControllerConfig(_Strict):
     reachable_pairing: bool = Field(
         True,
         description="pair the squares' corners by the least turn among the pairings whose goal "
-        "posture the arm reaches from its first posture servoed, within the joint limits "
-        "(services/controller/reach.py); false: the least turn whatever the limits",
+        "posture the arm reaches within the joint limits, checked on the first frame servoed "
+        "and again once the goal has moved (services/controller/reach.py); false: the least "
+        "turn whatever the limits",
     )
     acquire: bool = Field(
         True,

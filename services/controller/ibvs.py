@@ -45,6 +45,10 @@ from services.controller.twist import camera_twist_to_base_ee, clamp_twist
 
 FloatArray = NDArray[np.float64]
 
+# The goal's move (m) after which the pairings' goal postures are checked again: a target moved
+# by a few centimetres, or more, can put another pairing's posture in or out of reach.
+REACH_RECHECK_M = 0.02
+
 
 @dataclass(frozen=True)
 class ControlOutput:
@@ -118,9 +122,11 @@ class IbvsController:
     # s − s* (px, 2N) of the last frames servoed on a still, seen goal: convergence's window
     recent_errors_px: list[FloatArray] = field(default_factory=list)
     pairing: int | None = None  # hand corner i goes to target corner (i + pairing) % 4
-    # Which pairings' goal postures the arm reaches from where it first servoed (.reach; None
-    # before, or without the joint angles): the least turn is chosen among those.
+    # Which pairings' goal postures the arm reaches (.reach; None before, or without the joint
+    # angles): the least turn is chosen among those. Checked from where the arm first servoes,
+    # again once the goal has moved (its centroid, camera frame, when last checked).
     reachable: list[bool] | None = None
+    reachable_for_m: FloatArray | None = None
     # The target's last usable view and motion, and whether the goal is a prediction.
     target_memory: TargetMemory = field(default_factory=TargetMemory)
     hold_since_s: float | None = None  # sim time the current hold began
@@ -163,10 +169,20 @@ class IbvsController:
         if not (hand.usable and target.usable):
             return self._hold(hand, target, seen, k, arm, t_s)
         self.hold_since_s = None
-        if self.reachable is None and arm.q_rad is not None and self._pairing_open():
-            goal = desired_observation(target, self.approach_height_m, k)
-            self.reachable = reachable_pairings(hand, goal, self.t_base_cam, arm.q_rad)
+        if arm.q_rad is not None and self._pairing_open():
+            self._check_reach(hand, desired_observation(target, self.approach_height_m, k), arm)
         return self._servo(hand, target, k, arm, t_s, remembered, hand_predicted)
+
+    def _check_reach(self, hand: Marker, goal: Marker, arm: ArmReading) -> None:
+        """Which pairings' goal postures the arm reaches: on the first frame servoed, and again
+        from where the arm is once the goal has moved by :data:`REACH_RECHECK_M` since."""
+        centroid = goal.points_m.mean(axis=0)
+        last = self.reachable_for_m
+        if last is not None and np.linalg.norm(centroid - last) < REACH_RECHECK_M:
+            return
+        assert arm.q_rad is not None
+        self.reachable = reachable_pairings(hand, goal, self.t_base_cam, arm.q_rad)
+        self.reachable_for_m = centroid
 
     def _pairing_open(self) -> bool:
         """Whether the corner pairing is a choice to make (a plain square) and the goal

@@ -106,7 +106,7 @@ class ControllerService:
 
     def on_pair(self, features: Features, joints: JointState) -> None:
         frozen_before = self.controller.goal_stability is not None
-        reach_known = self.controller.reachable is not None
+        reach_before = self.controller.reachable
         out = control_step(self.controller, features, joints.position_rad)
         self.error_px, self.converged = out.error_px_rms, out.converged
         self.holding, self.target_remembered = not out.valid, out.target_remembered
@@ -128,7 +128,7 @@ class ControllerService:
         # For status and the log only: after the twist is out, off the loop's latency.
         if not frozen_before:
             self.warn_if_goal_unstable()
-        if not reach_known:
+        if self.controller.reachable != reach_before:
             self.log_unreachable_pairings()
         velocity = self.controller.target_memory.motion.velocity_m_s(features.header.sim_time_s)
         self.target_speed_m_s = float(np.linalg.norm(velocity))
@@ -143,7 +143,7 @@ class ControllerService:
             )
 
     def log_unreachable_pairings(self) -> None:
-        """Once, when the pairings' goal postures have been checked and some are out of reach."""
+        """When the pairings' goal postures have been checked anew and some are out of reach."""
         reachable = self.controller.reachable
         if reachable is not None and not all(reachable):
             beyond = [k for k, ok in enumerate(reachable) if not ok]

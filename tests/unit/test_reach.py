@@ -113,3 +113,32 @@ def test_the_least_turn_is_kept_when_it_is_reachable() -> None:
     costs = pairing_costs_px2(project(hand.points_m, K), project(goal.points_m, K))
     reachable = reachable_pairings(hand, goal, t_base_cam, q_start)
     assert reachable[int(np.argmin(costs))]
+
+
+def test_the_pairings_are_checked_again_once_the_goal_has_moved(monkeypatch) -> None:
+    """Checked on the first frame servoed, not again while the goal stays put (a few
+    millimetres of measurement wobble), again once it has moved by REACH_RECHECK_M."""
+    from common.config import ControllerConfig
+    from services.controller import ibvs
+    from services.controller.arm import ArmReading
+
+    calls = []
+
+    def counted(*args: object) -> list[bool]:
+        calls.append(args)
+        return reachable_pairings(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(ibvs, "reachable_pairings", counted)
+    q_start = np.deg2rad([-20.0, 50.0, -70.0, -95.0, -120.0, -60.0])
+    t_base_cam = camera_in_front_of(q_start)
+    hand = seen(hand_corners_cam(q_start, t_base_cam))
+    goal = hand_corners_cam(q_start + np.deg2rad([-5.0, 4.0, 6.0, -4.0, 3.0, -9.0]), t_base_cam)
+    ctrl = ibvs.IbvsController(ControllerConfig(), t_base_cam)
+    arm = ArmReading.from_joints(q_start)
+    for shift_m, checks in [(0.0, 1), (0.005, 1), (0.015, 1), (0.03, 2), (0.035, 2)]:
+        ctrl.step(hand, seen(goal + np.array([shift_m, 0.0, 0.0])), K, arm, 0.0)
+        assert len(calls) == checks, shift_m
+    assert ctrl.reachable is not None and any(ctrl.reachable)
+    ctrl.config = ControllerConfig(reachable_pairing=False)
+    ctrl.step(hand, seen(goal + np.array([0.1, 0.0, 0.0])), K, arm, 0.0)
+    assert len(calls) == 2  # turned off: never checked
