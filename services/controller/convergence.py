@@ -4,10 +4,12 @@ on a plateau under a pixel. Pure."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+
+from common.config import ControllerConfig
 
 FloatArray = NDArray[np.float64]
 
@@ -46,3 +48,41 @@ def settled_error_px_rms(recent_errors_px: Sequence[FloatArray]) -> float:
     frames lies on the goal."""
     mean = np.mean(np.asarray(recent_errors_px, dtype=float), axis=0)
     return float(np.sqrt(np.mean(mean**2)))
+
+
+@dataclass
+class ConvergenceWindow:
+    """The errors ``s − s*`` (px, 2N) of the last frames servoed on a still goal that was seen
+    (or fitted), and the plateau under ``plateau_px`` they sit on: whether the hand has settled
+    on its goal."""
+
+    errors_px: list[FloatArray] = field(default_factory=list)
+    plateau: Plateau | None = None
+
+    def clear(self) -> None:
+        """Afresh: what came before no longer tells whether the hand is on this goal."""
+        self.errors_px, self.plateau = [], None
+
+    def add(self, error_px: FloatArray, frames: int) -> None:
+        """This frame's error, the window kept to its last ``frames``."""
+        self.errors_px = [*self.errors_px, error_px][-frames:]
+
+    def settled(self, t_s: float, cfg: ControllerConfig) -> bool:
+        """Converged: the error averaged over the window is under ``converged_px``, or under
+        ``plateau_px`` and has not fallen by :data:`PLATEAU_PROGRESS` for ``plateau_s``. A
+        goal beside a joint limit is approached by the joints left free, and the error can
+        settle a few tenths of a pixel above the threshold and stay there: the hand is on its
+        goal in the image, and waiting for the timeout gains nothing."""
+        if len(self.errors_px) < cfg.converged_frames:
+            self.plateau = None
+            return False
+        settled_px = settled_error_px_rms(self.errors_px)
+        if settled_px < cfg.converged_px:
+            return True
+        if settled_px >= cfg.plateau_px:
+            self.plateau = None
+            return False
+        if self.plateau is None:
+            self.plateau = Plateau(settled_px, t_s)
+        self.plateau = self.plateau.after(settled_px, t_s)
+        return t_s - self.plateau.since_s >= cfg.plateau_s

@@ -22,7 +22,7 @@ from common.kinematics import BASE_UP
 from common.marker import Marker
 from services.controller import acquisition as acq
 from services.controller.arm import ArmReading
-from services.controller.convergence import Plateau, settled_error_px_rms
+from services.controller.convergence import ConvergenceWindow
 from services.controller.goal import (
     TargetMemory,
     desired_observation,
@@ -119,8 +119,8 @@ class IbvsController:
     # The frozen matrix's local stability at the goal it was built at (.stability; constant
     # only, None before): at or below 0 the law drives the hand away from its own goal.
     goal_stability: float | None = None
-    # s − s* (px, 2N) of the last frames servoed on a still, seen goal: convergence's window
-    recent_errors_px: list[FloatArray] = field(default_factory=list)
+    # s − s* (px, 2N) of the last frames servoed on a still, seen goal, and their plateau
+    window: ConvergenceWindow = field(default_factory=ConvergenceWindow)
     pairing: int | None = None  # hand corner i goes to target corner (i + pairing) % 4
     # Which pairings' goal postures the arm reaches (.reach; None before, or without the joint
     # angles): the least turn is chosen among those. Checked from where the arm first servoes,
@@ -133,7 +133,6 @@ class IbvsController:
     acquisition: acq.Acquisition | None = None
     acquisitions: int = 0  # attempts made since the last convergence
     acquisition_failed: str = ""  # what acquisition could not uncover (then it holds)
-    plateau: Plateau | None = None  # the averaged error under plateau_px, and since when
     # The hand's last usable view, to carry along the encoders while vision cannot use it.
     hand_memory: HandMemory = field(default_factory=HandMemory)
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
@@ -156,7 +155,7 @@ class IbvsController:
         seen = target
         target, remembered, seen_again = self.target_memory.now(target, hand, k, t_s)
         if seen_again:  # the window's errors were against the prediction: afresh
-            self.recent_errors_px, self.plateau = [], None
+            self.window.clear()
         if self.acquisition is not None:
             if seen.usable or not hand.usable or not self.config.acquire:
                 self.acquisition = None  # uncovered (or the hand lost): back to the rules
@@ -200,7 +199,7 @@ class IbvsController:
     ) -> ControlOutput:
         """A marker cannot be used (``target``: as used, ``seen``: as vision saw it): hold,
         or begin uncovering a target the hand may be in front of."""
-        self.recent_errors_px, self.plateau = [], None
+        self.window.clear()
         which = "hand" if not hand.usable else "target"
         state = hand.state if not hand.usable else target.state
         if self.hold_since_s is None:
@@ -267,12 +266,11 @@ class IbvsController:
         # the encoders. On a prediction of where a hidden target went it may settle, but it is
         # not done either: the target must be seen there first.
         still = not np.any(velocity)  # slower than motion.STILL_SPEED_M_S
-        window = self.config.converged_frames
         if still and not hand_predicted:
-            self.recent_errors_px = [*self.recent_errors_px, error_px][-window:]
+            self.window.add(error_px, self.config.converged_frames)
         else:
-            self.recent_errors_px = []
-        settled = self._settled(t_s)
+            self.window.clear()
+        settled = self.window.settled(t_s, self.config)
         predicted = self.target_memory.predicted
         converged = settled and not predicted
         if converged:
@@ -283,7 +281,7 @@ class IbvsController:
         # plateau: a hand wobbling a few hundredths of a pixel about 0.25 px was never under
         # it for five frames in a row, and sat on the prediction until it was reported stalled.
         if settled and predicted and self.config.acquire:
-            self.recent_errors_px, self.plateau = [], None
+            self.window.clear()
             why = "predicted target unconfirmed"
             started = self._start_acquisition(why, hand, k, arm, t_s)
             if started is not None:
@@ -292,27 +290,6 @@ class IbvsController:
             twist, True, err_px, converged, remembered,
             control_matrix=m, hand_predicted=hand_predicted,
         )  # fmt: skip
-
-    def _settled(self, t_s: float) -> bool:
-        """Converged: the error averaged over the window is under ``converged_px``, or under
-        ``plateau_px`` and has not fallen by :data:`PLATEAU_PROGRESS` for ``plateau_s``. A
-        goal beside a joint limit is approached by the joints left free, and the error can
-        settle a few tenths of a pixel above the threshold and stay there: the hand is on its
-        goal in the image, and waiting for the timeout gains nothing."""
-        cfg = self.config
-        if len(self.recent_errors_px) < cfg.converged_frames:
-            self.plateau = None
-            return False
-        settled_px = settled_error_px_rms(self.recent_errors_px)
-        if settled_px < cfg.converged_px:
-            return True
-        if settled_px >= cfg.plateau_px:
-            self.plateau = None
-            return False
-        if self.plateau is None:
-            self.plateau = Plateau(settled_px, t_s)
-        self.plateau = self.plateau.after(settled_px, t_s)
-        return t_s - self.plateau.since_s >= cfg.plateau_s
 
     def _start_acquisition(
         self,
@@ -341,7 +318,7 @@ class IbvsController:
         self.acquisition = started
         self.acquisitions += 1
         self.hold_since_s = None
-        self.recent_errors_px = []
+        self.window.clear()
         return self._acquire(hand, k, arm.p_ee_base_m, t_s)
 
     def _image_of(self, point_base_m: FloatArray | None, k: CameraIntrinsics) -> FloatArray | None:
