@@ -313,9 +313,9 @@ class ControllerConfig(_Strict):
     reachable_pairing: bool = Field(
         True,
         description="pair the squares' corners by the least turn among the pairings whose goal "
-        "posture the arm reaches within the joint limits, checked on the first frame servoed "
-        "and again once the goal has moved (services/controller/reach.py); false: the least "
-        "turn whatever the limits",
+        "posture an inverse kinematics from the arm's present posture reaches within the joint "
+        "limits, checked on the first frame servoed and again once the goal has moved "
+        "(services/controller/reach.py); false: the least turn whatever the limits",
     )
     acquire: bool = Field(
         True,

@@ -183,11 +183,15 @@ def inverse_kinematics(
     iterations: int = 200,
     damping: float = 1e-2,
     tolerance: float = 1e-7,
+    stall_rad: float = 0.0,
 ) -> tuple[FloatArray, float, float]:
     """Damped least-squares IK for the pose of a tool frame rigidly attached to frame 6.
 
     Returns ``(q_rad, position_error_m, orientation_error_rad)``; joint limits are enforced by
-    clipping at each step. Used to check that a scenario's target is reachable before launch.
+    clipping at each step. Used to check that a scenario's target is reachable before launch,
+    and by the controller for its corner pairings' goal postures. ``stall_rad``: stop once no
+    joint moved by more than this in a step (held at a limit, or settled short of the goal);
+    0 runs every iteration.
     """
     tool = np.eye(4) if tool_in_ee is None else tool_in_ee
     q = np.clip(np.asarray(q_seed_rad, dtype=float).copy(), JOINT_LOWER_RAD, JOINT_UPPER_RAD)
@@ -205,7 +209,11 @@ def inverse_kinematics(
         jac_tool = jac.copy()
         jac_tool[:3] = jac[:3] - skew(lever) @ jac[3:]
         dq = jac_tool.T @ np.linalg.solve(jac_tool @ jac_tool.T + damping**2 * np.eye(6), err)
-        q = np.clip(q + dq, JOINT_LOWER_RAD, JOINT_UPPER_RAD)
+        q_next = np.clip(q + dq, JOINT_LOWER_RAD, JOINT_UPPER_RAD)
+        stalled = float(np.max(np.abs(q_next - q))) <= stall_rad
+        q = q_next
+        if stalled:
+            break
     pose = forward_kinematics(q) @ tool
     return (
         q,

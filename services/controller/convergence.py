@@ -63,16 +63,17 @@ class ConvergenceWindow:
         """Afresh: what came before no longer tells whether the hand is on this goal."""
         self.errors_px, self.plateau = [], None
 
-    def add(self, error_px: FloatArray, frames: int) -> None:
-        """This frame's error, the window kept to its last ``frames``."""
-        self.errors_px = [*self.errors_px, error_px][-frames:]
+    def add(self, error_px: FloatArray, cfg: ControllerConfig) -> None:
+        """This frame's error, the window kept to its last ``converged_frames``."""
+        self.errors_px = [*self.errors_px, error_px][-cfg.converged_frames :]
 
     def settled(self, t_s: float, cfg: ControllerConfig) -> bool:
-        """Converged: the error averaged over the window is under ``converged_px``, or under
-        ``plateau_px`` and has not fallen by :data:`PLATEAU_PROGRESS` for ``plateau_s``. A
-        goal beside a joint limit is approached by the joints left free, and the error can
-        settle a few tenths of a pixel above the threshold and stay there: the hand is on its
-        goal in the image, and waiting for the timeout gains nothing."""
+        """Whether the hand has settled (the plateau followed to ``t_s`` on the way).
+        Converged: the error averaged over the window is under ``converged_px``, or under
+        ``plateau_px`` and has not fallen by :data:`PLATEAU_PROGRESS` for ``plateau_s``. A goal
+        beside a joint limit is approached by the joints left free, and the error can settle a
+        few tenths of a pixel above the threshold and stay there: the hand is on its goal in
+        the image, and waiting for the timeout gains nothing."""
         if len(self.errors_px) < cfg.converged_frames:
             self.plateau = None
             return False

@@ -39,7 +39,7 @@ from services.controller.interaction import (
     points3d_control_matrix,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
-from services.controller.reach import reachable_pairings
+from services.controller.reach import carried_over, goal_rotations, reachable_pairings
 from services.controller.stability import frozen_matrix_stability
 from services.controller.twist import camera_twist_to_base_ee, clamp_twist
 
@@ -127,6 +127,11 @@ class IbvsController:
     # again once the goal has moved (its centroid, camera frame, when last checked).
     reachable: list[bool] | None = None
     reachable_for_m: FloatArray | None = None
+    # The pairings' goal orientations when they were checked, and whether vision has lost the
+    # hand since (or it was carried by the encoders): on its return its corners may be
+    # labelled afresh, which shifts the pairings' indices (.reach.carried_over).
+    reach_rotations: FloatArray | None = None
+    reach_stale: bool = False
     # The target's last usable view and motion, and whether the goal is a prediction.
     target_memory: TargetMemory = field(default_factory=TargetMemory)
     hold_since_s: float | None = None  # sim time the current hold began
@@ -165,23 +170,33 @@ class IbvsController:
         # bordering its marker in the image): vision publishes a fit only when it runs along
         # the marker's true edges to a fraction of a pixel, pins the pose down and shows most
         # of the marker, so a fitted hand's corners are as good as a whole one's.
+        if not hand.usable or hand_predicted:
+            self.reach_stale = self.reachable is not None
         if not (hand.usable and target.usable):
             return self._hold(hand, target, seen, k, arm, t_s)
         self.hold_since_s = None
-        if arm.q_rad is not None and self._pairing_open():
-            self._check_reach(hand, desired_observation(target, self.approach_height_m, k), arm)
-        return self._servo(hand, target, k, arm, t_s, remembered, hand_predicted)
+        goal = desired_observation(target, self.approach_height_m, k)
+        if arm.q_rad is not None and self._pairing_open() and not hand_predicted:
+            self._check_reach(hand, goal, arm.q_rad)
+        return self._servo(hand, goal, k, arm, t_s, remembered, hand_predicted)
 
-    def _check_reach(self, hand: Marker, goal: Marker, arm: ArmReading) -> None:
-        """Which pairings' goal postures the arm reaches: on the first frame servoed, and again
-        from where the arm is once the goal has moved by :data:`REACH_RECHECK_M` since."""
+    def _check_reach(self, hand: Marker, goal: Marker, q_rad: FloatArray) -> None:
+        """Which pairings' goal postures the arm reaches from ``q_rad``: on the first frame
+        servoed and again once the goal has moved by :data:`REACH_RECHECK_M`; once vision sees
+        the hand after it lost it, the verdicts are carried over to the pairings' indices
+        as its corners are labelled now (:attr:`reach_stale`)."""
         centroid = goal.points_m.mean(axis=0)
         last = self.reachable_for_m
-        if last is not None and np.linalg.norm(centroid - last) < REACH_RECHECK_M:
+        moved = last is None or np.linalg.norm(centroid - last) >= REACH_RECHECK_M
+        if not (moved or self.reach_stale):
             return
-        assert arm.q_rad is not None
-        self.reachable = reachable_pairings(hand, goal, self.t_base_cam, arm.q_rad)
-        self.reachable_for_m = centroid
+        rotations = goal_rotations(hand, goal, self.t_base_cam, q_rad)
+        if moved or self.reachable is None or self.reach_rotations is None:
+            self.reachable = reachable_pairings(hand, goal, self.t_base_cam, q_rad)
+            self.reachable_for_m = centroid
+        else:
+            self.reachable = carried_over(self.reachable, self.reach_rotations, rotations)
+        self.reach_rotations, self.reach_stale = rotations, False
 
     def _pairing_open(self) -> bool:
         """Whether the corner pairing is a choice to make (a plain square) and the goal
@@ -223,16 +238,17 @@ class IbvsController:
     def _servo(
         self,
         hand: Marker,
-        target: Marker,
+        goal: Marker,
         k: CameraIntrinsics,
         arm: ArmReading,
         t_s: float,
         remembered: bool,
         hand_predicted: bool,
     ) -> ControlOutput:
-        """The law's twist on both markers usable (``remembered``: the target from memory;
-        ``hand_predicted``: the hand carried by the encoders), and whether it converged."""
-        target = desired_observation(target, self.approach_height_m, k)
+        """The law's twist on both markers usable, ``goal`` the desired features above the
+        target (``remembered``: the target from memory; ``hand_predicted``: the hand carried
+        by the encoders), and whether it converged."""
+        target = goal
         if self.l_constant is None:
             depth = self.config.constant_depth
             self.l_constant = constant_interaction_matrix(target, k, depth)
@@ -242,7 +258,7 @@ class IbvsController:
             self.pairing = 0
         else:
             costs = pairing_costs_px2(hand.corners_px, target.corners_px)
-            if self.reachable is not None and any(self.reachable):
+            if self._pairing_open() and self.reachable is not None and any(self.reachable):
                 costs = np.where(self.reachable, costs, np.inf)
             self.pairing = choose_pairing(costs, self.pairing)
         target = rolled(target, self.pairing)
@@ -267,7 +283,7 @@ class IbvsController:
         # not done either: the target must be seen there first.
         still = not np.any(velocity)  # slower than motion.STILL_SPEED_M_S
         if still and not hand_predicted:
-            self.window.add(error_px, self.config.converged_frames)
+            self.window.add(error_px, self.config)
         else:
             self.window.clear()
         settled = self.window.settled(t_s, self.config)

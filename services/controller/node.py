@@ -148,7 +148,8 @@ class ControllerService:
         if reachable is not None and not all(reachable):
             beyond = [k for k, ok in enumerate(reachable) if not ok]
             log.info(
-                "corner pairings %s left out: their goal postures are beyond the joint limits%s",
+                "corner pairings %s left out: from the present posture the inverse kinematics "
+                "does not reach their goal postures within the joint limits%s",
                 beyond,
                 "" if any(reachable) else " (all of them: the least turn is kept)",
             )

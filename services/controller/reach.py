@@ -29,6 +29,9 @@ IK_ITERATIONS = 100
 # clips every step at the limits).
 REACH_TOLERANCE_M = 2e-3
 REACH_TOLERANCE_RAD = np.deg2rad(1.0)
+# The inverse kinematics stops once no joint moves by more than this in a step: held at a limit
+# (it clips every step), or settled short of the goal, it gets no further.
+IK_STALL_RAD = 1e-6
 
 
 def rigid_motion(source: FloatArray, destination: FloatArray) -> FloatArray:
@@ -46,6 +49,18 @@ def to_base(points_cam_m: FloatArray, t_base_cam: FloatArray) -> FloatArray:
     return points_cam_m @ t_base_cam[:3, :3].T + t_base_cam[:3, 3]
 
 
+def goal_pose_ee(
+    hand: Marker, goal: Marker, pairing: int, t_base_cam: FloatArray, q_rad: FloatArray
+) -> FloatArray:
+    """The end effector's pose (4×4, base frame) that puts hand corner ``i`` on goal corner
+    ``(i + pairing) % 4`` (both markers' 3-D corners, camera frame; the arm at ``q_rad``).
+    The hand rides rigidly on the end effector, so it depends on the physical pairing only,
+    not on where the hand is now."""
+    hand_base = to_base(hand.points_m, t_base_cam)
+    goal_base = to_base(np.roll(goal.points_m, -pairing, axis=0), t_base_cam)
+    return rigid_motion(hand_base, goal_base) @ kin.forward_kinematics(q_rad)
+
+
 def goal_posture(
     hand: Marker,
     goal: Marker,
@@ -54,14 +69,12 @@ def goal_posture(
     q_rad: FloatArray,
 ) -> tuple[FloatArray, bool]:
     """The joint angles putting hand corner ``i`` on goal corner ``(i + pairing) % 4`` (the
-    goal's 3-D corners, camera frame), found from the posture ``q_rad``, and whether they reach
-    it within the joint limits."""
-    hand_base = to_base(hand.points_m, t_base_cam)
-    goal_base = to_base(np.roll(goal.points_m, -pairing, axis=0), t_base_cam)
-    t_base_ee = kin.forward_kinematics(q_rad)
-    t_goal_ee = rigid_motion(hand_base, goal_base) @ t_base_ee
+    goal's 3-D corners, camera frame), found by an inverse kinematics from the posture
+    ``q_rad`` clipped at the joint limits, and whether it reached the goal. Local: a posture
+    on another branch of the arm, beyond a limit from here, is not looked for."""
+    t_goal_ee = goal_pose_ee(hand, goal, pairing, t_base_cam, q_rad)
     q, position_error_m, rotation_error_rad = kin.inverse_kinematics(
-        t_goal_ee, q_rad, iterations=IK_ITERATIONS
+        t_goal_ee, q_rad, iterations=IK_ITERATIONS, stall_rad=IK_STALL_RAD
     )
     reached = bool(
         position_error_m < REACH_TOLERANCE_M and rotation_error_rad < REACH_TOLERANCE_RAD
@@ -73,6 +86,30 @@ def reachable_pairings(
     hand: Marker, goal: Marker, t_base_cam: FloatArray, q_rad: FloatArray
 ) -> list[bool]:
     """For each of the four cyclic pairings (hand corner i → goal corner (i + k) % 4), whether
-    the arm reaches its goal posture from ``q_rad`` within the joint limits."""
+    the inverse kinematics from ``q_rad`` reaches its goal posture within the joint limits
+    (:func:`goal_posture`)."""
     q = np.asarray(q_rad, dtype=float)
     return [goal_posture(hand, goal, k, t_base_cam, q)[1] for k in range(4)]
+
+
+def goal_rotations(
+    hand: Marker, goal: Marker, t_base_cam: FloatArray, q_rad: FloatArray
+) -> FloatArray:
+    """The end effector's goal orientation (4×3×3, base frame) for each of the four pairings:
+    what tells the physical pairings apart whatever the corners' labels."""
+    q = np.asarray(q_rad, dtype=float)
+    return np.array([goal_pose_ee(hand, goal, k, t_base_cam, q)[:3, :3] for k in range(4)])
+
+
+def carried_over(
+    verdicts: list[bool], rotations_then: FloatArray, rotations_now: FloatArray
+) -> list[bool]:
+    """``verdicts`` (one per pairing, indexed as when ``rotations_then`` were computed) for the
+    pairings as indexed now: vision may have labelled a marker's corners afresh since (it lost
+    the hand, say), which shifts the indices. Each pairing now takes the verdict of the one
+    then whose goal orientation is nearest its own (the four lie a quarter turn apart)."""
+    out = []
+    for now in rotations_now:
+        angles = [kin.rotation_error_rad(then, now) for then in rotations_then]
+        out.append(verdicts[int(np.argmin(angles))])
+    return out

@@ -16,9 +16,9 @@ def test_settled_once_the_window_is_full_and_its_mean_is_under_the_threshold() -
     wobble = [np.full(8, 0.05 + 0.35 * (-1) ** i) for i in range(5)]  # each frame over 0.25 px
     for i, error in enumerate(wobble):
         assert not window.settled(i / 30, CFG)
-        window.add(error, CFG.converged_frames)
+        window.add(error, CFG)
     assert window.settled(5 / 30, CFG)  # their mean, 0.12 px, is under 0.25 px
-    window.add(np.full(8, 3.0), CFG.converged_frames)
+    window.add(np.full(8, 3.0), CFG)
     assert not window.settled(6 / 30, CFG) and len(window.errors_px) == 5
 
 
@@ -26,7 +26,7 @@ def test_a_plateau_under_a_pixel_settles_after_plateau_s_and_progress_restarts_i
     window = ConvergenceWindow()
     t = 0.0
     for _ in range(5):
-        window.add(np.full(8, 0.6), CFG.converged_frames)
+        window.add(np.full(8, 0.6), CFG)
     while not window.settled(t, CFG):
         t += 1 / 30
         assert t < 2.0
@@ -34,9 +34,9 @@ def test_a_plateau_under_a_pixel_settles_after_plateau_s_and_progress_restarts_i
     window.clear()
     assert window.plateau is None and not window.settled(t, CFG)
     for _ in range(5):
-        window.add(np.full(8, 0.6), CFG.converged_frames)
+        window.add(np.full(8, 0.6), CFG)
     assert not window.settled(t, CFG)  # a new plateau, from now
     for _ in range(5):
-        window.add(np.full(8, 0.4), CFG.converged_frames)  # fell by more than 5 %: progress
+        window.add(np.full(8, 0.4), CFG)  # fell by more than 5 %: progress
     assert not window.settled(t + 1.0, CFG)
     assert window.plateau is not None and window.plateau.since_s == t + 1.0

@@ -18,7 +18,7 @@ from common.marker import Marker
 from common.runtime import parse_overrides
 from deploy.experiments.campaign.starts import start_overrides
 from deploy.launch.run_inprocess import run_scenario_inprocess
-from services.controller.pairing import pairing_costs_px2
+from services.controller.pairing import pairing_costs_px2, rolled
 from services.controller.reach import goal_posture, reachable_pairings, rigid_motion
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,8 +58,8 @@ def hand_corners_cam(q_rad: np.ndarray, t_base_cam: np.ndarray) -> np.ndarray:
 
 def test_the_goal_posture_of_the_pairing_that_fits_is_the_arm_s_own() -> None:
     """Hand and goal the same marker at two postures: the pairing that lays corner i on corner
-    i is reached at the goal's posture; one that needs the wrist turned a half turn more, past
-    its joint limit, is not."""
+    i is reached at the goal's posture; one that needs the hand turned a half turn more is not
+    reached from there within the joint limits."""
     q_start = np.deg2rad([-20.0, 50.0, -70.0, -95.0, -120.0, -60.0])
     q_goal = q_start + np.deg2rad([-8.0, 5.0, 12.0, -10.0, 6.0, -5.0])
     t_base_cam = camera_in_front_of(q_start)
@@ -69,7 +69,7 @@ def test_the_goal_posture_of_the_pairing_that_fits_is_the_arm_s_own() -> None:
     assert reached
     assert np.allclose(q, q_goal, atol=1e-4)
     # Corner i on corner i + 2: the hand turned by π about its normal, where no single joint
-    # turns it (common/kinematics.py): the wrist's and the forearm's limits stop it.
+    # turns it (common/kinematics.py): the inverse kinematics from here stops at the limits.
     assert reachable_pairings(hand, goal, t_base_cam, q_start)[0]
     assert not goal_posture(hand, goal, 2, t_base_cam, q_start)[1]
 
@@ -104,20 +104,29 @@ def test_a_goal_beyond_the_joint_limits_is_left_for_a_quarter_turn(name: str) ->
 
 
 def test_the_least_turn_is_kept_when_it_is_reachable() -> None:
-    """On a start whose least turn the arm reaches, the pairing chosen is the least turn."""
+    """On a start whose least turn the arm reaches, the controller pairs by the least turn."""
+    from common.config import ControllerConfig
+    from services.controller.arm import ArmReading
+    from services.controller.ibvs import IbvsController
+
     q_start = np.deg2rad([-20.0, 50.0, -70.0, -95.0, -120.0, -60.0])
     q_goal = q_start + np.deg2rad([-5.0, 4.0, 6.0, -4.0, 3.0, -9.0])
     t_base_cam = camera_in_front_of(q_start)
     hand = seen(hand_corners_cam(q_start, t_base_cam))
     goal = seen(hand_corners_cam(q_goal, t_base_cam))
-    costs = pairing_costs_px2(project(hand.points_m, K), project(goal.points_m, K))
-    reachable = reachable_pairings(hand, goal, t_base_cam, q_start)
-    assert reachable[int(np.argmin(costs))]
+    ctrl = IbvsController(ControllerConfig(), t_base_cam)
+    ctrl.step(hand, goal, K, ArmReading.from_joints(q_start), 0.0)
+    least = int(np.argmin(pairing_costs_px2(project(hand.points_m, K), project(goal.points_m, K))))
+    assert ctrl.reachable is not None and ctrl.reachable[least]
+    assert ctrl.pairing == least
 
 
-def test_the_pairings_are_checked_again_once_the_goal_has_moved(monkeypatch) -> None:
+def test_the_pairings_are_checked_again_when_the_goal_moves_and_follow_a_relabelled_hand(
+    monkeypatch,
+) -> None:
     """Checked on the first frame servoed, not again while the goal stays put (a few
-    millimetres of measurement wobble), again once it has moved by REACH_RECHECK_M."""
+    millimetres of measurement wobble), again once it has moved by REACH_RECHECK_M; carried
+    over to the corners' new labels once vision sees the hand again; never when turned off."""
     from common.config import ControllerConfig
     from services.controller import ibvs
     from services.controller.arm import ArmReading
@@ -139,6 +148,19 @@ def test_the_pairings_are_checked_again_once_the_goal_has_moved(monkeypatch) -> 
         ctrl.step(hand, seen(goal + np.array([shift_m, 0.0, 0.0])), K, arm, 0.0)
         assert len(calls) == checks, shift_m
     assert ctrl.reachable is not None and any(ctrl.reachable)
+    # Vision loses the hand, then labels its corners afresh (corner i is the old corner i + 1):
+    # the verdicts follow the physical pairings to their new indices, with no new check.
+    before = list(ctrl.reachable)
+    there = seen(goal + np.array([0.035, 0.0, 0.0]))
+    ctrl.step(Marker.unseen("lost"), there, K, arm, 0.0)
+    ctrl.step(rolled(hand, 1), there, K, arm, 0.0)
+    assert len(calls) == 2
+    assert ctrl.reachable == [before[(k - 1) % 4] for k in range(4)]
+    assert ctrl.reachable != before  # one pairing reached: the shift shows
+    # Turned off: never checked, and the last check no longer narrows the choice.
     ctrl.config = ControllerConfig(reachable_pairing=False)
-    ctrl.step(hand, seen(goal + np.array([0.1, 0.0, 0.0])), K, arm, 0.0)
-    assert len(calls) == 2  # turned off: never checked
+    ctrl.reachable = [False, False, True, False]
+    away = seen(goal + np.array([0.1, 0.0, 0.0]))
+    ctrl.step(hand, away, K, arm, 0.0)
+    assert len(calls) == 2
+    assert ctrl.pairing == int(np.argmin(pairing_costs_px2(hand.corners_px, away.corners_px)))
