@@ -153,12 +153,9 @@ def load_inputs(root: Path) -> Inputs:
         ]
         campaign = _records(root / CAMPAIGN_JSON)
         campaign_starts = _records(root / CAMPAIGN_STARTS_JSON)
-        campaign_results_path = root / CAMPAIGN_RESULTS_JSON
-        campaign_results = (
-            rows_from_json(campaign_results_path.read_text())
-            if campaign_results_path.is_file()
-            else []
-        )
+        campaign_results = [
+            CompareRow.model_validate(r) for r in _records(root / CAMPAIGN_RESULTS_JSON)
+        ]
         variants = [
             CampaignVariant(folder, label, runs, in_summary)
             for folder, label, in_summary in CONSTANT_VARIANTS

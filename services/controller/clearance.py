@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common import kinematics as kin
+from services.controller.twist import camera_points_to_base
 
 FloatArray = NDArray[np.float64]
 
@@ -51,8 +52,8 @@ def hand_box_corners_ee() -> FloatArray:
 def target_top_plane(points_cam_m: FloatArray, t_base_cam: FloatArray) -> Plane:
     """The plane of the red marker's four corners (camera frame, m) in the base frame, its
     normal turned towards the camera (up, out of the object)."""
-    rot, origin = t_base_cam[:3, :3], t_base_cam[:3, 3]
-    points = np.asarray(points_cam_m, dtype=float) @ rot.T + origin
+    points = camera_points_to_base(points_cam_m, t_base_cam)
+    origin = t_base_cam[:3, 3]
     centre = points.mean(axis=0)
     normal = np.cross(points[1] - points[0], points[3] - points[0])
     normal = normal / np.linalg.norm(normal)

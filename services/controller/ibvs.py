@@ -39,7 +39,7 @@ from services.controller.interaction import (
     points3d_control_matrix,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
-from services.controller.reach import carried_over, goal_rotations, reachable_pairings
+from services.controller.reach import carried_over, goal_poses_ee, reachable_pairings
 from services.controller.stability import frozen_matrix_stability
 from services.controller.twist import camera_twist_to_base_ee, clamp_twist
 
@@ -190,9 +190,10 @@ class IbvsController:
         moved = last is None or np.linalg.norm(centroid - last) >= REACH_RECHECK_M
         if not (moved or self.reach_stale):
             return
-        rotations = goal_rotations(hand, goal, self.t_base_cam, q_rad)
+        poses = goal_poses_ee(hand, goal, self.t_base_cam, q_rad)
+        rotations = poses[:, :3, :3]
         if moved or self.reachable is None or self.reach_rotations is None:
-            self.reachable = reachable_pairings(hand, goal, self.t_base_cam, q_rad)
+            self.reachable = reachable_pairings(poses, q_rad)
             self.reachable_for_m = centroid
         else:
             self.reachable = carried_over(self.reachable, self.reach_rotations, rotations)
@@ -238,17 +239,16 @@ class IbvsController:
     def _servo(
         self,
         hand: Marker,
-        goal: Marker,
+        target: Marker,
         k: CameraIntrinsics,
         arm: ArmReading,
         t_s: float,
         remembered: bool,
         hand_predicted: bool,
     ) -> ControlOutput:
-        """The law's twist on both markers usable, ``goal`` the desired features above the
+        """The law's twist on both markers usable, ``target`` the desired features above the
         target (``remembered``: the target from memory; ``hand_predicted``: the hand carried
         by the encoders), and whether it converged."""
-        target = goal
         if self.l_constant is None:
             depth = self.config.constant_depth
             self.l_constant = constant_interaction_matrix(target, k, depth)

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from common import kinematics as kin
 from common.marker import Marker
+from services.controller.twist import camera_points_to_base
 
 FloatArray = NDArray[np.float64]
 
@@ -44,37 +45,29 @@ def rigid_motion(source: FloatArray, destination: FloatArray) -> FloatArray:
     return kin.homogeneous(rotation, dst_c - rotation @ src_c)
 
 
-def to_base(points_cam_m: FloatArray, t_base_cam: FloatArray) -> FloatArray:
-    """Camera-frame points (N×3) in the base frame, through the assumed camera pose."""
-    return points_cam_m @ t_base_cam[:3, :3].T + t_base_cam[:3, 3]
-
-
-def goal_pose_ee(
-    hand: Marker, goal: Marker, pairing: int, t_base_cam: FloatArray, q_rad: FloatArray
+def goal_poses_ee(
+    hand: Marker, goal: Marker, t_base_cam: FloatArray, q_rad: FloatArray
 ) -> FloatArray:
-    """The end effector's pose (4×4, base frame) that puts hand corner ``i`` on goal corner
-    ``(i + pairing) % 4`` (both markers' 3-D corners, camera frame; the arm at ``q_rad``).
-    The hand rides rigidly on the end effector, so it depends on the physical pairing only,
-    not on where the hand is now."""
-    hand_base = to_base(hand.points_m, t_base_cam)
-    goal_base = to_base(np.roll(goal.points_m, -pairing, axis=0), t_base_cam)
-    return rigid_motion(hand_base, goal_base) @ kin.forward_kinematics(q_rad)
+    """For each of the four cyclic pairings k (hand corner i → goal corner (i + k) % 4), the
+    end effector's pose (4×4×4, base frame) that puts the hand's corners on the goal's (both
+    markers' 3-D corners, camera frame; the arm at ``q_rad``). The hand rides rigidly on the
+    end effector, so each depends on the physical pairing only, not on where the hand is now:
+    their orientations tell the pairings apart whatever the corners' labels."""
+    hand_base = camera_points_to_base(hand.points_m, t_base_cam)
+    goal_base = camera_points_to_base(goal.points_m, t_base_cam)
+    t_base_ee = kin.forward_kinematics(np.asarray(q_rad, dtype=float))
+    return np.array(
+        [rigid_motion(hand_base, np.roll(goal_base, -k, axis=0)) @ t_base_ee for k in range(4)]
+    )
 
 
-def goal_posture(
-    hand: Marker,
-    goal: Marker,
-    pairing: int,
-    t_base_cam: FloatArray,
-    q_rad: FloatArray,
-) -> tuple[FloatArray, bool]:
-    """The joint angles putting hand corner ``i`` on goal corner ``(i + pairing) % 4`` (the
-    goal's 3-D corners, camera frame), found by an inverse kinematics from the posture
-    ``q_rad`` clipped at the joint limits, and whether it reached the goal. Local: a posture
-    on another branch of the arm, beyond a limit from here, is not looked for."""
-    t_goal_ee = goal_pose_ee(hand, goal, pairing, t_base_cam, q_rad)
+def goal_posture(t_goal_ee: FloatArray, q_rad: FloatArray) -> tuple[FloatArray, bool]:
+    """The joint angles putting the end effector at ``t_goal_ee`` (one of
+    :func:`goal_poses_ee`), found by an inverse kinematics from the posture ``q_rad`` clipped
+    at the joint limits, and whether it reached the goal. Local: a posture on another branch
+    of the arm, beyond a limit from here, is not looked for."""
     q, position_error_m, rotation_error_rad = kin.inverse_kinematics(
-        t_goal_ee, q_rad, iterations=IK_ITERATIONS, stall_rad=IK_STALL_RAD
+        t_goal_ee, np.asarray(q_rad, dtype=float), iterations=IK_ITERATIONS, stall_rad=IK_STALL_RAD
     )
     reached = bool(
         position_error_m < REACH_TOLERANCE_M and rotation_error_rad < REACH_TOLERANCE_RAD
@@ -82,23 +75,10 @@ def goal_posture(
     return q, reached
 
 
-def reachable_pairings(
-    hand: Marker, goal: Marker, t_base_cam: FloatArray, q_rad: FloatArray
-) -> list[bool]:
-    """For each of the four cyclic pairings (hand corner i → goal corner (i + k) % 4), whether
-    the inverse kinematics from ``q_rad`` reaches its goal posture within the joint limits
-    (:func:`goal_posture`)."""
-    q = np.asarray(q_rad, dtype=float)
-    return [goal_posture(hand, goal, k, t_base_cam, q)[1] for k in range(4)]
-
-
-def goal_rotations(
-    hand: Marker, goal: Marker, t_base_cam: FloatArray, q_rad: FloatArray
-) -> FloatArray:
-    """The end effector's goal orientation (4×3×3, base frame) for each of the four pairings:
-    what tells the physical pairings apart whatever the corners' labels."""
-    q = np.asarray(q_rad, dtype=float)
-    return np.array([goal_pose_ee(hand, goal, k, t_base_cam, q)[:3, :3] for k in range(4)])
+def reachable_pairings(poses_ee: FloatArray, q_rad: FloatArray) -> list[bool]:
+    """For each pairing's goal pose (:func:`goal_poses_ee`), whether the inverse kinematics
+    from ``q_rad`` reaches it within the joint limits (:func:`goal_posture`)."""
+    return [goal_posture(pose, q_rad)[1] for pose in poses_ee]
 
 
 def carried_over(

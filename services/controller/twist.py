@@ -1,4 +1,4 @@
-"""The hand's twist between frames, and its clamp. Pure.
+"""The hand's twist between frames (and points, camera to base), and its clamp. Pure.
 
 The law computes the hand's twist in the camera frame, referenced at the camera origin (as the
 interaction matrices give it, :mod:`.interaction`); actuation wants it in the base frame,
@@ -14,6 +14,11 @@ from numpy.typing import NDArray
 from common.kinematics import cross, skew
 
 FloatArray = NDArray[np.float64]
+
+
+def camera_points_to_base(points_cam_m: FloatArray, t_base_cam: FloatArray) -> FloatArray:
+    """Camera-frame points (N×3, m) in the base frame, through the assumed camera pose."""
+    return np.asarray(points_cam_m, dtype=float) @ t_base_cam[:3, :3].T + t_base_cam[:3, 3]
 
 
 def camera_twist_to_base_ee(

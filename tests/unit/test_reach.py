@@ -19,7 +19,12 @@ from common.runtime import parse_overrides
 from deploy.experiments.campaign.starts import start_overrides
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from services.controller.pairing import pairing_costs_px2, rolled
-from services.controller.reach import goal_posture, reachable_pairings, rigid_motion
+from services.controller.reach import (
+    goal_poses_ee,
+    goal_posture,
+    reachable_pairings,
+    rigid_motion,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 K = CameraIntrinsics.from_fov(640, 480, 62.0)
@@ -65,13 +70,14 @@ def test_the_goal_posture_of_the_pairing_that_fits_is_the_arm_s_own() -> None:
     t_base_cam = camera_in_front_of(q_start)
     hand = seen(hand_corners_cam(q_start, t_base_cam))
     goal = seen(hand_corners_cam(q_goal, t_base_cam))
-    q, reached = goal_posture(hand, goal, 0, t_base_cam, q_start)
+    poses = goal_poses_ee(hand, goal, t_base_cam, q_start)
+    q, reached = goal_posture(poses[0], q_start)
     assert reached
     assert np.allclose(q, q_goal, atol=1e-4)
     # Corner i on corner i + 2: the hand turned by π about its normal, where no single joint
     # turns it (common/kinematics.py): the inverse kinematics from here stops at the limits.
-    assert reachable_pairings(hand, goal, t_base_cam, q_start)[0]
-    assert not goal_posture(hand, goal, 2, t_base_cam, q_start)[1]
+    assert reachable_pairings(poses, q_start)[0]
+    assert not goal_posture(poses[2], q_start)[1]
 
 
 def published_start(name: str) -> dict:
