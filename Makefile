@@ -9,12 +9,13 @@ COMPILED := $(VENV)/.compiled
 
 # uv installs the same versions as pip in a third of the time (wheels fetched in parallel). uv
 # comes from the machine's own pip into a folder of the venv, so the venv is made without a pip of
-# its own (ensurepip takes longer than fetching uv); should uv not install or run here, the venv
-# gets its pip after all and installs with it.
+# its own (ensurepip takes longer than fetching uv); uv is one binary with no dependencies and
+# nothing of it is imported, so pip neither resolves nor compiles anything for it. Should uv not
+# install or run here, the venv gets its pip after all and installs with it.
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv --without-pip $(VENV)
 	( PIP_ROOT_USER_ACTION=ignore $(PYTHON) -m pip install --quiet --disable-pip-version-check \
-	    --upgrade --target $(VENV)/uv uv && \
+	    --upgrade --no-deps --no-compile --target $(VENV)/uv uv && \
 	  $(VENV)/uv/bin/uv pip install --quiet --python $(BIN)/python -e '.[dev,cluster]' ) || \
 	( $(BIN)/python -m ensurepip --default-pip && \
 	  $(BIN)/python -m pip install --quiet -e '.[dev,cluster]' )
@@ -34,8 +35,11 @@ $(COMPILED): $(STAMP)
 	  echo "some installed files did not compile to byte-code; they compile when imported"
 	touch $(COMPILED)
 
+# A run writes the byte-code of what it imports (project and packages) as it first imports it,
+# even where PYTHONDONTWRITEBYTECODE is set: its services' process then reuses what the CLI
+# compiled, and the next run compiles nothing; compiling everything up front would cost more.
+run: export PYTHONDONTWRITEBYTECODE =
 run: $(STAMP)
-	@$(COMPILE)
 	$(BIN)/umay run --result out/result.json
 
 # Two pytest workers (pytest-xdist), as many as CI's cores; every test has its own key prefix,
