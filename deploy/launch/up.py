@@ -67,4 +67,8 @@ def run_up(
         node.state = "stopping"
         sup.stop()
         node.close()  # also closes the session
+        # Said last, so whoever pressed Ctrl-C knows nothing is left running, and how each ended.
+        codes = [f"{n} {c.exit_codes[-1]}" for n, c in sup.children.items() if c.exit_codes]
+        ended = ", ".join(codes)
+        print(f"umay up: services stopped (exit codes: {ended or 'none started'})", flush=True)
     return 0
