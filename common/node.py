@@ -34,7 +34,7 @@ from common.codec import (
 )
 from common.frame_ring import RingReader
 from common.keys import Keys
-from common.messages import Header, PublishedStamps, ServiceStatus
+from common.messages import Header, PublishedStamps, ServiceStatus, StatusFields
 from common.metrics import DurationMeter, TopicMeter
 from common.publishers import (
     TypedPublisher,
@@ -49,7 +49,8 @@ log = logging.getLogger("umay")
 class Node:
     """One service: a Zenoh session, typed pub/sub, a status queryable, a liveliness token.
 
-    ``status_fields`` returns the service-specific part of the status answer.
+    ``status_fields`` returns the service-specific part of the status answer, the service's
+    own :class:`StatusFields` (none: no fields).
     """
 
     def __init__(
@@ -57,7 +58,7 @@ class Node:
         service: str,
         keys: Keys,
         session: zenoh.Session,
-        status_fields: Callable[[], dict[str, Any]] = dict,
+        status_fields: Callable[[], StatusFields] = StatusFields,
         degraded_reason: Callable[[], str] = str,
     ) -> None:
         self.service = service
@@ -266,7 +267,7 @@ class Node:
             processing_ms_p50=p50,
             processing_ms_p99=p99,
             loop_busy_s=self.loop_busy_s(now),
-            fields=self._status_fields(),
+            fields=self._status_fields().model_dump(),
         )
 
     def loop_busy_s(self, now_s: float) -> float | None:

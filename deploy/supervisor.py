@@ -30,11 +30,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import zenoh
+from pydantic import Field
 
 from common.codec import MessageError
 from common.config import RestartPolicy, SupervisorConfig
 from common.frame_ring import remove_segments_of
 from common.keys import SERVICES, Keys
+from common.messages import StatusFields
 from common.queries import status_from_reply
 from common.runtime import ENV_SUPERVISOR_PID
 from common.session import ENV_CONFIG, ENV_CONNECT
@@ -116,6 +118,37 @@ class Child:
         """``vision (exit -9, hung: ...)``: its last exit, and the hang that caused it."""
         hung = f", hung: {self.last_hang}" if self.killed_as_hung else ""
         return f"{self.name} (exit {self.exit_codes[-1]}{hung})"
+
+
+class ChildStatus(StatusFields):
+    """One service as its supervisor sees it."""
+
+    pid: int | None = Field(description="its current process (none: not running)")
+    running: bool = Field(description="a process of it is running")
+    answered: bool = Field(
+        description="its current process has answered a status query: until then it is "
+        "starting, and judged hung only after `supervisor.start_timeout_s`"
+    )
+    restarts: int = Field(description="times it was started again")
+    last_exit_codes: list[int] = Field(
+        description="its last five processes' exit codes (−9: killed)"
+    )
+    policy: str = Field(description="its restart policy (`supervisor.restart`)")
+    given_up: bool = Field(description="restarted too often: no longer restarted")
+    hang_kills: int = Field(description="processes killed as hung")
+    last_hang: str = Field(description="why it was last killed as hung")
+    log: str = Field(description="its log file")
+
+
+class SupervisorStatus(StatusFields):
+    cpu_wakeup_latency: str = Field(
+        description="the CPU wake-up latency request it holds, or why not "
+        "(`supervisor.cpu_wakeup_latency_us`)"
+    )
+    launch: str = Field(
+        description="how the services are started: `fork`, `exec`, or `exec (fork refused: why)`"
+    )
+    children: dict[str, ChildStatus] = Field(description="each service, as below")
 
 
 class Supervisor:
@@ -307,25 +340,30 @@ class Supervisor:
         if removed:
             log.info("removed the frame rings pid %d left: %s", process.pid, ", ".join(removed))
 
-    def summary(self) -> dict[str, dict]:
+    def summary(self) -> dict[str, ChildStatus]:
         """For the supervisor's status answer."""
         return {
-            name: {
-                "pid": c.process.pid if c.process else None,
-                "running": c.process is not None,
-                # Its current process has answered a status query: until then it is starting,
-                # and judged hung only after start_timeout_s.
-                "answered": c.process is not None and (name, c.process.pid) in self._heard,
-                "restarts": c.restarts,
-                "last_exit_codes": c.exit_codes[-5:],
-                "policy": self.config.policy(name).value,
-                "given_up": c.given_up,
-                "hang_kills": c.hang_kills,
-                "last_hang": c.last_hang,
-                "log": str(c.log_path),
-            }
+            name: ChildStatus(
+                pid=c.process.pid if c.process else None,
+                running=c.process is not None,
+                answered=c.process is not None and (name, c.process.pid) in self._heard,
+                restarts=c.restarts,
+                last_exit_codes=c.exit_codes[-5:],
+                policy=self.config.policy(name).value,
+                given_up=c.given_up,
+                hang_kills=c.hang_kills,
+                last_hang=c.last_hang,
+                log=str(c.log_path),
+            )
             for name, c in self.children.items()
         }
+
+    def status_fields(self) -> SupervisorStatus:
+        return SupervisorStatus(
+            cpu_wakeup_latency=self.cpu_wakeup.state,
+            launch=self.launch,
+            children=self.summary(),
+        )
 
     def pids(self) -> dict[str, int | None]:
         return {n: (c.process.pid if c.process else None) for n, c in self.children.items()}

@@ -52,6 +52,7 @@ from deploy.docs.sources import (
     WORKFLOWS_DIR,
     Inputs,
 )
+from deploy.docs.status_tables import status_fields
 from deploy.docs.vision_tables import vision_accuracy
 
 CAMPAIGN_SOURCES = f"{CAMPAIGN_JSON}, {CAMPAIGN_DIR}/<variant>/causes.json"
@@ -86,6 +87,7 @@ BLOCKS: dict[str, Block] = {
     "campaign-stability": Block(campaign_stability, f"{CAMPAIGN_STARTS_JSON}, {CAMPAIGN_SOURCES}"),
     "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_SOURCES}, {RESULTS_JSON}"),
     "vision-accuracy": Block(vision_accuracy, ACCURACY_JSON),
+    "status-fields": Block(status_fields, "services/*/status.py, the supervisor's and the view's"),
     "domains-summary": Block(domains_summary, DOMAINS_JSON),
     "domains-bands": Block(domains_bands, DOMAINS_JSON),
     "domains-verdict": Block(domains_verdict, DOMAINS_JSON),

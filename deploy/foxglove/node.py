@@ -45,6 +45,7 @@ from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from deploy.foxglove import convert, topics, transforms
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_arguments
+from deploy.foxglove.status import ViewStatus
 from deploy.interrupts import stop_requested
 
 log = logging.getLogger("umay.view")
@@ -137,13 +138,13 @@ class ViewNode:
             for suffix, model in convert.VIEWED_KEYS.items()
         ]
 
-    def status_fields(self) -> dict[str, Any]:
-        return {
-            "port": self.server.port,
-            "messages_shown": self.shown,
-            "dropped": dict(self.dropped),
-            "rejected": self.rejected,
-        }
+    def status_fields(self) -> ViewStatus:
+        return ViewStatus(
+            port=self.server.port,
+            messages_shown=self.shown,
+            dropped=dict(self.dropped),
+            rejected=self.rejected,
+        )
 
     def _wanted(self, suffix: str) -> bool:
         if suffix == RGB:

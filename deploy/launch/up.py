@@ -42,16 +42,7 @@ def run_up(
         scenario_path, prefix, listen, log_dir, overrides, config=scenario.supervisor,
         session=session,
     )  # fmt: skip
-    node = Node(
-        "supervisor",
-        keys,
-        session,
-        lambda: {
-            "cpu_wakeup_latency": sup.cpu_wakeup.state,
-            "launch": sup.launch,
-            "children": sup.summary(),
-        },
-    )
+    node = Node("supervisor", keys, session, sup.status_fields)
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):

@@ -26,6 +26,7 @@ from common.pairing import FramePairer
 from common.runtime import ServiceContext
 from services.actuation.inverse import Clamps, deadman_expired
 from services.actuation.limiter import LimiterState, actuation_step
+from services.actuation.status import ActuationStatus
 
 
 class ActuationService:
@@ -60,14 +61,14 @@ class ActuationService:
             time.monotonic(), self.last_valid_twist_s, self.config.deadman_timeout_s
         )
 
-    def status_fields(self) -> dict:
-        return {
-            "deadman": self.deadman_active(),
-            "deadman_stops": self.deadman_stops,
+    def status_fields(self) -> ActuationStatus:
+        return ActuationStatus(
+            deadman=self.deadman_active(),
+            deadman_stops=self.deadman_stops,
             **self.counts,
-            "saturated_joints": self.saturated,
-            "manipulability": self.manipulability,
-        }
+            saturated_joints=self.saturated,
+            manipulability=self.manipulability,
+        )
 
     def degraded(self) -> str:
         # Before the first twist the motors are simply at rest: not a degradation.

@@ -18,6 +18,7 @@ from common.runtime import ServiceContext
 from services.controller.ibvs import IbvsController, describe_hold, is_stuck
 from services.controller.progress import Progress, describe_stall
 from services.controller.stability import unstable_goal_consequence
+from services.controller.status import ControllerStatus
 from services.controller.step import control_step, twist_message
 
 log = logging.getLogger("umay.controller")
@@ -53,39 +54,31 @@ class ControllerService:
         self.progress = Progress()  # whether servoing still brings the error down
         self.events_end_s = ctx.scenario.events_end_s  # progress counts once they are over
 
-    def status_fields(self) -> dict:
-        return {
-            "mode": self.controller.config.mode.value,
-            "error_px_rms": self.error_px,
-            "converged": self.converged,
-            "holding": self.holding,
-            "hold_reason": self.hold_reason,
-            "phase": self.phase,
-            # what a hold waits for and since when (sim s): umay status shows a stuck system
-            "hold_since_s": self.hold_since_s,
-            "holding_for_s": (
-                None if self.hold_since_s is None else self.sim_time_s - self.hold_since_s
-            ),
-            "stuck": self.stuck(),
-            # servoing without the error falling 5 % below its best (sim s): a local minimum
-            "error_best_px": self.progress.best_px,
-            "stalled_for_s": self.progress.stalled_for_s(self.sim_time_s),
-            "stalled": self.stalled(),
-            "target_remembered": self.target_remembered,
-            # servoing on where its motion says a hidden target went, not yet seen there
-            "target_predicted": self.controller.target_memory.predicted,
-            "target_speed_m_s": self.target_speed_m_s,
-            "clearance_lifts": self.clearance_lifts,
-            # servoing on the hand's last view carried along the encoders (vision cannot use it)
-            "hand_predicted": self.hand_predicted,
-            "hand_predicted_since_s": self.controller.hand_memory.carried_since_s,
-            # constant: the frozen matrix's local stability at its goal (≤ 0: it leaves it)
-            "goal_stability": self.controller.goal_stability,
-            # hand corner i goes to target corner (i + pairing) % 4, chosen among the pairings
-            # whose goal posture the arm reaches (None: not checked, every pairing counts)
-            "pairing": self.controller.pairing,
-            "pairings_reachable": self.controller.reachable,
-        }
+    def status_fields(self) -> ControllerStatus:
+        since = self.hold_since_s
+        return ControllerStatus(
+            mode=self.controller.config.mode.value,
+            error_px_rms=self.error_px,
+            converged=self.converged,
+            holding=self.holding,
+            hold_reason=self.hold_reason,
+            phase=self.phase,
+            hold_since_s=since,
+            holding_for_s=None if since is None else self.sim_time_s - since,
+            stuck=self.stuck(),
+            error_best_px=self.progress.best_px,
+            stalled_for_s=self.progress.stalled_for_s(self.sim_time_s),
+            stalled=self.stalled(),
+            target_remembered=self.target_remembered,
+            target_predicted=self.controller.target_memory.predicted,
+            target_speed_m_s=self.target_speed_m_s,
+            clearance_lifts=self.clearance_lifts,
+            hand_predicted=self.hand_predicted,
+            hand_predicted_since_s=self.controller.hand_memory.carried_since_s,
+            goal_stability=self.controller.goal_stability,
+            pairing=self.controller.pairing,
+            pairings_reachable=self.controller.reachable,
+        )
 
     def stuck(self) -> bool:
         """Held longer than the scenario's ``controller.stuck_after_s`` (sim time)."""

@@ -45,6 +45,7 @@ from common.runtime import ServiceContext
 from common.session import ENV_SHM
 from services.sim.motors import motor_velocities
 from services.sim.schedule import DepthSchedule, substeps_per_frame
+from services.sim.status import SimStatus
 from services.sim.truth import truth_message
 from services.sim.world import World
 
@@ -79,35 +80,30 @@ class SimService:
         self.watchdog_stops = 0
         self.motor_clamps = 0  # commands beyond the motors' own speed limit
 
-    def status_fields(self) -> dict:
-        return {
-            "clock": self.scenario.run.clock.value,
-            "sim_time_s": round(self.world.sim_time_s, 4),
-            "frame_seq": self.frame_seq,
-            "depth_images": self.depth_schedule.depth_images,
-            "target_hidden": self.world.scene.target_hidden,
-            "hand_occluded": self.world.scene.hand_occluded_since_s is not None,
-            "renderer": self.world.renderer,
-            "renderer_detail": self.world.renderer_detail,
-            "render_ms": round(self.render_ms, 2),
-            "dropped_frames": self.dropped_frames,
-            "watchdog_stops": self.watchdog_stops,
-            "motor_clamps": self.motor_clamps,
-            # camera frames (colour and depth) by reference through the shared-memory ring, and
-            # whole (no ring: why in frames_copy_reason); whole frames sent to subscribers
-            # that could not map the ring
-            "frames_by_ref": sum(p.meter.by_ref for p in self.frame_publishers),
-            "frames_by_copy": sum(p.meter.by_copy for p in self.frame_publishers),
-            # of those by reference: drawn straight into their ring slot, and copied into it
-            # (TinyRenderer, the Kinect model's output); the rest are resends
-            "frames_in_place": sum(r.in_place for r in self.rings),
-            "frames_copied_to_ring": sum(r.copied for r in self.rings),
-            "frames_copy_reason": self.frames_copy_reason(),
-            "whole_frames_served": sum(r.served for r in self.rings),
-            "real_time_factor": round(
+    def status_fields(self) -> SimStatus:
+        return SimStatus(
+            clock=self.scenario.run.clock.value,
+            sim_time_s=round(self.world.sim_time_s, 4),
+            frame_seq=self.frame_seq,
+            depth_images=self.depth_schedule.depth_images,
+            target_hidden=self.world.scene.target_hidden,
+            hand_occluded=self.world.scene.hand_occluded_since_s is not None,
+            renderer=self.world.renderer,
+            renderer_detail=self.world.renderer_detail,
+            render_ms=round(self.render_ms, 2),
+            dropped_frames=self.dropped_frames,
+            watchdog_stops=self.watchdog_stops,
+            motor_clamps=self.motor_clamps,
+            frames_by_ref=sum(p.meter.by_ref for p in self.frame_publishers),
+            frames_by_copy=sum(p.meter.by_copy for p in self.frame_publishers),
+            frames_in_place=sum(r.in_place for r in self.rings),
+            frames_copied_to_ring=sum(r.copied for r in self.rings),
+            frames_copy_reason=self.frames_copy_reason(),
+            whole_frames_served=sum(r.served for r in self.rings),
+            real_time_factor=round(
                 self.world.sim_time_s / max(time.monotonic() - self.started_s, 1e-9), 3
             ),
-        }
+        )
 
     @property
     def frame_publishers(self) -> tuple[TypedPublisher, TypedPublisher]:

@@ -28,6 +28,7 @@ from common.codec import FRAME_MAX_BYTES
 from common.messages import DepthFrame, RgbFrame
 from common.node import Node
 from common.runtime import ServiceContext
+from services.vision.status import VisionStatus
 from services.vision.step import depth_for, depth_image, vision_step
 from services.vision.tracking import TrackerState
 from services.vision.warmup import warm_up
@@ -78,20 +79,19 @@ class VisionService:
             return
         log.info("warmed up on a synthetic frame in %.1f ms", 1e3 * (time.perf_counter() - started))
 
-    def status_fields(self) -> dict:
-        return {
-            "markers": dict(self.states),
-            "lost_reasons": dict(self.reasons),
-            "depth_age_s": self.depth_age_s,
-            "depth_waits": self.depth_waits,
-            "depth_missed": self.depth_missed,
-            # camera frames (colour and depth) read in place in the sim's ring, received
-            # whole, and of those fetched from the sim (its ring was out of reach)
-            "frames_by_ref": sum(m.by_ref for m in self.node.received.values()),
-            "frames_by_copy": sum(m.by_copy for m in self.node.received.values()),
-            "frames_fetched": sum(m.fetched for m in self.node.received.values()),
-            "frames_overwritten": self.frames_overwritten,
-        }
+    def status_fields(self) -> VisionStatus:
+        frames = self.node.received.values()
+        return VisionStatus(
+            markers=dict(self.states),
+            lost_reasons=dict(self.reasons),
+            depth_age_s=self.depth_age_s,
+            depth_waits=self.depth_waits,
+            depth_missed=self.depth_missed,
+            frames_by_ref=sum(m.by_ref for m in frames),
+            frames_by_copy=sum(m.by_copy for m in frames),
+            frames_fetched=sum(m.fetched for m in frames),
+            frames_overwritten=self.frames_overwritten,
+        )
 
     def degraded(self) -> str:
         lost = [f"{n}: {self.states[n]}, {r}" for n, r in self.reasons.items() if r]

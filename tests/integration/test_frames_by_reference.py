@@ -257,7 +257,7 @@ def test_vision_drops_a_measurement_whose_frame_was_overwritten_while_read(
         assert vision.pub.meter.count == 1  # nothing published from the torn frame
         assert vision.node.rejected == 1
         assert "overwritten while vision read it" in vision.node.last_rejection
-        assert vision.status_fields()["frames_overwritten"] == 1
+        assert vision.status_fields().frames_overwritten == 1
     finally:
         colour_ring.close()
         depth_ring.close()

@@ -1,0 +1,36 @@
+"""Actuation's own status fields (``umay status``; docs/operations.md renders them)."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from common.messages import StatusFields
+
+
+class ActuationStatus(StatusFields):
+    deadman: bool = Field(description="no fresh valid twist: the motors are commanded to zero")
+    deadman_stops: int = Field(
+        description="zero commands sent because no valid twist came within "
+        "`actuation.deadman_timeout_s`"
+    )
+    hold_stops: int = Field(description="zero commands answering the controller's holds")
+    position_limit_clamps: int = Field(
+        description="commands slowed near a joint limit (within 10°, zero at it)"
+    )
+    velocity_clamps: int = Field(description="commands with a joint over its speed limit")
+    acceleration_clamps: int = Field(
+        description="commands whose change from the previous one was bounded"
+    )
+    nonfinite_guards: int = Field(
+        description="commands where the inverse gave NaN or Inf: zero was sent instead"
+    )
+    damped_commands: int = Field(
+        description="commands through the damped inverse near a singularity"
+    )
+    saturated_joints: list[int] = Field(
+        description="joints the last command slowed near a position limit or held to their "
+        "speed limit"
+    )
+    manipulability: float = Field(
+        description="√det(J Jᵀ) at the last command (none before one: NaN)"
+    )
