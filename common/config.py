@@ -98,14 +98,26 @@ class MarkerConfig(_Strict):
 class KinectConfig(_Strict):
     """Scenario table ``[camera.kinect]``; ``enabled = false`` keeps perfect images."""
 
-    enabled: bool = False
+    enabled: bool = Field(
+        False,
+        description="the Kinect v1 model on the rendered images: axial depth noise, disparity "
+        "quantisation, range limits, edge dropout, lateral noise, exposure and RGB noise "
+        "(docs/vision.md); off: perfect images",
+    )
     seed: int = Field(0, ge=0, description="noisy runs stay reproducible")
     min_range_m: float = Field(0.4, ge=0.0, description="near mode; 0.5 m in default mode")
-    max_range_m: float = Field(4.0, gt=0.0)
+    max_range_m: float = Field(4.0, gt=0.0, description="farther surfaces give no depth (m)")
     edge_threshold_m: float = Field(0.03, gt=0.0, description="a jump this large is an edge")
     edge_dropout_px: int = Field(2, ge=0, le=10, description="invalid band along edges")
-    lateral_noise_px: float = Field(0.8, ge=0.0, le=5.0)
-    quantise: bool = True
+    lateral_noise_px: float = Field(
+        0.8,
+        ge=0.0,
+        le=5.0,
+        description="spread of the pixel shift each depth is read from (σ, px; clipped)",
+    )
+    quantise: bool = Field(
+        True, description="depths in the disparity's 1/8 px steps, coarser with distance"
+    )
     rgb_noise_sigma: float = Field(2.0, ge=0.0, le=50.0, description="per channel, 0-255 units")
     brightness: float = Field(1.0, gt=0.0, le=4.0, description="exposure scale")
     colour_temperature: float = Field(
@@ -118,28 +130,41 @@ class CalibrationError(_Strict):
     composed with this offset (translation in the base frame, then a rotation about the optical
     frame's own axes). Zero by default: a perfectly calibrated camera."""
 
-    position_m: Vec3 = [0.0, 0.0, 0.0]
+    position_m: Vec3 = Field(
+        [0.0, 0.0, 0.0], description="added to the optical centre, in the arm base frame (m)"
+    )
     rotation_deg: Vec3 = Field(
         [0.0, 0.0, 0.0], description="about the optical x, y, z axes, applied in that order"
     )
 
 
 class CameraConfig(_Strict):
-    width_px: int = Field(640, ge=64, le=1920)
-    height_px: int = Field(480, ge=48, le=1080)
-    hfov_deg: float = Field(57.0, gt=10.0, lt=120.0)
+    width_px: int = Field(640, ge=64, le=1920, description="colour image width (px)")
+    height_px: int = Field(480, ge=48, le=1080, description="colour image height (px)")
+    hfov_deg: float = Field(
+        57.0, gt=10.0, lt=120.0, description="horizontal field of view (°), the Kinect's"
+    )
     rgb_hz: float = Field(30.0, gt=0.0, le=120.0, description="colour frames per second")
     depth_hz: float | None = Field(
-        None, gt=0.0, le=120.0, description="depth images per second (default: rgb_hz)"
+        None,
+        gt=0.0,
+        le=120.0,
+        description="depth images per second, each taken with a colour frame (default: "
+        "rgb_hz; the thesis ran depth at 1 Hz)",
     )
     depth_width_px: int | None = Field(
-        None, ge=16, le=1920, description="native depth resolution (default: the colour one)"
+        None,
+        ge=16,
+        le=1920,
+        description="native depth width, registered to colour (default: the colour one)",
     )
-    depth_height_px: int | None = Field(None, ge=12, le=1080)
+    depth_height_px: int | None = Field(
+        None, ge=12, le=1080, description="native depth height (default: the colour one)"
+    )
     position: Vec3 = Field(description="optical centre in the arm base frame (m)")
     look_at: Vec3 = Field(description="point on the optical axis in the arm base frame (m)")
-    near_m: float = Field(0.05, gt=0.0)
-    far_m: float = Field(5.0, gt=0.0)
+    near_m: float = Field(0.05, gt=0.0, description="the renderer's near clipping plane (m)")
+    far_m: float = Field(5.0, gt=0.0, description="the renderer's far clipping plane (m)")
     kinect: KinectConfig = KinectConfig()
     calibration_error: CalibrationError = CalibrationError()
 
@@ -212,29 +237,42 @@ class HsvRange(_Strict):
 
 
 class VisionConfig(_Strict):
-    segmentation: Literal["hsv", "rgb"] = "hsv"
+    segmentation: Literal["hsv", "rgb"] = Field(
+        "hsv",
+        description="hsv: hue bands (exposure changes leave them alone); rgb: a reference "
+        "colour per marker and a tolerance (the thesis's first method)",
+    )
     # HSV: hue bands with a high saturation floor and a low value floor, so that exposure
     # changes (value) leave the masks alone; low-saturation table, arm and floor stay out.
     red_hsv: list[HsvRange] = Field(
+        description="the red marker's OpenCV HSV ranges (H 0..179; red wraps, so two)",
         default_factory=lambda: [
             HsvRange(lower=[0, 120, 30], upper=[8, 255, 255]),
             HsvRange(lower=[172, 120, 30], upper=[179, 255, 255]),
-        ]
+        ],
     )
     green_hsv: list[HsvRange] = Field(
-        default_factory=lambda: [HsvRange(lower=[45, 120, 30], upper=[75, 255, 255])]
+        description="the green marker's HSV ranges",
+        default_factory=lambda: [HsvRange(lower=[45, 120, 30], upper=[75, 255, 255])],
     )
     # The orientation cue (marker.orientation_cue): a saturated blue, a hue that neither marker,
     # the table, the arm, the floor nor the blue-grey block (saturation below 100) reaches.
     # Looked for only inside a marker's square, in both segmentation modes.
     cue_hsv: list[HsvRange] = Field(
-        default_factory=lambda: [HsvRange(lower=[100, 120, 30], upper=[130, 255, 255])]
+        description="the orientation cue's HSV ranges, looked for inside each marker",
+        default_factory=lambda: [HsvRange(lower=[100, 120, 30], upper=[130, 255, 255])],
     )
     # RGB mode (the thesis's first method): a reference colour per marker and a per-channel
     # tolerance, calibrated on the markers as the default scene renders them (diffuse light).
-    red_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = [130, 12, 12]
-    green_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = [15, 115, 22]
-    rgb_tolerance: int = Field(50, ge=1, le=255)
+    red_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = Field(
+        [130, 12, 12], description="rgb: the red marker's reference colour (0..255)"
+    )
+    green_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = Field(
+        [15, 115, 22], description="rgb: the green marker's reference colour (0..255)"
+    )
+    rgb_tolerance: int = Field(
+        50, ge=1, le=255, description="rgb: how far each channel may be from the reference"
+    )
     min_area_px: int = Field(60, ge=4, description="smaller blobs are rejected")
     occlusion_ring_px: int = Field(
         5,
@@ -253,7 +291,11 @@ class VisionConfig(_Strict):
 
 
 class ControllerConfig(_Strict):
-    mode: JacobianMode = JacobianMode.DYNAMIC
+    mode: JacobianMode = Field(
+        JacobianMode.DYNAMIC,
+        description="the image Jacobian: constant, dynamic, pmj, mpj (the thesis's four) or "
+        "points3d (the corners' 3-D points as features)",
+    )
     gain: float = Field(1.0, gt=0.0, le=20.0, description="λ of e' = -λe (1/s)")
     converged_px: float = Field(
         0.25,
@@ -308,13 +350,14 @@ class ControllerConfig(_Strict):
         ge=0.0,
         le=60.0,
         description="while vision cannot use the hand marker, servo on its last view carried "
-        "along the encoders' motion for at most this long (sim s; 0: hold at once)",
+        "along the encoders' motion for at most this long (sim s; 0: hold at once); never "
+        "converged on",
     )
     reachable_pairing: bool = Field(
         True,
         description="pair the squares' corners by the least turn among the pairings whose goal "
         "posture an inverse kinematics from the arm's present posture reaches within the joint "
-        "limits, checked on the first frame servoed and again once the goal has moved "
+        "limits, checked on the first frame servoed and again once the goal has moved 2 cm "
         "(services/controller/reach.py); false: the least turn whatever the limits",
     )
     acquire: bool = Field(
@@ -377,7 +420,9 @@ class ActuationConfig(_Strict):
 
 
 class SimConfig(_Strict):
-    physics_hz: float = Field(240.0, ge=30.0, le=2000.0)
+    physics_hz: float = Field(
+        240.0, ge=30.0, le=2000.0, description="physics steps per simulated second"
+    )
     renderer: Literal["gl", "tiny"] = Field(
         "gl",
         description="gl: OpenGL through a headless EGL context (a GPU's driver, else Mesa's "
@@ -414,11 +459,20 @@ class SupervisorConfig(_Strict):
     restart: dict[Literal["sim", "vision", "controller", "actuation"], RestartPolicy] = Field(
         default_factory=dict, description="per service; unnamed services use default_restart"
     )
-    default_restart: RestartPolicy = RestartPolicy.ALWAYS
-    backoff_initial_s: float = Field(0.1, ge=0.0, le=10.0)
-    backoff_max_s: float = Field(5.0, ge=0.0, le=300.0)
+    default_restart: RestartPolicy = Field(
+        RestartPolicy.ALWAYS,
+        description="always, on-failure (after a non-zero exit or a signal) or never",
+    )
+    backoff_initial_s: float = Field(
+        0.1, ge=0.0, le=10.0, description="wait before a restart (s), doubled per recent one"
+    )
+    backoff_max_s: float = Field(
+        5.0, ge=0.0, le=300.0, description="the longest wait before a restart (s)"
+    )
     max_restarts: int = Field(5, ge=0, description="in restart_window_s; then give up")
-    restart_window_s: float = Field(60.0, gt=0.0)
+    restart_window_s: float = Field(
+        60.0, gt=0.0, description="the window max_restarts counts in (s)"
+    )
     stop_grace_s: float = Field(2.0, gt=0.0, le=30.0, description="SIGTERM → SIGKILL")
     hang_timeout_s: float = Field(
         5.0,
@@ -467,8 +521,14 @@ class Event(_Strict):
     on events: perception and control learn of them through the camera, as they would."""
 
     at_s: float = Field(ge=0.0, le=3600.0, description="simulated time it starts (s)")
-    action: EventAction
-    duration_s: float | None = Field(None, gt=0.0, le=3600.0)
+    action: EventAction = Field(
+        description="hide_target (for duration_s, or until a show_target), show_target, "
+        "occlude_hand (a panel before the hand's marker for duration_s) or move_target (the "
+        "object slides at velocity_m_s for duration_s)"
+    )
+    duration_s: float | None = Field(
+        None, gt=0.0, le=3600.0, description="how long it lasts (simulated s)"
+    )
     velocity_m_s: Vec3 | None = Field(None, description="move_target: base frame (m/s)")
 
     @model_validator(mode="after")
@@ -493,12 +553,16 @@ class Event(_Strict):
 
 
 class RunConfig(_Strict):
-    clock: ClockMode = ClockMode.LOCKSTEP
+    clock: ClockMode = Field(
+        ClockMode.LOCKSTEP,
+        description="lockstep: one camera period per command, deterministic; realtime: "
+        "physics at the wall clock's rate, frames dropped when rendering lags",
+    )
     timeout_s: float = Field(30.0, gt=0.0, le=3600.0, description="simulated seconds")
 
 
 class Scenario(_Strict):
-    name: str = "default"
+    name: str = Field("default", description="the scenario's name in results and recordings")
     robot: RobotConfig
     target: TargetConfig
     marker: MarkerConfig = MarkerConfig()
@@ -509,7 +573,12 @@ class Scenario(_Strict):
     sim: SimConfig = SimConfig()
     run: RunConfig = RunConfig()
     supervisor: SupervisorConfig = SupervisorConfig()
-    events: list[Event] = Field(default_factory=list, max_length=100)
+    events: list[Event] = Field(
+        default_factory=list,
+        max_length=100,
+        description="a timeline the sim acts on (`[[events]]`, below); a run is not judged "
+        "converged before the last event ends",
+    )
 
     @property
     def events_end_s(self) -> float:

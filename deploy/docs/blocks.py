@@ -34,6 +34,7 @@ from deploy.docs.domains_tables import (
     domains_verdict,
 )
 from deploy.docs.results_tables import results_compact, results_strategies, suite_camera
+from deploy.docs.scenario_tables import scenario_fields
 from deploy.docs.sources import (
     ACCURACY_JSON,
     ALTERNATIONS_DIR,
@@ -87,6 +88,7 @@ BLOCKS: dict[str, Block] = {
     "campaign-stability": Block(campaign_stability, f"{CAMPAIGN_STARTS_JSON}, {CAMPAIGN_SOURCES}"),
     "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_SOURCES}, {RESULTS_JSON}"),
     "vision-accuracy": Block(vision_accuracy, ACCURACY_JSON),
+    "scenario-fields": Block(scenario_fields, "common/config.py"),
     "status-fields": Block(status_fields, "services/*/status.py, the supervisor's and the view's"),
     "domains-summary": Block(domains_summary, DOMAINS_JSON),
     "domains-bands": Block(domains_bands, DOMAINS_JSON),
