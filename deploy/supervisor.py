@@ -148,7 +148,7 @@ class SupervisorStatus(StatusFields):
     launch: str = Field(
         description="how the services are started: `fork`, `exec`, or `exec (fork refused: why)`"
     )
-    children: dict[str, ChildStatus] = Field(description="each service, as below")
+    children: dict[str, ChildStatus] = Field(description="each service by name")
 
 
 class Supervisor:

@@ -46,7 +46,7 @@ def type_text(annotation: Any) -> str:
     if origin is dict:
         return f"map of {type_text(args[1])}"
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return "map (below)"
+        return f"`{annotation.__name__}`"  # a table of its own
     return _NAMES.get(annotation, getattr(annotation, "__name__", str(annotation)))
 
 

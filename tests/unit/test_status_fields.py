@@ -47,6 +47,7 @@ def test_types_read_as_words() -> None:
     assert type_text(fields["pairings_reachable"].annotation) == "list of true/false or none"
     assert type_text(fields["pairing"].annotation) == "integer or none"
     assert type_text(dict[str, int]) == "map of integer"
+    assert type_text(dict[str, ActuationStatus]) == "map of `ActuationStatus`"
     table = fields_table(ActuationStatus).splitlines()
     assert table[0] == "| field | type | what |"
     assert [row.split(" | ")[0] for row in table[2:]] == [f"| `{n}`" for n in ACTUATION]
