@@ -73,6 +73,9 @@ class RobotConfig(_Strict):
     q0: Joints6 = Field(description="initial joint angles (rad), joint_1..joint_6")
 
 
+OBJECT_SIDE_PER_MARKER = 1.25  # the object's top face, in marker sides, unless given
+
+
 class TargetConfig(_Strict):
     position: Vec3 = Field(description="red marker centre in the arm base frame (m)")
     yaw: float = Field(0.0, ge=-math.pi, le=math.pi, description="about the vertical (rad)")
@@ -81,6 +84,15 @@ class TargetConfig(_Strict):
         ge=0.0,
         le=0.2,
         description="the hand's marker stops this far above the red one, along its normal (m)",
+    )
+    object_side_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=0.5,
+        description="side of the object's square top face, centred under the red marker (m; "
+        "default 1.25 × marker.size_m): the sim builds the object so, and the controller is "
+        "given it as the object's model (as vision is given the marker's size) to keep the "
+        "forearm off it",
     )
 
 
@@ -329,6 +341,18 @@ class ControllerConfig(_Strict):
         ge=0.0,
         description="the hand box's corners stay this far above the plane of the red marker "
         "(the object's top face, as vision measures it)",
+    )
+    keep_forearm_off_object: bool = Field(
+        True,
+        description="keep the forearm's surface forearm_clearance_m off the object (the prism "
+        "under its top face, target.object_side_m wide; services/controller/forearm.py)",
+    )
+    forearm_clearance_m: float = Field(
+        0.002,
+        ge=0.0,
+        le=0.05,
+        description="the least gap between the forearm's surface (its axis less the limb's "
+        "radius) and the object (m)",
     )
     clearance_correction: ClearanceCorrection = Field(
         ClearanceCorrection.LEAST_FEATURE_CHANGE,
@@ -579,6 +603,21 @@ class Scenario(_Strict):
         description="a timeline the sim acts on (`[[events]]`, below); a run is not judged "
         "converged before the last event ends",
     )
+
+    @model_validator(mode="after")
+    def _object_holds_its_marker(self) -> Scenario:
+        if self.object_side_m < self.marker.size_m:
+            raise ValueError(
+                f"target.object_side_m ({self.object_side_m}) below marker.size_m "
+                f"({self.marker.size_m}): the red marker lies on the object's top face"
+            )
+        return self
+
+    @property
+    def object_side_m(self) -> float:
+        """The object's top face side (m): ``target.object_side_m``, else 1.25 markers."""
+        side = self.target.object_side_m
+        return OBJECT_SIDE_PER_MARKER * self.marker.size_m if side is None else side
 
     @property
     def events_end_s(self) -> float:

@@ -83,6 +83,7 @@ class Pipeline:
             camera.assumed_pose(),  # the calibration, not the simulator's truth
             scenario.target.approach_height_m,
             oriented_markers=scenario.marker.orientation_cue,
+            object_side_m=scenario.object_side_m,
         )
         self.limiter = LimiterState()
         self.frame_seq = 0

@@ -156,7 +156,7 @@ def static_scene(scenario: Scenario, t_s: float) -> SceneUpdate:
     if top_y - TABLE_TOP_Y_M > 0.005:
         centre = np.array([target[0, 3], (top_y + TABLE_TOP_Y_M) / 2, target[2, 3]])
         block_pose = kin.homogeneous(target[:3, :3], centre)
-        side = size * 1.25
+        side = scenario.object_side_m
         block = _cube(block_pose, (side, side, top_y - TABLE_TOP_Y_M), BLOCK)
         # The block's height is along the marker's normal (z of the target frame).
         entities.append(_entity("block", BASE, t_s, cubes=[block]))

@@ -86,12 +86,18 @@ def clearance_bounds(
 def lift_short(
     twist: FloatArray, rows: FloatArray, bounds: FloatArray, normal: FloatArray
 ) -> tuple[FloatArray, bool]:
-    """``twist`` with the least upward velocity ``δ n`` that meets ``rows · twist ≥ bounds``
-    (:func:`clearance_bounds`: an upward velocity raises every corner at the same rate); and
-    whether it was short."""
-    short = float(np.max(bounds - rows @ twist))
-    if short <= 0.0:
+    """``twist`` with the least upward velocity ``δ n`` that meets ``rows · twist ≥ bounds``,
+    and whether it was short. An upward velocity raises every corner of the hand box at its
+    own rate (:func:`clearance_bounds`: ``δ`` is then the largest shortfall); another bound
+    (the forearm's, :mod:`.forearm`) gains ``rows · (n, 0)`` per unit of it, and one that
+    rising does not help is left to the other corrections."""
+    short = bounds - rows @ twist
+    if float(np.max(short, initial=0.0)) <= 0.0:
+        return twist, False
+    gain = rows[:, :3] @ normal  # each bound's rate per unit of upward velocity
+    helped = (short > 0.0) & (gain > 1e-9)
+    if not np.any(helped):
         return twist, False
     lifted = np.array(twist, dtype=float)
-    lifted[:3] += short * normal
+    lifted[:3] += float(np.max(short[helped] / gain[helped])) * normal
     return lifted, True

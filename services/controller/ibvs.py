@@ -115,6 +115,9 @@ class IbvsController:
     # hand corner i goes to target corner i however far the hand is turned, so a start turned
     # by 180° about the optical axis is servoed as such, not as the least turn.
     oriented_markers: bool = False
+    # The side of the object's top face (m; the scenario's object model, target.object_side_m),
+    # for keeping the forearm off it (step.above_the_target); None: not kept off it.
+    object_side_m: float | None = None
     l_constant: FloatArray | None = None  # 8×6, rows in the target's own corner labelling
     # The frozen matrix's local stability at the goal it was built at (.stability; constant
     # only, None before): at or below 0 the law drives the hand away from its own goal.

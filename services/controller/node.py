@@ -32,6 +32,7 @@ class ControllerService:
             ctx.scenario.camera.assumed_pose(),  # the calibration, not the simulator's truth
             ctx.scenario.target.approach_height_m,
             oriented_markers=ctx.scenario.marker.orientation_cue,
+            object_side_m=ctx.scenario.object_side_m,
         )
         self.node = Node("controller", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.twist)

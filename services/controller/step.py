@@ -13,15 +13,20 @@ from dataclasses import replace
 
 import numpy as np
 
+from common import kinematics as kin
 from common.config import ClearanceCorrection
 from common.kinematics import FloatArray
 from common.marker import Marker
 from common.messages import EndEffectorTwist, Features, Header
-from services.controller import clearance
+from services.controller import clearance, forearm
 from services.controller.arm import ArmReading
 from services.controller.constrained import least_feature_change
 from services.controller.ibvs import ControlOutput, IbvsController
-from services.controller.twist import clamp_twist, twist_matrix_base_ee_to_cam
+from services.controller.twist import (
+    camera_points_to_base,
+    clamp_twist,
+    twist_matrix_base_ee_to_cam,
+)
 
 
 def control_step(
@@ -37,41 +42,66 @@ def control_step(
         arm,
         features.header.sim_time_s,
     )
-    assert arm.t_base_ee is not None  # from_joints gives every form
-    return above_the_target(controller, out, arm.t_base_ee)
+    return above_the_target(controller, out, arm)
 
 
 def above_the_target(
-    controller: IbvsController, out: ControlOutput, t_base_ee: FloatArray
+    controller: IbvsController, out: ControlOutput, arm: ArmReading
 ) -> ControlOutput:
     """``out`` with its twist kept from lowering the hand box onto the object's top face
-    (:mod:`services.controller.clearance`; the face from the last usable view of the red
-    marker, the box from the encoders): the law's twist changed where its features notice it
-    least (:mod:`services.controller.constrained`), then lifted by what that left short (with
-    ``controller.clearance_correction = "lift"``, or a twist not the law's: lifted alone);
-    unchanged while holding or before any view."""
+    and from carrying the forearm onto the object (:func:`object_bounds`): the law's twist
+    changed where its features notice it least (:mod:`services.controller.constrained`), then
+    lifted by what that left short (with ``controller.clearance_correction = "lift"``, or a
+    twist not the law's: lifted alone); unchanged while holding or before any view."""
     cfg = controller.config
     last = controller.target_memory.last
-    if not out.valid or not cfg.keep_above_target or last is None:
+    if not out.valid or last is None:
         return out
     plane = clearance.target_top_plane(last.points_m, controller.t_base_cam)
-    p_ee = t_base_ee[:3, 3]
-    corners = clearance.hand_box_corners_ee() @ t_base_ee[:3, :3].T + p_ee
-    rows, bounds = clearance.clearance_bounds(
-        corners, p_ee, plane, cfg.hand_clearance_m, cfg.clearance_rate_1_s
-    )
+    rows, bounds = object_bounds(controller, arm, plane, last.points_m)
     twist = out.twist_base_ee
-    if float(np.max(bounds - rows @ twist)) <= 0.0:
+    if len(bounds) == 0 or float(np.max(bounds - rows @ twist)) <= 0.0:
         return out
     least_change = cfg.clearance_correction is ClearanceCorrection.LEAST_FEATURE_CHANGE
     if least_change and out.control_matrix is not None:  # the law's twist: its W, only now
         w_cam = np.linalg.pinv(out.control_matrix)
-        w_base = w_cam @ twist_matrix_base_ee_to_cam(controller.t_base_cam, p_ee)
+        w_base = w_cam @ twist_matrix_base_ee_to_cam(controller.t_base_cam, arm.p_ee_base_m)
         twist, _ = least_feature_change(twist, rows, bounds, w_base)
     # What the sweeps left short, or the whole correction of a twist not the law's.
     twist, _ = clearance.lift_short(twist, rows, bounds, plane.normal)
     twist = clamp_twist(twist, cfg.max_linear_m_s, cfg.max_angular_rad_s)
     return replace(out, twist_base_ee=twist, lifted=True)
+
+
+def object_bounds(
+    controller: IbvsController,
+    arm: ArmReading,
+    plane: clearance.Plane,
+    target_points_cam_m: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Every bound a twist must keep near the object, as ``rows · twist ≥ bounds``: the hand
+    box's corners above its top face's plane (:mod:`services.controller.clearance`), the
+    forearm off the object (:mod:`services.controller.forearm`); none for what is not kept
+    (its setting off, no object model, an encoders' reading without the form it needs)."""
+    cfg = controller.config
+    parts = []
+    if cfg.keep_above_target and arm.t_base_ee is not None:
+        p_ee = arm.p_ee_base_m
+        corners = clearance.hand_box_corners_ee() @ arm.t_base_ee[:3, :3].T + p_ee
+        parts.append(
+            clearance.clearance_bounds(
+                corners, p_ee, plane, cfg.hand_clearance_m, cfg.clearance_rate_1_s
+            )
+        )
+    side = controller.object_side_m
+    if cfg.keep_forearm_off_object and side is not None and arm.q_rad is not None:
+        corners = camera_points_to_base(target_points_cam_m, controller.t_base_cam)
+        face = forearm.top_face(plane, corners, side)
+        d_min = kin.LIMB_RADIUS_M + cfg.forearm_clearance_m
+        parts.append(forearm.forearm_bounds(arm.q_rad, face, d_min, cfg.clearance_rate_1_s))
+    if not parts:
+        return np.zeros((0, 6)), np.zeros(0)
+    return np.vstack([rows for rows, _ in parts]), np.concatenate([b for _, b in parts])
 
 
 def twist_message(out: ControlOutput, header: Header, mode: str) -> EndEffectorTwist:

@@ -225,7 +225,7 @@ class World:
         self._target_quat = self.client.getQuaternionFromEuler([0.0, self.scenario.target.yaw, 0.0])
         self.object_body: int | None = None
         if height > 0.005:
-            side = size * 1.25
+            side = self.scenario.object_side_m
             self.object_body = self._box(
                 (side / 2, height / 2, side / 2),
                 self._object_centre(),

@@ -11,6 +11,7 @@ from common import kinematics as kin
 from common.config import ControllerConfig, load_scenario
 from common.marker import Marker
 from common.messages import Header
+from services.controller.arm import ArmReading
 from services.controller.clearance import (
     Plane,
     clearance_bounds,
@@ -77,6 +78,12 @@ def test_the_top_face_plane_comes_from_the_marker_corners_and_faces_the_camera()
         np.testing.assert_allclose(plane.point_m, [0.15, 0.3, 0.35])
 
 
+def arm_at(t_ee: np.ndarray) -> ArmReading:
+    """An encoders' reading with the end effector's pose alone (no joint angles: the forearm
+    is not bounded)."""
+    return ArmReading(t_ee[:3, 3], t_ee)
+
+
 def above_a_square() -> tuple[IbvsController, np.ndarray, np.ndarray, np.ndarray]:
     """A controller that last saw a red square 3 mm under the hand box's lowest corner, the arm
     at the default start (camera at the base, so its frame is the base's): the controller, the
@@ -100,15 +107,15 @@ def test_the_controllers_twist_is_lifted_over_the_last_seen_target_and_flagged()
     lifted to the barrier's rate and flagged, a hold or the switch off leaves it as it was."""
     controller, t_ee, _, _ = above_a_square()
     down = ControlOutput(np.array([0.0, -0.1, 0.0, 0.0, 0.0, 0.0]), True, 5.0, False)
-    out = above_the_target(controller, down, t_ee)
+    out = above_the_target(controller, down, arm_at(t_ee))
     assert out.lifted and out.twist_base_ee[1] == pytest.approx(-3.0 * (0.003 - 0.002))
     header = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
     assert twist_message(out, header, "dynamic").lifted  # the run's end reads it
     assert not twist_message(down, header, "dynamic").lifted
     held = replace(down, valid=False)
-    assert above_the_target(controller, held, t_ee) is held
+    assert above_the_target(controller, held, arm_at(t_ee)) is held
     controller.config = ControllerConfig(keep_above_target=False)
-    assert above_the_target(controller, down, t_ee) is down
+    assert above_the_target(controller, down, arm_at(t_ee)) is down
 
 
 def test_the_laws_twist_is_changed_where_its_features_notice_it_least() -> None:
@@ -118,8 +125,10 @@ def test_the_laws_twist_is_changed_where_its_features_notice_it_least() -> None:
     controller, t_ee, corners, square = above_a_square()
     w_cam = np.random.default_rng(3).normal(size=(8, 6))
     down = ControlOutput(np.array([0.005, -0.05, 0.0, 0.1, 0.0, 0.05]), True, 5.0, False)
-    lifted = above_the_target(controller, down, t_ee)
-    law = above_the_target(controller, replace(down, control_matrix=np.linalg.pinv(w_cam)), t_ee)
+    lifted = above_the_target(controller, down, arm_at(t_ee))
+    law = above_the_target(
+        controller, replace(down, control_matrix=np.linalg.pinv(w_cam)), arm_at(t_ee)
+    )
     assert law.lifted and lifted.lifted
     plane = target_top_plane(square, np.eye(4))
     rows, bounds = clearance_bounds(corners, t_ee[:3, 3], plane, 0.002, 3.0)

@@ -1,0 +1,138 @@
+"""The forearm kept off the object (services/controller/forearm.py): the distance to the object,
+the forearm's nearest point, its Jacobian and the bound on the twist; and published campaign
+starts whose forearm pressed on the object on the way, run by the campaign's lockstep
+in-process pipeline with the setting on and off."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common import kinematics as kin
+from common.config import load_scenario
+from common.runtime import parse_overrides
+from deploy.experiments.campaign.starts import start_overrides
+from deploy.launch.run_inprocess import run_scenario_inprocess
+from services.controller.clearance import Plane
+from services.controller.forearm import (
+    ELBOW_FRAME,
+    NEAR_M,
+    WRIST_FRAME,
+    TopFace,
+    distance_to_object,
+    forearm_bounds,
+    nearest_along,
+    point_jacobian,
+    top_face,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+UP = np.array([0.0, 1.0, 0.0])
+# A 75 mm face 0.3 m ahead of the shoulder, level, its sides along x and z.
+FACE = TopFace(np.array([0.3, -0.3, 0.1]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0]),
+               UP, 0.0375)  # fmt: skip
+
+
+def test_the_distance_is_to_the_face_above_it_to_a_side_beside_it_and_to_an_edge_between() -> None:
+    above = FACE.centre_m + np.array([0.01, 0.05, 0.0])
+    assert distance_to_object(above, FACE)[0] == pytest.approx(0.05)
+    np.testing.assert_allclose(distance_to_object(above, FACE)[1], UP)
+    beside = FACE.centre_m + np.array([0.0475, -0.2, 0.0])  # below the face, 1 cm off its side
+    dist, g = distance_to_object(beside, FACE)
+    assert dist == pytest.approx(0.01)
+    np.testing.assert_allclose(g, [1.0, 0.0, 0.0], atol=1e-12)
+    edge = FACE.centre_m + np.array([0.0375 + 0.003, 0.004, 0.0])  # 3 mm out, 4 mm up
+    dist, g = distance_to_object(edge, FACE)
+    assert dist == pytest.approx(0.005)
+    np.testing.assert_allclose(g, [0.6, 0.8, 0.0], atol=1e-12)
+    inside = FACE.centre_m - np.array([0.0, 0.01, 0.0])
+    assert distance_to_object(inside, FACE)[0] == 0.0
+
+
+def test_the_face_lies_on_the_marker_s_plane_along_its_sides() -> None:
+    corners = FACE.centre_m + np.array([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]]) * 0.03
+    face = top_face(Plane(FACE.centre_m, UP), corners, 0.075)
+    np.testing.assert_allclose(face.u, [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(face.w, [0.0, 0.0, -1.0], atol=1e-12)
+    assert face.half_side_m == pytest.approx(0.0375)
+
+
+def test_the_nearest_point_of_a_segment_is_found_as_a_dense_search_finds_it() -> None:
+    """Within a 20th of a millimetre, and given up on a segment seen to lie farther."""
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        a, b = FACE.centre_m + rng.uniform(-0.15, 0.15, size=(2, 3))
+        t, near = nearest_along(a, b, FACE)
+        dense = min(distance_to_object(a + s * (b - a), FACE)[0] for s in np.linspace(0, 1, 4001))
+        assert near == pytest.approx(distance_to_object(a + t * (b - a), FACE)[0], abs=1e-15)
+        assert near <= dense + 1e-5  # within a 20th of a millimetre of the least
+        if dense > 0.05:
+            assert nearest_along(a, b, FACE, beyond_m=dense - 0.01)[1] == np.inf
+
+
+def forearm_point(q: np.ndarray, t: float) -> np.ndarray:
+    frames = kin.frame_transforms(q)
+    elbow, wrist = frames[ELBOW_FRAME][:3, 3], frames[WRIST_FRAME][:3, 3]
+    return elbow + t * (wrist - elbow)
+
+
+def test_a_forearm_point_s_jacobian_is_its_motion_under_each_joint() -> None:
+    q = np.array(load_scenario(None).robot.q0)
+    jp = point_jacobian(kin.frame_transforms(q), forearm_point(q, 0.7))
+    for k in range(kin.N_JOINTS):
+        dq = np.zeros(kin.N_JOINTS)
+        dq[k] = 1e-7
+        moved = (forearm_point(q + dq, 0.7) - forearm_point(q - dq, 0.7)) / 2e-7
+        np.testing.assert_allclose(jp[:, k], moved, atol=1e-6)
+
+
+def test_the_bound_is_the_nearest_point_s_rate_under_the_twist_and_none_far_off() -> None:
+    """Near the object: ``rows · V`` is the rate of the forearm's distance to it when the joints
+    turn as actuation makes them (``q̇ = J⁺ V``), and ``b = −rate · (d − d_min)``."""
+    q = np.array(load_scenario(None).robot.q0)
+    frames = kin.frame_transforms(q)
+    elbow, wrist = frames[ELBOW_FRAME][:3, 3], frames[WRIST_FRAME][:3, 3]
+    below_wrist = wrist - np.array([0.0, 0.05, 0.0])  # the face 5 cm under the wrist, level
+    face = TopFace(below_wrist, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0]), UP, 0.03)
+
+    def nearest_distance(q_rad: np.ndarray) -> float:
+        fr = kin.frame_transforms(q_rad)
+        a, b = fr[ELBOW_FRAME][:3, 3], fr[WRIST_FRAME][:3, 3]
+        return nearest_along(a, b, face)[1]
+
+    d = nearest_distance(q)
+    rows, bounds = forearm_bounds(q, face, 0.024, 3.0)
+    assert rows.shape == (1, 6) and bounds == pytest.approx([-3.0 * (d - 0.024)])
+    twist = np.array([0.02, -0.05, 0.01, 0.2, -0.1, 0.3])
+    qdot = np.linalg.pinv(kin.geometric_jacobian(q)) @ twist
+    rate = (nearest_distance(q + 1e-6 * qdot) - nearest_distance(q - 1e-6 * qdot)) / 2e-6
+    assert float(rows[0] @ twist) == pytest.approx(rate, rel=1e-4)
+    far = TopFace(elbow + np.array([0.0, -(0.024 + NEAR_M + 0.3), 0.0]), face.u, face.w, UP, 0.03)
+    rows, bounds = forearm_bounds(q, far, 0.024, 3.0)
+    assert rows.shape == (0, 6) and bounds.shape == (0,)
+
+
+def published_start(name: str) -> dict:
+    starts = json.loads((ROOT / "docs/campaign/starts.json").read_text())
+    return next(s for s in starts if s["name"] == name)
+
+
+@pytest.mark.parametrize("name", ["start_0048", "start_0209"])  # forearm on the block's top edge
+def test_a_forearm_that_pressed_on_the_object_on_the_way_now_keeps_off_it(name: str) -> None:
+    start = published_start(name)
+    overrides = start_overrides(
+        name, start["q0_rad"], start["target_position_m"], start["target_yaw_rad"]
+    )
+    base = ROOT / "deploy/scenarios/suite/01_baseline.toml"
+    runs = {}
+    for keep in (True, False):
+        extra = (f"controller.keep_forearm_off_object={str(keep).lower()}", "controller.mode='pmj'")
+        runs[keep] = run_scenario_inprocess(
+            load_scenario(base, parse_overrides([*overrides, *extra]))
+        )
+    assert runs[True].converged and runs[True].final_position_error_m < 0.005, runs[True].detail
+    assert runs[True].first_contact_s is None
+    assert runs[False].first_contact_s is not None and runs[False].contact_with == "object"
