@@ -270,8 +270,9 @@ class EndEffectorTwist(Message):
     converged: bool
     lifted: bool = Field(
         False,
-        description="lifted to keep the hand's box above the object's top face "
-        "(controller.keep_above_target): the law asked to lower it further",
+        description="corrected to keep the hand's box above the object's top face or the "
+        "forearm off the object (controller.keep_above_target, keep_forearm_off_object): the "
+        "law asked to take the arm further towards it",
     )
 
 

@@ -39,9 +39,9 @@ class Progress:
         return stalled_s is not None and stalled_s >= stall_after_s
 
 
-# What a stall's detail says when the clearance above the object holds the hand where the law
-# would lower it (the campaign's causes look for it).
-HELD_BY_CLEARANCE = "the clearance above the object holds the hand"
+# What a stall's detail says when the clearance holds the arm where the law would take the hand
+# onto the object's top face or the forearm onto the object (the campaign's causes look for it).
+HELD_BY_CLEARANCE = "the clearance holds the arm off the object"
 
 
 def stall_detail(
@@ -52,13 +52,13 @@ def stall_detail(
     lifted_since_s: float | None = None,
 ) -> str:
     """What a stalled run's image error did, and since when (sim time); ``lifted_since_s``:
-    every twist since then was lifted by the clearance (the law would lower the hand onto the
-    object's top face), else None."""
+    every twist since then was corrected by the clearance (the law would take the hand onto
+    the object's top face or the forearm onto the object), else None."""
     why = "the law sits in a local minimum or against a limit"
     if lifted_since_s is not None:
         why = (
-            f"the law lowers the hand towards the object's top face and {HELD_BY_CLEARANCE} "
-            f"(every twist lifted since sim time {lifted_since_s:.2f} s)"
+            f"the law drives the arm towards the object and {HELD_BY_CLEARANCE} "
+            f"(every twist corrected since sim time {lifted_since_s:.2f} s)"
         )
     return (
         f"image error {error_px:.3f} px, not below {best_px:.3f} px by "
@@ -70,7 +70,7 @@ def stall_detail(
 def describe_stall(error_px: float, progress: Progress, now_s: float, lifted: bool = False) -> str:
     """What a stalled controller's error does, for ``umay status``: ``stalled: image error
     22.7 px, not 5 % below its best 13.5 px for 6.0 s (since sim time 1.47 s)``, and, when its
-    last twist was ``lifted``, that the clearance holds the hand."""
+    last twist was ``lifted``, that the clearance holds the arm off the object."""
     assert progress.best_px is not None
     since = progress.best_since_s
     held = f"; {HELD_BY_CLEARANCE}" if lifted else ""

@@ -109,7 +109,7 @@ def test_a_stall_held_by_the_clearance_says_so_and_since_when() -> None:
         since = lifted_from * PERIOD_S if held else None
         assert monitor.ended_detail == stall_detail(20.0, 20.0, 1.0, 6.0, since)
         assert (HELD_BY_CLEARANCE in monitor.ended_detail) is held
-    assert "every twist lifted since sim time 4.00 s" in stall_detail(20.0, 20.0, 1.0, 6.0, 4.0)
+    assert "every twist corrected since sim time 4.00 s" in stall_detail(20.0, 20.0, 1.0, 6.0, 4.0)
 
 
 def test_a_slow_steady_fall_is_progress_and_never_stalls() -> None:
@@ -172,5 +172,5 @@ def test_progress_restarts_off_servoing_and_status_describes_a_stall() -> None:
         "(since sim time 0.00 s)"
     )
     assert describe_stall(19.4, p, 6.0, lifted=True).endswith(
-        "(since sim time 0.00 s); the clearance above the object holds the hand"
+        "(since sim time 0.00 s); the clearance holds the arm off the object"
     )
