@@ -3,8 +3,8 @@
 The goal puts the hand just above the object's top face, and the forearm comes down beside
 the object: at the goal its wrist end is a few millimetres clear of the face's edge. On the
 way the image law moves the hand without regard for the forearm, whose wrist end crossed the
-face's edge and pressed on it in about one run of eleven on goal (dynamic, random-start
-campaign; docs/campaign.md). The hand's clearance (:mod:`.clearance`) keeps a whole plane,
+face's edge and pressed on it (the random-start campaign counts such runs, docs/campaign.md).
+The hand's clearance (:mod:`.clearance`) keeps a whole plane,
 which the forearm cannot: at the goal its wrist end is below that plane, beside the object.
 
 So the forearm is kept off the object itself, the square prism under its top face: the face
@@ -26,10 +26,10 @@ import numpy as np
 
 from common import kinematics as kin
 from common.kinematics import FloatArray
+from services.controller.arm import ELBOW_FRAME  # where the forearm starts
 from services.controller.clearance import Plane
 
-ELBOW_FRAME = 2  # kinematics.frame_transforms index: DH frame 3, where the forearm starts
-WRIST_FRAME = 4  # DH frame 5, where it ends
+WRIST_FRAME = 4  # kinematics.frame_transforms index: DH frame 5, where the forearm ends
 FOREARM_JOINTS = 4  # the joints that move it: the shoulder's three and the elbow
 NEAR_M = 0.03  # beyond d_min by more than this the forearm is left free: no bound
 SAMPLES = 65  # points along the forearm per pass of the nearest-point search
