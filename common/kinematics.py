@@ -123,7 +123,13 @@ def geometric_jacobian(q_rad: FloatArray, dh: tuple[DHRow, ...] = UMAY_DH) -> Fl
 
     Rows 0-2: linear velocity of the frame-6 origin (m/s per rad/s); rows 3-5: angular velocity.
     """
-    poses = np.array(frame_transforms(q_rad, dh))
+    return jacobian_of_frames(frame_transforms(q_rad, dh))
+
+
+def jacobian_of_frames(frames: list[FloatArray]) -> FloatArray:
+    """:func:`geometric_jacobian` from the joint angles' DH frames (:func:`frame_transforms`),
+    for a caller that has them already."""
+    poses = np.array(frames)
     z = poses[:, :3, 2]  # joint axes
     lever = poses[-1, :3, 3] - poses[:, :3, 3]  # joint origin → end-effector origin
     # z × lever for all joints at once (np.cross per joint has a large per-call overhead).

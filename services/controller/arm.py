@@ -27,16 +27,19 @@ class ArmReading:
     ``t_base_ee``: its whole pose (4×4), to carry a hand vision cannot use (None: hold instead).
     ``elbow_base_m``: the elbow, for acquisition's directions (None: image directions alone).
     ``q_rad``: the joint angles, for the corner pairing's goal postures (None: every pairing
-    counts)."""
+    counts).
+    ``frames``: their DH frames (``kinematics.frame_transforms``), for keeping the forearm off
+    the object (None: it is not kept off)."""
 
     p_ee_base_m: FloatArray
     t_base_ee: FloatArray | None = None
     elbow_base_m: FloatArray | None = None
     q_rad: FloatArray | None = None
+    frames: list[FloatArray] | None = None
 
     @classmethod
     def from_joints(cls, q_rad: FloatArray | list[float]) -> ArmReading:
         """Every form, from the joint angles through forward kinematics."""
         q = np.array(q_rad, dtype=float)
         frames = kin.frame_transforms(q)
-        return cls(frames[-1][:3, 3], frames[-1], frames[ELBOW_FRAME][:3, 3], q)
+        return cls(frames[-1][:3, 3], frames[-1], frames[ELBOW_FRAME][:3, 3], q, frames)

@@ -55,7 +55,7 @@ def target_top_plane(points_cam_m: FloatArray, t_base_cam: FloatArray) -> Plane:
     points = camera_points_to_base(points_cam_m, t_base_cam)
     origin = t_base_cam[:3, 3]
     centre = points.mean(axis=0)
-    normal = np.cross(points[1] - points[0], points[3] - points[0])
+    normal = kin.cross(points[1] - points[0], points[3] - points[0])
     normal = normal / np.linalg.norm(normal)
     if normal @ (origin - centre) < 0:
         normal = -normal

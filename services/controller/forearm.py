@@ -54,7 +54,7 @@ def top_face(plane: Plane, corners_base_m: FloatArray, side_m: float) -> TopFace
     u = corners_base_m[1] - corners_base_m[0]
     u = u - (u @ n) * n
     u = u / np.linalg.norm(u)
-    return TopFace(plane.point_m, u, np.cross(n, u), n, side_m / 2)
+    return TopFace(plane.point_m, u, kin.cross(n, u), n, side_m / 2)
 
 
 def distance_to_object(point_m: FloatArray, face: TopFace) -> tuple[float, FloatArray]:
@@ -107,25 +107,24 @@ def point_jacobian(frames: list[FloatArray], point_m: FloatArray) -> FloatArray:
     it about frame k's z axis through frame k's origin; the wrist's joints do not move it."""
     jp = np.zeros((3, kin.N_JOINTS))
     for k in range(FOREARM_JOINTS):
-        jp[:, k] = np.cross(frames[k][:3, 2], point_m - frames[k][:3, 3])
+        jp[:, k] = kin.cross(frames[k][:3, 2], point_m - frames[k][:3, 3])
     return jp
 
 
 def forearm_bounds(
-    q_rad: FloatArray, face: TopFace, min_distance_m: float, rate_1_s: float
+    frames: list[FloatArray], face: TopFace, min_distance_m: float, rate_1_s: float
 ) -> tuple[FloatArray, FloatArray]:
-    """``(A, b)``: the forearm's bound as ``A · twist ≥ b`` (1×6 and 1 while it is within
+    """``(A, b)`` from the joint angles' DH frames (``kinematics.frame_transforms``): the
+    forearm's bound as ``A · twist ≥ b`` (1×6 and 1 while it is within
     :data:`NEAR_M` of ``min_distance_m``, else empty), the twist (v, ω) at the end-effector
     origin, base frame, as :func:`.clearance.clearance_bounds`: ``A`` its nearest point's
     ``ḋ`` for a twist, ``b`` the least ``ḋ`` allowed, ``−rate · (d − d_min)``."""
-    q = np.asarray(q_rad, dtype=float)
-    frames = kin.frame_transforms(q)
     elbow, wrist = frames[ELBOW_FRAME][:3, 3], frames[WRIST_FRAME][:3, 3]
     t, dist = nearest_along(elbow, wrist, face, beyond_m=min_distance_m + NEAR_M)
     if dist > min_distance_m + NEAR_M:
         return np.zeros((0, 6)), np.zeros(0)
     nearest = elbow + t * (wrist - elbow)
     dist, g = distance_to_object(nearest, face)
-    joint_rates = np.linalg.pinv(kin.geometric_jacobian(q))  # J⁺: q̇ of a twist
+    joint_rates = np.linalg.pinv(kin.jacobian_of_frames(frames))  # J⁺: q̇ of a twist
     row = g @ point_jacobian(frames, nearest) @ joint_rates
     return row[None, :], np.array([-rate_1_s * (dist - min_distance_m)])

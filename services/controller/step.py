@@ -94,11 +94,11 @@ def object_bounds(
             )
         )
     side = controller.object_side_m
-    if cfg.keep_forearm_off_object and side is not None and arm.q_rad is not None:
+    if cfg.keep_forearm_off_object and side is not None and arm.frames is not None:
         corners = camera_points_to_base(target_points_cam_m, controller.t_base_cam)
         face = forearm.top_face(plane, corners, side)
         d_min = kin.LIMB_RADIUS_M + cfg.forearm_clearance_m
-        parts.append(forearm.forearm_bounds(arm.q_rad, face, d_min, cfg.clearance_rate_1_s))
+        parts.append(forearm.forearm_bounds(arm.frames, face, d_min, cfg.clearance_rate_1_s))
     if not parts:
         return np.zeros((0, 6)), np.zeros(0)
     return np.vstack([rows for rows, _ in parts]), np.concatenate([b for _, b in parts])

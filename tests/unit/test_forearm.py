@@ -104,14 +104,14 @@ def test_the_bound_is_the_nearest_point_s_rate_under_the_twist_and_none_far_off(
         return nearest_along(a, b, face)[1]
 
     d = nearest_distance(q)
-    rows, bounds = forearm_bounds(q, face, 0.024, 3.0)
+    rows, bounds = forearm_bounds(kin.frame_transforms(q), face, 0.024, 3.0)
     assert rows.shape == (1, 6) and bounds == pytest.approx([-3.0 * (d - 0.024)])
     twist = np.array([0.02, -0.05, 0.01, 0.2, -0.1, 0.3])
     qdot = np.linalg.pinv(kin.geometric_jacobian(q)) @ twist
     rate = (nearest_distance(q + 1e-6 * qdot) - nearest_distance(q - 1e-6 * qdot)) / 2e-6
     assert float(rows[0] @ twist) == pytest.approx(rate, rel=1e-4)
     far = TopFace(elbow + np.array([0.0, -(0.024 + NEAR_M + 0.3), 0.0]), face.u, face.w, UP, 0.03)
-    rows, bounds = forearm_bounds(q, far, 0.024, 3.0)
+    rows, bounds = forearm_bounds(kin.frame_transforms(q), far, 0.024, 3.0)
     assert rows.shape == (0, 6) and bounds.shape == (0,)
 
 
