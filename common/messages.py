@@ -366,7 +366,8 @@ class TopicStats(Message):
 class StatusFields(BaseModel):
     """A service's own status fields (:attr:`ServiceStatus.fields`). Each service describes
     its own in a subclass, every field with its meaning and unit: the service builds one per
-    status answer (an unknown or missing field fails there, not in a reader), and
+    status answer (an unknown or missing field, or a value pydantic cannot convert, fails
+    there, not in a reader), and
     docs/operations.md renders them all (``umay docs``). On the wire they stay a plain map, so
     that a tool reads any service's fields without importing the service."""
 

@@ -88,6 +88,7 @@ class Node:
         self.last_rejection = ""
         self._last_reject_log = 0.0
         self._closed = False
+        self._fields_broken = False  # its status fields failed once (logged then)
         # When the event loop last left next_event (None: it has not called it yet) and
         # whether it is inside it now: the status's loop_busy_s, read by the supervisor.
         self._loop_left_s: float | None = None
@@ -251,7 +252,9 @@ class Node:
 
     def _status(self) -> ServiceStatus:
         now = time.monotonic()
+        fields, broken = self._fields()
         reason = self._degraded_reason() if self.state == "running" else ""
+        reason = "; ".join(r for r in (reason, broken) if r)
         p50, p99 = self.processing.percentiles()
         return ServiceStatus(
             service=self.service,
@@ -267,8 +270,20 @@ class Node:
             processing_ms_p50=p50,
             processing_ms_p99=p99,
             loop_busy_s=self.loop_busy_s(now),
-            fields=self._status_fields().model_dump(),
+            fields=fields,
         )
+
+    def _fields(self) -> tuple[dict[str, Any], str]:
+        """The service's own fields, and "" (or why there are none: a field its model refuses).
+        The answer goes out without them rather than not at all, which the supervisor would
+        take for a hung service and kill."""
+        try:
+            return self._status_fields().model_dump(), ""
+        except Exception as exc:
+            if not self._fields_broken:  # once: status is asked every second
+                log.exception("%s: its status fields failed", self.service)
+            self._fields_broken = True
+            return {}, f"status fields: {type(exc).__name__}: {str(exc).splitlines()[0]}"
 
     def loop_busy_s(self, now_s: float) -> float | None:
         """Seconds since the event loop left :meth:`next_event` (0 while it is inside)."""

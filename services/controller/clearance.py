@@ -15,8 +15,10 @@ plane's upward normal and ``d`` the corner from the end-effector origin,
 that breaks one is changed where the image law's features notice it least
 (:func:`.constrained.least_feature_change`), and whatever that leaves short is made up by the
 least upward velocity ``δ n`` (:func:`lift_short`, also the whole correction of a twist the
-law did not make, such as acquisition's). The object's sides are unknown, so the plane is kept
-everywhere: the starts lie above their goal, the goal above the plane.
+law did not make, such as acquisition's). The hand box keeps the whole plane, beyond the
+object's sides too: the starts lie above their goal, the goal above the plane. The forearm,
+which at the goal lies below the plane beside the object, is kept off the object itself
+(:mod:`.forearm`).
 """
 
 from __future__ import annotations

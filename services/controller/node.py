@@ -49,7 +49,7 @@ class ControllerService:
         self.target_speed_m_s = 0.0  # estimated; set by the event loop, read by status queries
         self.last_output: EndEffectorTwist | None = None
         self.target_remembered = False
-        self.clearance_lifts = 0  # twists lifted to keep the hand above the object
+        self.clearance_lifts = 0  # twists corrected to keep the arm off the object
         self.lifted = False  # the last twist was
         self.hand_predicted = False  # the last twist servoed on the hand carried by the encoders
         self.progress = Progress()  # whether servoing still brings the error down

@@ -27,7 +27,10 @@ class ControllerStatus(StatusFields):
         description="servoing on where its motion says a hidden target went, not yet seen there"
     )
     target_speed_m_s: float = Field(description="the target's estimated speed (m/s)")
-    clearance_lifts: int = Field(description="twists corrected to keep the hand above the object")
+    clearance_lifts: int = Field(
+        description="twists corrected to keep the hand box above the object's top face or the "
+        "forearm off the object"
+    )
     hand_predicted: bool = Field(
         description="servoing on the hand's last view carried along the encoders"
     )

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import uuid
 
+import pytest
+
 from common.keys import Keys
 from common.messages import Header, JointVelocityCommand, ServiceStatus
 from common.node import Node
@@ -43,6 +45,36 @@ def test_a_service_answers_for_the_stamps_of_what_it_published_last() -> None:
         last = STAMPS_KEPT + 2
         assert kept[0] == (2, 102.5, 103.0) and kept[-1] == (last - 1, 99.5 + last, 100.0 + last)
         assert query_stamps(tool, keys, "vision", timeout_s=0.5) is None  # nobody answers
+    finally:
+        tool.close()
+        node.close()
+
+
+def test_a_status_whose_fields_fail_still_answers_degraded_saying_why() -> None:
+    """A field its model refuses must not silence the status answer: the supervisor would take
+    the service for hung and kill it."""
+    from pydantic import ValidationError
+
+    from common.queries import query_status
+    from services.actuation.status import ActuationStatus
+
+    def broken() -> ActuationStatus:
+        return ActuationStatus(deadman="perhaps")  # type: ignore[call-arg]
+
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    service_session = open_session(connect=[], listen=[endpoint])
+    node = Node("actuation", keys, service_session, broken)
+    node.ready()
+    tool = open_session(connect=[endpoint])
+    try:
+        with pytest.raises(ValidationError):
+            broken()
+        answers = query_status(tool, keys, 5.0)
+        assert [a.service for a in answers] == ["actuation"]
+        status = answers[0]
+        assert status.state == "degraded" and status.fields == {}
+        assert status.degraded_reason.startswith("status fields: ValidationError: ")
     finally:
         tool.close()
         node.close()
