@@ -5,7 +5,6 @@ in-process pipeline with the setting on and off."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +12,6 @@ import pytest
 
 from common import kinematics as kin
 from common.config import load_scenario
-from common.runtime import parse_overrides
-from deploy.experiments.campaign.starts import start_overrides
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from services.controller.clearance import Plane
 from services.controller.forearm import (
@@ -28,6 +25,7 @@ from services.controller.forearm import (
     point_jacobian,
     top_face,
 )
+from tests.unit.published_starts import start_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 UP = np.array([0.0, 1.0, 0.0])
@@ -115,24 +113,12 @@ def test_the_bound_is_the_nearest_point_s_rate_under_the_twist_and_none_far_off(
     assert rows.shape == (0, 6) and bounds.shape == (0,)
 
 
-def published_start(name: str) -> dict:
-    starts = json.loads((ROOT / "docs/campaign/starts.json").read_text())
-    return next(s for s in starts if s["name"] == name)
-
-
 @pytest.mark.parametrize("name", ["start_0048", "start_0209"])  # forearm on the block's top edge
 def test_a_forearm_that_pressed_on_the_object_on_the_way_now_keeps_off_it(name: str) -> None:
-    start = published_start(name)
-    overrides = start_overrides(
-        name, start["q0_rad"], start["target_position_m"], start["target_yaw_rad"]
-    )
-    base = ROOT / "deploy/scenarios/suite/01_baseline.toml"
     runs = {}
     for keep in (True, False):
         extra = (f"controller.keep_forearm_off_object={str(keep).lower()}", "controller.mode='pmj'")
-        runs[keep] = run_scenario_inprocess(
-            load_scenario(base, parse_overrides([*overrides, *extra]))
-        )
+        runs[keep] = run_scenario_inprocess(start_scenario(name, *extra))
     assert runs[True].converged and runs[True].final_position_error_m < 0.005, runs[True].detail
     assert runs[True].first_contact_s is None
     assert runs[False].first_contact_s is not None and runs[False].contact_with == "object"

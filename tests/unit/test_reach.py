@@ -5,7 +5,6 @@ distributed one equals frame for frame (integration/test_pipeline_vs_distributed
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -13,10 +12,7 @@ import pytest
 
 from common import kinematics as kin
 from common.camera import CameraIntrinsics, project
-from common.config import load_scenario
 from common.marker import Marker
-from common.runtime import parse_overrides
-from deploy.experiments.campaign.starts import start_overrides
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from services.controller.pairing import pairing_costs_px2, rolled
 from services.controller.reach import (
@@ -25,6 +21,7 @@ from services.controller.reach import (
     reachable_pairings,
     rigid_motion,
 )
+from tests.unit.published_starts import start_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 K = CameraIntrinsics.from_fov(640, 480, 62.0)
@@ -80,11 +77,6 @@ def test_the_goal_posture_of_the_pairing_that_fits_is_the_arm_s_own() -> None:
     assert not goal_posture(poses[2], q_start)[1]
 
 
-def published_start(name: str) -> dict:
-    starts = json.loads((ROOT / "docs/campaign/starts.json").read_text())
-    return next(s for s in starts if s["name"] == name)
-
-
 @pytest.mark.parametrize(
     "name",
     [
@@ -93,16 +85,10 @@ def published_start(name: str) -> dict:
     ],
 )
 def test_a_goal_beyond_the_joint_limits_is_left_for_a_quarter_turn(name: str) -> None:
-    start = published_start(name)
-    overrides = start_overrides(
-        name, start["q0_rad"], start["target_position_m"], start["target_yaw_rad"]
-    )
-    base = ROOT / "deploy/scenarios/suite/01_baseline.toml"
     reached = {}
     for choose in (True, False):
         extra = (f"controller.reachable_pairing={str(choose).lower()}", "controller.mode='dynamic'")
-        scenario = load_scenario(base, parse_overrides([*overrides, *extra]))
-        reached[choose] = run_scenario_inprocess(scenario)
+        reached[choose] = run_scenario_inprocess(start_scenario(name, *extra))
     assert reached[True].converged, reached[True].detail
     assert reached[True].final_position_error_m < 0.005
     assert not reached[False].converged  # the least turn: against the limit
