@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from common import kinematics as kin
-from common.config import load_scenario
+from common.config import ControllerConfig, load_scenario
+from common.marker import Marker
 from deploy.launch.run_inprocess import run_scenario_inprocess
-from services.controller.clearance import Plane
+from services.controller.arm import ArmReading
+from services.controller.clearance import Plane, target_top_plane
 from services.controller.forearm import (
     ELBOW_FRAME,
     NEAR_M,
@@ -25,6 +27,8 @@ from services.controller.forearm import (
     point_jacobian,
     top_face,
 )
+from services.controller.ibvs import ControlOutput, IbvsController
+from services.controller.step import above_the_target, object_bounds
 from tests.unit.published_starts import start_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -87,14 +91,25 @@ def test_a_forearm_point_s_jacobian_is_its_motion_under_each_joint() -> None:
         np.testing.assert_allclose(jp[:, k], moved, atol=1e-6)
 
 
-def test_the_bound_is_the_nearest_point_s_rate_under_the_twist_and_none_far_off() -> None:
+@pytest.mark.parametrize(
+    "face_from_wrist_m",
+    [
+        (0.0, -0.05, 0.0),  # the face 5 cm under the wrist: its nearest point is on the face
+        (0.05, 0.03, 0.0),  # the wrist 2 cm off a side, 3 cm below the face: on the side
+        (0.04, -0.01, 0.0),  # the wrist 1 cm off a side, 1 cm above the face: on the edge
+    ],
+)
+def test_the_bound_is_the_nearest_point_s_rate_under_the_twist_and_none_far_off(
+    face_from_wrist_m: tuple[float, float, float],
+) -> None:
     """Near the object: ``rows · V`` is the rate of the forearm's distance to it when the joints
-    turn as actuation makes them (``q̇ = J⁺ V``), and ``b = −rate · (d − d_min)``."""
+    turn as actuation makes them (``q̇ = J⁺ V``), and ``b = −rate · (d − d_min)``; whether the
+    nearest point of the object is on its top face, on a side or on an edge between them."""
     q = np.array(load_scenario(None).robot.q0)
     frames = kin.frame_transforms(q)
     elbow, wrist = frames[ELBOW_FRAME][:3, 3], frames[WRIST_FRAME][:3, 3]
-    below_wrist = wrist - np.array([0.0, 0.05, 0.0])  # the face 5 cm under the wrist, level
-    face = TopFace(below_wrist, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0]), UP, 0.03)
+    centre = wrist + np.array(face_from_wrist_m)
+    face = TopFace(centre, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0]), UP, 0.03)
 
     def nearest_distance(q_rad: np.ndarray) -> float:
         fr = kin.frame_transforms(q_rad)
@@ -122,3 +137,29 @@ def test_a_forearm_that_pressed_on_the_object_on_the_way_now_keeps_off_it(name: 
     assert runs[True].converged and runs[True].final_position_error_m < 0.005, runs[True].detail
     assert runs[True].first_contact_s is None
     assert runs[False].first_contact_s is not None and runs[False].contact_with == "object"
+
+
+def test_the_controller_keeps_the_forearm_off_the_object_it_last_saw() -> None:
+    """Through the controller's step: a twist that would carry the forearm onto the object is
+    corrected to meet the forearm's bound, and flagged; with the setting off it is not."""
+    q = np.array(load_scenario(None).robot.q0)
+    arm = ArmReading.from_joints(q)
+    wrist = arm.frames[WRIST_FRAME][:3, 3]
+    # A 75 mm object whose top edge is 1 cm out from the wrist and 2.6 cm under it, level; its
+    # red square (60 mm) centred on it; the camera at the base, so its frame is the base's.
+    centre = wrist + np.array([0.0375 + 0.01, -0.026, 0.0])
+    square = centre + np.array([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]]) * 0.03
+    controller = IbvsController(ControllerConfig(keep_above_target=False), np.eye(4))
+    controller.object_side_m = 0.075
+    controller.target_memory.last = Marker.seen_at(square, load_scenario(None).camera.intrinsics())
+    face = top_face(target_top_plane(square, np.eye(4)), square, 0.075)
+    d_min = kin.LIMB_RADIUS_M + controller.config.forearm_clearance_m
+    towards = -distance_to_object(wrist, face)[1]  # the wrist straight at the object
+    down = ControlOutput(np.concatenate([0.1 * towards, np.zeros(3)]), True, 5.0, False)
+    rows, bounds = object_bounds(controller, arm, target_top_plane(square, np.eye(4)), square)
+    assert rows.shape == (1, 6) and float(rows[0] @ down.twist_base_ee) < bounds[0]
+    out = above_the_target(controller, down, arm)
+    assert out.lifted and float(rows[0] @ out.twist_base_ee) >= bounds[0] - 1e-9
+    assert distance_to_object(wrist, face)[0] < d_min + 0.03  # near: the bound is on
+    controller.config = controller.config.model_copy(update={"keep_forearm_off_object": False})
+    assert above_the_target(controller, down, arm) is down
