@@ -57,28 +57,35 @@ def top_face(plane: Plane, corners_base_m: FloatArray, side_m: float) -> TopFace
     return TopFace(plane.point_m, u, kin.cross(n, u), n, side_m / 2)
 
 
-def distance_to_object(point_m: FloatArray, face: TopFace) -> tuple[float, FloatArray]:
-    """The distance (m) from ``point_m`` to the object, the prism under its top face (down
-    without end), and the unit direction from the object's nearest point (out through the top
-    from inside)."""
-    d = np.asarray(point_m, dtype=float) - face.centre_m
+def gaps_to_object(points_m: FloatArray, face: TopFace) -> FloatArray:
+    """For each point (k×3), how far it lies beyond the object along the face's sides and its
+    normal (k×3, in ``u``, ``w``, ``normal``; 0 where it lies within): the vector from the
+    object's nearest point, in the face's axes."""
+    d = np.atleast_2d(np.asarray(points_m, dtype=float)) - face.centre_m
     x, y, z = d @ face.u, d @ face.w, d @ face.normal
-    gap_x = np.sign(x) * max(abs(x) - face.half_side_m, 0.0)
-    gap_y = np.sign(y) * max(abs(y) - face.half_side_m, 0.0)
-    gap_z = max(z, 0.0)
-    dist = float(np.sqrt(gap_x**2 + gap_y**2 + gap_z**2))
-    if dist < 1e-12:
-        return 0.0, face.normal
-    return dist, (gap_x * face.u + gap_y * face.w + gap_z * face.normal) / dist
+    return np.column_stack(
+        [
+            np.sign(x) * np.maximum(np.abs(x) - face.half_side_m, 0.0),
+            np.sign(y) * np.maximum(np.abs(y) - face.half_side_m, 0.0),
+            np.maximum(z, 0.0),
+        ]
+    )
 
 
 def distances_to_object(points_m: FloatArray, face: TopFace) -> FloatArray:
-    """:func:`distance_to_object` of many points at once (k×3 → k)."""
-    d = np.asarray(points_m, dtype=float) - face.centre_m
-    gap_x = np.maximum(np.abs(d @ face.u) - face.half_side_m, 0.0)
-    gap_y = np.maximum(np.abs(d @ face.w) - face.half_side_m, 0.0)
-    gap_z = np.maximum(d @ face.normal, 0.0)
-    return np.sqrt(gap_x**2 + gap_y**2 + gap_z**2)
+    """The distance (m) from each point (k×3) to the object, the prism under its top face
+    (down without end)."""
+    return np.sqrt(np.sum(gaps_to_object(points_m, face) ** 2, axis=1))
+
+
+def distance_to_object(point_m: FloatArray, face: TopFace) -> tuple[float, FloatArray]:
+    """:func:`distances_to_object` of one point, and the unit direction from the object's
+    nearest point (out through the top from inside)."""
+    gap = gaps_to_object(point_m, face)[0]
+    dist = float(np.sqrt(np.sum(gap**2)))
+    if dist < 1e-12:
+        return 0.0, face.normal
+    return dist, (gap[0] * face.u + gap[1] * face.w + gap[2] * face.normal) / dist
 
 
 def nearest_along(
