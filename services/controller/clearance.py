@@ -54,8 +54,12 @@ def hand_box_corners_ee() -> FloatArray:
 def target_top_plane(points_cam_m: FloatArray, t_base_cam: FloatArray) -> Plane:
     """The plane of the red marker's four corners (camera frame, m) in the base frame, its
     normal turned towards the camera (up, out of the object)."""
-    points = camera_points_to_base(points_cam_m, t_base_cam)
-    origin = t_base_cam[:3, 3]
+    return plane_of_corners(camera_points_to_base(points_cam_m, t_base_cam), t_base_cam[:3, 3])
+
+
+def plane_of_corners(points: FloatArray, origin: FloatArray) -> Plane:
+    """The plane of the red marker's four corners (base frame, m), its normal turned towards
+    the camera's optical centre ``origin`` (up, out of the object)."""
     centre = points.mean(axis=0)
     normal = kin.cross(points[1] - points[0], points[3] - points[0])
     normal = normal / np.linalg.norm(normal)

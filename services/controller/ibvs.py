@@ -179,11 +179,14 @@ class IbvsController:
             return self._hold(hand, target, seen, k, arm, t_s)
         self.hold_since_s = None
         goal = desired_observation(target, self.approach_height_m, k)
-        if arm.q_rad is not None and self._pairing_open() and not hand_predicted:
-            self._check_reach(hand, goal, arm.q_rad)
+        q, t_base_ee = arm.q_rad, arm.t_base_ee
+        if q is not None and t_base_ee is not None and self._pairing_open() and not hand_predicted:
+            self._check_reach(hand, goal, q, t_base_ee)
         return self._servo(hand, goal, k, arm, t_s, remembered, hand_predicted)
 
-    def _check_reach(self, hand: Marker, goal: Marker, q_rad: FloatArray) -> None:
+    def _check_reach(
+        self, hand: Marker, goal: Marker, q_rad: FloatArray, t_base_ee: FloatArray
+    ) -> None:
         """Which pairings' goal postures the arm reaches from ``q_rad``: on the first frame
         servoed and again once the goal has moved by :data:`REACH_RECHECK_M`; once vision sees
         the hand after it lost it, the verdicts are carried over to the pairings' indices
@@ -193,7 +196,7 @@ class IbvsController:
         moved = last is None or np.linalg.norm(centroid - last) >= REACH_RECHECK_M
         if not (moved or self.reach_stale):
             return
-        poses = goal_poses_ee(hand, goal, self.t_base_cam, q_rad)
+        poses = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee)
         rotations = poses[:, :3, :3]
         if moved or self.reachable is None or self.reach_rotations is None:
             self.reachable = reachable_pairings(poses, q_rad)

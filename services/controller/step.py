@@ -57,8 +57,10 @@ def above_the_target(
     last = controller.target_memory.last
     if not out.valid or last is None:
         return out
-    plane = clearance.target_top_plane(last.points_m, controller.t_base_cam)
-    rows, bounds = object_bounds(controller, arm, plane, last.points_m)
+    # The red corners in the base frame once a frame: the top face's plane and its square.
+    corners = camera_points_to_base(last.points_m, controller.t_base_cam)
+    plane = clearance.plane_of_corners(corners, controller.t_base_cam[:3, 3])
+    rows, bounds = object_bounds(controller, arm, plane, corners)
     twist = out.twist_base_ee
     if len(bounds) == 0 or float(np.max(bounds - rows @ twist)) <= 0.0:
         return out
@@ -77,12 +79,13 @@ def object_bounds(
     controller: IbvsController,
     arm: ArmReading,
     plane: clearance.Plane,
-    target_points_cam_m: FloatArray,
+    target_corners_base_m: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
     """Every bound a twist must keep near the object, as ``rows · twist ≥ bounds``: the hand
     box's corners above its top face's plane (:mod:`services.controller.clearance`), the
-    forearm off the object (:mod:`services.controller.forearm`); none for what is not kept
-    (its setting off, no object model, an encoders' reading without the form it needs)."""
+    forearm off the object (:mod:`services.controller.forearm`), the face the plane of the red
+    marker's corners (base frame); none for what is not kept (its setting off, no object model,
+    an encoders' reading without the form it needs)."""
     cfg = controller.config
     parts = []
     if cfg.keep_above_target and arm.t_base_ee is not None:
@@ -95,8 +98,7 @@ def object_bounds(
         )
     side = controller.object_side_m
     if cfg.keep_forearm_off_object and side is not None and arm.frames is not None:
-        corners = camera_points_to_base(target_points_cam_m, controller.t_base_cam)
-        face = forearm.top_face(plane, corners, side)
+        face = forearm.top_face(plane, target_corners_base_m, side)
         d_min = kin.LIMB_RADIUS_M + cfg.forearm_clearance_m
         parts.append(forearm.forearm_bounds(arm.frames, face, d_min, cfg.clearance_rate_1_s))
     if not parts:

@@ -67,7 +67,7 @@ def test_the_goal_posture_of_the_pairing_that_fits_is_the_arm_s_own() -> None:
     t_base_cam = camera_in_front_of(q_start)
     hand = seen(hand_corners_cam(q_start, t_base_cam))
     goal = seen(hand_corners_cam(q_goal, t_base_cam))
-    poses = goal_poses_ee(hand, goal, t_base_cam, q_start)
+    poses = goal_poses_ee(hand, goal, t_base_cam, kin.forward_kinematics(q_start))
     q, reached = goal_posture(poses[0], q_start)
     assert reached
     assert np.allclose(q, q_goal, atol=1e-4)
