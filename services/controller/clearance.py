@@ -15,8 +15,10 @@ plane's upward normal and ``d`` the corner from the end-effector origin,
 that breaks one is changed where the image law's features notice it least
 (:func:`.constrained.least_feature_change`), and whatever that leaves short is made up by the
 least upward velocity ``δ n`` (:func:`lift_short`, also the whole correction of a twist the
-law did not make, such as acquisition's). The hand box keeps the whole plane, beyond the
-object's sides too: the starts lie above their goal, the goal above the plane. The forearm,
+law did not make, such as acquisition's); a bound rising does not help (the forearm's, beside
+the object) is then met by the nearest twist that does (:func:`lift_then_nearest`). The hand
+box keeps the whole plane, beyond the object's sides too: the starts lie above their goal, the
+goal above the plane. The forearm,
 which at the goal lies below the plane beside the object, is kept off the object itself
 (:mod:`.forearm`).
 """
@@ -29,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common import kinematics as kin
+from services.controller.constrained import least_feature_change
 from services.controller.twist import camera_points_to_base
 
 FloatArray = NDArray[np.float64]
@@ -96,7 +99,7 @@ def lift_short(
     and whether it was short. An upward velocity raises every corner of the hand box at its
     own rate (:func:`clearance_bounds`: ``δ`` is then the largest shortfall); another bound
     (the forearm's, :mod:`.forearm`) gains ``rows · (n, 0)`` per unit of it, and one that
-    rising does not help is left to the other corrections."""
+    rising does not help is left short (:func:`lift_then_nearest` meets it)."""
     short = bounds - rows @ twist
     if float(np.max(short, initial=0.0)) <= 0.0:
         return twist, False
@@ -107,3 +110,15 @@ def lift_short(
     lifted = np.array(twist, dtype=float)
     lifted[:3] += float(np.max(short[helped] / gain[helped])) * normal
     return lifted, True
+
+
+def lift_then_nearest(
+    twist: FloatArray, rows: FloatArray, bounds: FloatArray, normal: FloatArray
+) -> tuple[FloatArray, bool]:
+    """``twist`` meeting ``rows · twist ≥ bounds``, and whether it broke one: lifted by the
+    least upward velocity (:func:`lift_short`), then, where a bound is still short because
+    rising does not help it, the nearest twist that meets them all (the least ``‖Δ‖``,
+    :func:`.constrained.least_feature_change` with ``W = I``)."""
+    lifted, short = lift_short(twist, rows, bounds, normal)
+    nearest, still_short = least_feature_change(lifted, rows, bounds, np.eye(6))
+    return nearest, short or still_short

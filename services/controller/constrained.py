@@ -14,7 +14,7 @@ object, with nothing to act on.
 A handful of bounds in six unknowns: solved on the dual by Hildreth's method (coordinate
 ascent over ``y ≥ 0``, ``Δ = H⁻¹ Aᵀ y``, ``H = WᵀW`` and a small ridge, :data:`RIDGE`): exact
 for one active bound, converged to well under the bounds' scale within :data:`SWEEPS` sweeps
-otherwise; the caller makes up what is left short (:func:`.clearance.lift_short`).
+otherwise; the caller makes up what is left short (:func:`.clearance.lift_then_nearest`).
 """
 
 from __future__ import annotations

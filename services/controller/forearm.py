@@ -16,6 +16,16 @@ barrier as the hand's corners, ``ḋ ≥ −rate · (d − d_min)``, with ``ḋ 
 ``g`` the unit direction from the object's nearest point, ``J_p`` the point's Jacobian and
 ``J⁺ V`` the joint rates actuation makes of the twist ``V``. One linear bound on the twist
 (:func:`forearm_bounds`), corrected together with the hand's.
+
+At the goal the forearm is only a little farther from the object than ``d_min``, and the
+object is where the camera puts it: a calibration error that moves it towards the forearm
+would put the goal itself inside the margin, and the bound would hold the hand short of a goal
+its image error still reaches. So near the goal the margin is capped by the forearm's distance
+at the goal posture (the reach check's, :mod:`.reach`) less :data:`GOAL_SLACK_M`, and rises
+back to ``d_min`` as the wrist moves away from where that posture puts it
+(:func:`margin_near_goal`): a funnel onto the goal. The bound never keeps the arm from its own
+goal, and keeps the whole margin elsewhere, where the same calibration error may put the
+object nearer than it is seen (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -33,6 +43,14 @@ WRIST_FRAME = 4  # kinematics.frame_transforms index: DH frame 5, where the fore
 FOREARM_JOINTS = 4  # the joints that move it: the shoulder's three and the elbow
 NEAR_M = 0.03  # beyond d_min by more than this the forearm is left free: no bound
 SAMPLES = 65  # points along the forearm per pass of the nearest-point search
+# How much nearer than the goal posture's forearm the bound lets the forearm come (m): the
+# goal then lies outside the bound, which slows the approach there by rate · this at most.
+GOAL_SLACK_M = 0.5e-3
+# Within this of the wrist's place at the goal (m) the margin is lowered, linearly to the
+# goal's own: the image error alone drives the last millimetres along the line of sight
+# slowly, and a narrower funnel held the hand 5 mm short of its goal that way, out of reach
+# of the lowered margin, while its image error had converged.
+FUNNEL_RADIUS_M = 0.02
 
 
 @dataclass(frozen=True)
@@ -118,20 +136,59 @@ def point_jacobian(frames: list[FloatArray], point_m: FloatArray) -> FloatArray:
     return jp
 
 
+def forearm_distance_m(frames: list[FloatArray], face: TopFace) -> float:
+    """How near the forearm's axis comes to the object (m), the arm at ``frames``."""
+    return nearest_along(frames[ELBOW_FRAME][:3, 3], frames[WRIST_FRAME][:3, 3], face)[1]
+
+
+def margin_near_goal(
+    min_distance_m: float, frames: list[FloatArray], goal_q_rad: FloatArray | None, face: TopFace
+) -> tuple[float, FloatArray]:
+    """The forearm's margin with the arm at ``frames``, and its gradient in the wrist's
+    position (base frame): ``min_distance_m`` (gradient 0), or, where the goal posture
+    ``goal_q_rad`` puts the forearm's axis nearer the object than that and
+    :data:`GOAL_SLACK_M`, a funnel: that distance less the slack (never below 0: the axis
+    itself stays out of the object) with the wrist at its place at the goal, rising linearly
+    with the wrist's distance from there to ``min_distance_m`` at :data:`FUNNEL_RADIUS_M`."""
+    flat = np.zeros(3)
+    if goal_q_rad is None:
+        return min_distance_m, flat
+    goal_frames = kin.frame_transforms(goal_q_rad)
+    at_goal = max(forearm_distance_m(goal_frames, face) - GOAL_SLACK_M, 0.0)
+    if at_goal >= min_distance_m:
+        return min_distance_m, flat
+    away = frames[WRIST_FRAME][:3, 3] - goal_frames[WRIST_FRAME][:3, 3]
+    off_m = float(np.linalg.norm(away))
+    if off_m >= FUNNEL_RADIUS_M:
+        return min_distance_m, flat
+    slope = (min_distance_m - at_goal) / FUNNEL_RADIUS_M
+    return at_goal + slope * off_m, (slope * away / off_m if off_m > 1e-12 else flat)
+
+
 def forearm_bounds(
-    frames: list[FloatArray], face: TopFace, min_distance_m: float, rate_1_s: float
+    frames: list[FloatArray],
+    face: TopFace,
+    min_distance_m: float,
+    rate_1_s: float,
+    goal_q_rad: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """``(A, b)`` from the joint angles' DH frames (``kinematics.frame_transforms``): the
     forearm's bound as ``A · twist ≥ b`` (1×6 and 1 while it is within
     :data:`NEAR_M` of ``min_distance_m``, else empty), the twist (v, ω) at the end-effector
-    origin, base frame, as :func:`.clearance.clearance_bounds`: ``A`` its nearest point's
-    ``ḋ`` for a twist, ``b`` the least ``ḋ`` allowed, ``−rate · (d − d_min)``."""
+    origin, base frame, as :func:`.clearance.clearance_bounds`: ``A`` the rate of the gap
+    ``d − d_min`` for a twist, ``b`` the least rate allowed, ``−rate · (d − d_min)``;
+    ``d_min`` is ``min_distance_m``, or near the goal posture ``goal_q_rad`` the funnel's
+    (:func:`margin_near_goal`), whose own rate the gap's includes."""
     elbow, wrist = frames[ELBOW_FRAME][:3, 3], frames[WRIST_FRAME][:3, 3]
     t, dist = nearest_along(elbow, wrist, face, beyond_m=min_distance_m + NEAR_M)
     if dist > min_distance_m + NEAR_M:
         return np.zeros((0, 6)), np.zeros(0)
+    margin_m, margin_gradient = margin_near_goal(min_distance_m, frames, goal_q_rad, face)
     nearest = elbow + t * (wrist - elbow)
     dist, g = distance_to_object(nearest, face)
     joint_rates = np.linalg.pinv(kin.jacobian_of_frames(frames))  # J⁺: q̇ of a twist
-    row = g @ point_jacobian(frames, nearest) @ joint_rates
-    return row[None, :], np.array([-rate_1_s * (dist - min_distance_m)])
+    # ḋ − (the margin's own rate, as the wrist moves through the funnel): the barrier keeps
+    # d − margin, which the funnel lets shrink to 0 at the goal.
+    gap_rate = g @ point_jacobian(frames, nearest) - margin_gradient @ point_jacobian(frames, wrist)
+    row = gap_rate @ joint_rates
+    return row[None, :], np.array([-rate_1_s * (dist - margin_m)])

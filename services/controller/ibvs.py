@@ -39,7 +39,7 @@ from services.controller.interaction import (
     points3d_control_matrix,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
-from services.controller.reach import carried_over, goal_poses_ee, reachable_pairings
+from services.controller.reach import carried_over, goal_poses_ee, goal_postures
 from services.controller.stability import frozen_matrix_stability
 from services.controller.twist import camera_twist_to_base_ee, clamp_twist
 
@@ -130,6 +130,9 @@ class IbvsController:
     # again once the goal has moved (its centroid, camera frame, when last checked).
     reachable: list[bool] | None = None
     reachable_for_m: FloatArray | None = None
+    # Each pairing's goal posture as the same check solved it (4×6, rad; None with it): the
+    # forearm's clearance there caps the margin it is kept at (step.object_bounds).
+    reach_postures: FloatArray | None = None
     # The pairings' goal orientations when they were checked, and whether vision has lost the
     # hand since (or it was carried by the encoders): on its return its corners may be
     # labelled afresh, which shifts the pairings' indices (.reach.carried_over).
@@ -199,11 +202,22 @@ class IbvsController:
         poses = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee)
         rotations = poses[:, :3, :3]
         if moved or self.reachable is None or self.reach_rotations is None:
-            self.reachable = reachable_pairings(poses, q_rad)
+            self.reach_postures, self.reachable = goal_postures(poses, q_rad)
             self.reachable_for_m = centroid
         else:
-            self.reachable = carried_over(self.reachable, self.reach_rotations, rotations)
+            then = self.reach_rotations
+            self.reachable = carried_over(self.reachable, then, rotations)
+            if self.reach_postures is not None:
+                self.reach_postures = np.array(carried_over(self.reach_postures, then, rotations))
         self.reach_rotations, self.reach_stale = rotations, False
+
+    def goal_posture_rad(self) -> FloatArray | None:
+        """The joint angles the current pairing's goal asks for, as the reach check solved
+        them; None before a check, or when that posture is beyond the joint limits."""
+        postures, reached, k = self.reach_postures, self.reachable, self.pairing
+        if postures is None or reached is None or k is None or not reached[k]:
+            return None
+        return postures[k]
 
     def _pairing_open(self) -> bool:
         """Whether the corner pairing is a choice to make (a plain square) and the goal

@@ -13,6 +13,9 @@ the posture found is the nearby one the servo's path would lead to.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TypeVar
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -21,6 +24,7 @@ from common.marker import Marker
 from services.controller.twist import camera_points_to_base
 
 FloatArray = NDArray[np.float64]
+T = TypeVar("T")
 
 # Iterations of the inverse kinematics per pairing: from the present posture the nearby solution
 # is found within a few tens; more only polish one that is already inside the tolerances.
@@ -75,21 +79,24 @@ def goal_posture(t_goal_ee: FloatArray, q_rad: FloatArray) -> tuple[FloatArray, 
     return q, reached
 
 
-def reachable_pairings(poses_ee: FloatArray, q_rad: FloatArray) -> list[bool]:
-    """For each pairing's goal pose (:func:`goal_poses_ee`), whether the inverse kinematics
-    from ``q_rad`` reaches it within the joint limits (:func:`goal_posture`)."""
-    return [goal_posture(pose, q_rad)[1] for pose in poses_ee]
+def goal_postures(poses_ee: FloatArray, q_rad: FloatArray) -> tuple[FloatArray, list[bool]]:
+    """For each pairing's goal pose (:func:`goal_poses_ee`), its goal posture (4×6, rad;
+    :func:`goal_posture` from ``q_rad``) and whether the inverse kinematics reaches it within
+    the joint limits."""
+    solved = [goal_posture(pose, q_rad) for pose in poses_ee]
+    return np.array([q for q, _ in solved]), [reached for _, reached in solved]
 
 
 def carried_over(
-    verdicts: list[bool], rotations_then: FloatArray, rotations_now: FloatArray
-) -> list[bool]:
-    """``verdicts`` (one per pairing, indexed as when ``rotations_then`` were computed) for the
-    pairings as indexed now: vision may have labelled a marker's corners afresh since (it lost
-    the hand, say), which shifts the indices. Each pairing now takes the verdict of the one
-    then whose goal orientation is nearest its own (the four lie a quarter turn apart)."""
+    values: Sequence[T], rotations_then: FloatArray, rotations_now: FloatArray
+) -> list[T]:
+    """``values`` (one per pairing, indexed as when ``rotations_then`` were computed: a verdict,
+    a goal posture) for the pairings as indexed now: vision may have labelled a marker's
+    corners afresh since (it lost the hand, say), which shifts the indices. Each pairing now
+    takes the value of the one then whose goal orientation is nearest its own (the four lie
+    a quarter turn apart)."""
     out = []
     for now in rotations_now:
         angles = [kin.rotation_error_rad(then, now) for then in rotations_then]
-        out.append(verdicts[int(np.argmin(angles))])
+        out.append(values[int(np.argmin(angles))])
     return out

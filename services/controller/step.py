@@ -52,7 +52,9 @@ def above_the_target(
     and from carrying the forearm onto the object (:func:`object_bounds`): the law's twist
     changed where its features notice it least (:mod:`services.controller.constrained`), then
     lifted by what that left short (with ``controller.clearance_correction = "lift"``, or a
-    twist not the law's: lifted alone); unchanged while holding or before any view."""
+    twist not the law's: lifted alone), and a bound rising does not help met by the nearest
+    twist (:func:`.clearance.lift_then_nearest`); unchanged while holding or before any
+    view."""
     cfg = controller.config
     last = controller.target_memory.last
     if not out.valid or last is None:
@@ -70,7 +72,7 @@ def above_the_target(
         w_base = w_cam @ twist_matrix_base_ee_to_cam(controller.t_base_cam, arm.p_ee_base_m)
         twist, _ = least_feature_change(twist, rows, bounds, w_base)
     # What the sweeps left short, or the whole correction of a twist not the law's.
-    twist, _ = clearance.lift_short(twist, rows, bounds, plane.normal)
+    twist, _ = clearance.lift_then_nearest(twist, rows, bounds, plane.normal)
     twist = clamp_twist(twist, cfg.max_linear_m_s, cfg.max_angular_rad_s)
     return replace(out, twist_base_ee=twist, lifted=True)
 
@@ -83,8 +85,9 @@ def object_bounds(
 ) -> tuple[FloatArray, FloatArray]:
     """Every bound a twist must keep near the object, as ``rows · twist ≥ bounds``: the hand
     box's corners above its top face's plane (:mod:`services.controller.clearance`), the
-    forearm off the object (:mod:`services.controller.forearm`), the face the plane of the red
-    marker's corners (base frame); none for what is not kept (its setting off, no object model,
+    forearm off the object (:mod:`services.controller.forearm`, its margin capped by its
+    clearance at the goal posture), the face the plane of the red marker's corners (base
+    frame); none for what is not kept (its setting off, no object model,
     an encoders' reading without the form it needs)."""
     cfg = controller.config
     parts = []
@@ -100,7 +103,9 @@ def object_bounds(
     if cfg.keep_forearm_off_object and side is not None and arm.frames is not None:
         face = forearm.top_face(plane, target_corners_base_m, side)
         d_min = kin.LIMB_RADIUS_M + cfg.forearm_clearance_m
-        parts.append(forearm.forearm_bounds(arm.frames, face, d_min, cfg.clearance_rate_1_s))
+        goal_q = controller.goal_posture_rad()
+        rate = cfg.clearance_rate_1_s
+        parts.append(forearm.forearm_bounds(arm.frames, face, d_min, rate, goal_q))
     if not parts:
         return np.zeros((0, 6)), np.zeros(0)
     return np.vstack([rows for rows, _ in parts]), np.concatenate([b for _, b in parts])

@@ -18,6 +18,7 @@ from services.controller.clearance import (
     hand_box_corners_ee,
     heights_m,
     lift_short,
+    lift_then_nearest,
     target_top_plane,
 )
 from services.controller.ibvs import ControlOutput, IbvsController
@@ -67,6 +68,26 @@ def test_a_corner_below_the_margin_is_lifted() -> None:
     low = BOX - np.array([0.0, 0.009, 0.0])  # lowest face 1 mm up, under a 2 mm margin
     twist, corrected = keep_above(np.zeros(6), low, EE, FLOOR, 0.002, 3.0)
     assert corrected and twist[1] == pytest.approx(3.0 * 0.001)
+
+
+def test_a_bound_rising_does_not_help_is_met_by_the_nearest_twist() -> None:
+    """The hand box's corners and a bound that only a sideways motion meets (the forearm beside
+    the object, its distance growing with x): lifting alone leaves it short; lifted, then
+    moved to the nearest twist, every bound holds, and the sideways part is the least that
+    meets it."""
+    corners_rows, corners_bounds = clearance_bounds(BOX, EE, FLOOR, 0.002, 3.0)
+    sideways = np.array([[1.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    rows = np.vstack([corners_rows, sideways])
+    bounds = np.concatenate([corners_bounds, [0.05]])
+    down = np.array([0.0, -0.5, 0.0, 0.0, 0.0, 0.0])
+    lifted, _ = lift_short(down, rows, bounds, FLOOR.normal)
+    assert float(sideways[0] @ lifted) < 0.05  # rising did not help it
+    out, corrected = lift_then_nearest(down, rows, bounds, FLOOR.normal)
+    assert corrected and np.all(rows @ out >= bounds - 1e-9)
+    assert out[0] == pytest.approx(0.05)
+    np.testing.assert_allclose(out[1:], lifted[1:], atol=1e-9)
+    within = np.array([0.1, 0.2, 0.0, 0.0, 0.0, 0.0])
+    assert lift_then_nearest(within, rows, bounds, FLOOR.normal) == (pytest.approx(within), False)
 
 
 def test_the_top_face_plane_comes_from_the_marker_corners_and_faces_the_camera() -> None:

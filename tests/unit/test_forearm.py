@@ -13,16 +13,21 @@ import pytest
 from common import kinematics as kin
 from common.config import ControllerConfig, load_scenario
 from common.marker import Marker
+from common.runtime import parse_overrides
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from services.controller.arm import ArmReading
 from services.controller.clearance import Plane, target_top_plane
 from services.controller.forearm import (
     ELBOW_FRAME,
+    FUNNEL_RADIUS_M,
+    GOAL_SLACK_M,
     NEAR_M,
     WRIST_FRAME,
     TopFace,
     distance_to_object,
     forearm_bounds,
+    forearm_distance_m,
+    margin_near_goal,
     nearest_along,
     point_jacobian,
     top_face,
@@ -163,3 +168,114 @@ def test_the_controller_keeps_the_forearm_off_the_object_it_last_saw() -> None:
     assert distance_to_object(wrist, face)[0] < d_min + 0.03  # near: the bound is on
     controller.config = controller.config.model_copy(update={"keep_forearm_off_object": False})
     assert above_the_target(controller, down, arm) is down
+
+
+def test_a_twist_not_the_law_s_is_kept_off_the_object_where_rising_does_not_help() -> None:
+    """The wrist level with the object's top face, 1 cm beside it (inside the margin): rising
+    moves it along the object's side and gains nothing, so a twist the law did not make (an
+    acquisition's, ``control_matrix`` None) is moved to the nearest one that meets the bound."""
+    q = np.array(load_scenario(None).robot.q0)
+    arm = ArmReading.from_joints(q)
+    wrist = arm.frames[WRIST_FRAME][:3, 3]
+    centre = wrist + np.array([0.0375 + 0.01, 0.0, 0.0])
+    square = centre + np.array([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]]) * 0.03
+    controller = IbvsController(ControllerConfig(keep_above_target=False), np.eye(4))
+    controller.object_side_m = 0.075
+    controller.target_memory.last = Marker.seen_at(square, load_scenario(None).camera.intrinsics())
+    plane = target_top_plane(square, np.eye(4))
+    rows, bounds = object_bounds(controller, arm, plane, square)
+    assert rows.shape == (1, 6) and bounds[0] > 0.0  # inside the margin: it must move out
+    assert float(rows[0, :3] @ plane.normal) == pytest.approx(0.0, abs=1e-9)
+    still = ControlOutput(np.zeros(6), True, 5.0, False)
+    out = above_the_target(controller, still, arm)
+    assert out.lifted and float(rows[0] @ out.twist_base_ee) >= bounds[0] - 1e-9
+
+
+@pytest.mark.parametrize("gap_m", [0.0005, 0.001, 0.0027, 0.02])
+def test_the_bound_never_holds_the_arm_off_its_own_goal(gap_m: float) -> None:
+    """The object beside the wrist, ``gap_m`` from the forearm's surface: at the goal posture
+    the capped bound still lets the forearm come nearer (``b < 0``), by the slack at least,
+    where the uncapped one (the goal within the 2 mm margin) pushes it away; a goal outside
+    the margin leaves the bound as it was."""
+    q = np.array(load_scenario(None).robot.q0)
+    frames = kin.frame_transforms(q)
+    elbow, wrist = frames[ELBOW_FRAME][:3, 3], frames[WRIST_FRAME][:3, 3]
+    side = np.cross(wrist - elbow, UP)
+    side /= np.linalg.norm(side)  # level, square to the forearm: the wrist end is nearest
+    u = np.cross(UP, side)
+    half = 0.03
+    centre = wrist + (half + kin.LIMB_RADIUS_M + gap_m) * side + np.array([0.0, 0.02, 0.0])
+    face = TopFace(centre, side, u, UP, half)
+    d_goal = forearm_distance_m(frames, face)
+    assert d_goal == pytest.approx(kin.LIMB_RADIUS_M + gap_m, abs=1e-6)
+    d_min, rate = kin.LIMB_RADIUS_M + 0.002, 3.0
+    _, capped = forearm_bounds(frames, face, d_min, rate, goal_q_rad=q)
+    _, plain = forearm_bounds(frames, face, d_min, rate)
+    assert capped[0] == pytest.approx(-rate * max(d_goal - d_min, GOAL_SLACK_M))
+    assert plain[0] == pytest.approx(-rate * (d_goal - d_min))
+    if gap_m < 0.002:
+        assert plain[0] > 0.0 > capped[0]
+    else:
+        assert capped[0] == plain[0]
+
+
+def test_near_its_goal_the_margin_is_a_funnel_and_the_bound_its_gap_s_rate() -> None:
+    """The goal within the margin: 1.5 mm from the wrist's place at the goal the margin is the
+    goal's clearance less the slack, raised by 1.5 mm's share of the funnel; ``rows · V`` is
+    the rate of the gap ``d − margin`` under ``q̇ = J⁺ V`` (the margin moves with the wrist);
+    far from the goal the margin is the whole ``d_min``."""
+    q_goal = np.array(load_scenario(None).robot.q0)
+    goal_frames = kin.frame_transforms(q_goal)
+    elbow, wrist = goal_frames[ELBOW_FRAME][:3, 3], goal_frames[WRIST_FRAME][:3, 3]
+    side = np.cross(wrist - elbow, UP)
+    side /= np.linalg.norm(side)
+    centre = wrist + (0.03 + kin.LIMB_RADIUS_M + 0.0005) * side + np.array([0.0, 0.02, 0.0])
+    face = TopFace(centre, side, np.cross(UP, side), UP, 0.03)
+    d_min, rate = kin.LIMB_RADIUS_M + 0.002, 3.0
+    at_goal = forearm_distance_m(goal_frames, face) - GOAL_SLACK_M
+
+    def wrist_off(q_rad: np.ndarray) -> float:
+        return float(np.linalg.norm(kin.frame_transforms(q_rad)[WRIST_FRAME][:3, 3] - wrist))
+
+    direction = np.array([0.3, -0.2, 0.5, 0.4, 0.0, 0.0])
+    q = q_goal + direction * 0.0015 / (wrist_off(q_goal + direction * 1e-3) * 1e3)  # ~1.5 mm
+    off = wrist_off(q)
+    assert 0.001 < off < 0.002
+    margin, gradient = margin_near_goal(d_min, kin.frame_transforms(q), q_goal, face)
+    slope = (d_min - at_goal) / FUNNEL_RADIUS_M
+    assert margin == pytest.approx(at_goal + slope * off) and margin < d_min
+    assert np.linalg.norm(gradient) == pytest.approx(slope)
+
+    def gap(q_rad: np.ndarray) -> float:
+        frames = kin.frame_transforms(q_rad)
+        return forearm_distance_m(frames, face) - margin_near_goal(d_min, frames, q_goal, face)[0]
+
+    rows, bounds = forearm_bounds(kin.frame_transforms(q), face, d_min, rate, goal_q_rad=q_goal)
+    assert bounds[0] == pytest.approx(-rate * gap(q))
+    twist = np.array([0.02, -0.05, 0.01, 0.2, -0.1, 0.3])
+    qdot = np.linalg.pinv(kin.geometric_jacobian(q)) @ twist
+    fd = (gap(q + 1e-7 * qdot) - gap(q - 1e-7 * qdot)) / 2e-7
+    assert float(rows[0] @ twist) == pytest.approx(fd, rel=1e-4)
+    far = q_goal + np.deg2rad([10.0, 0.0, 0.0, -10.0, 0.0, 0.0])
+    assert margin_near_goal(d_min, kin.frame_transforms(far), q_goal, face) == (
+        d_min,
+        pytest.approx(np.zeros(3)),
+    )
+
+
+def test_a_calibration_error_no_longer_stops_the_hand_short_of_its_goal() -> None:
+    """The camera believed 5 mm and half a degree off (the suite's calibration scenario with a
+    smaller error): the object seen nearer the forearm puts the goal inside the forearm's
+    2 mm margin. The hand ended 5.1 mm from its goal with the margin uncapped; capped by the
+    goal posture's own clearance, it reaches the goal and touches nothing."""
+    overrides = [
+        "camera.calibration_error.position_m=[-0.00265, 0.00424, -3e-05]",
+        "camera.calibration_error.rotation_deg=[-0.4365, 0.2187, 0.1079]",
+        "controller.mode='dynamic'",
+    ]
+    scenario = load_scenario(
+        ROOT / "deploy/scenarios/suite/10_calibration_error.toml", parse_overrides(overrides)
+    )
+    result = run_scenario_inprocess(scenario)
+    assert result.converged and result.final_position_error_m < 0.002, result.detail
+    assert result.first_contact_s is None

@@ -18,7 +18,7 @@ from services.controller.pairing import pairing_costs_px2, rolled
 from services.controller.reach import (
     goal_poses_ee,
     goal_posture,
-    reachable_pairings,
+    goal_postures,
     rigid_motion,
 )
 from tests.unit.published_starts import start_scenario
@@ -73,8 +73,9 @@ def test_the_goal_posture_of_the_pairing_that_fits_is_the_arm_s_own() -> None:
     assert np.allclose(q, q_goal, atol=1e-4)
     # Corner i on corner i + 2: the hand turned by π about its normal, where no single joint
     # turns it (common/kinematics.py): the inverse kinematics from here stops at the limits.
-    assert reachable_pairings(poses, q_start)[0]
-    assert not goal_posture(poses[2], q_start)[1]
+    postures, reached_each = goal_postures(poses, q_start)
+    assert reached_each[0] and not reached_each[2]
+    assert np.allclose(postures[0], q_goal, atol=1e-4)
 
 
 @pytest.mark.parametrize(
@@ -125,11 +126,11 @@ def test_the_pairings_are_checked_again_when_the_goal_moves_and_follow_a_relabel
 
     calls = []
 
-    def counted(*args: object) -> list[bool]:
+    def counted(*args: object) -> tuple[np.ndarray, list[bool]]:
         calls.append(args)
-        return reachable_pairings(*args)  # type: ignore[arg-type]
+        return goal_postures(*args)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(ibvs, "reachable_pairings", counted)
+    monkeypatch.setattr(ibvs, "goal_postures", counted)
     q_start = np.deg2rad([-20.0, 50.0, -70.0, -95.0, -120.0, -60.0])
     t_base_cam = camera_in_front_of(q_start)
     hand = seen(hand_corners_cam(q_start, t_base_cam))
@@ -143,12 +144,18 @@ def test_the_pairings_are_checked_again_when_the_goal_moves_and_follow_a_relabel
     # Vision loses the hand, then labels its corners afresh (corner i is the old corner i + 1):
     # the verdicts follow the physical pairings to their new indices, with no new check.
     before = list(ctrl.reachable)
+    assert ctrl.reach_postures is not None
+    postures_before = ctrl.reach_postures.copy()
     there = seen(goal + np.array([0.035, 0.0, 0.0]))
     ctrl.step(Marker.unseen("lost"), there, K, arm, 0.0)
     ctrl.step(rolled(hand, 1), there, K, arm, 0.0)
     assert len(calls) == 2
     assert ctrl.reachable == [before[(k - 1) % 4] for k in range(4)]
     assert ctrl.reachable != before  # one pairing reached: the shift shows
+    # The goal postures follow them: the forearm's margin is capped at the pairing's own.
+    assert np.array_equal(ctrl.reach_postures, postures_before[[(k - 1) % 4 for k in range(4)]])
+    posture = ctrl.goal_posture_rad()
+    assert posture is not None and np.array_equal(posture, ctrl.reach_postures[ctrl.pairing])
     # Turned off: never checked, and the last check no longer narrows the choice.
     ctrl.config = ControllerConfig(reachable_pairing=False)
     ctrl.reachable = [False, False, True, False]
