@@ -20,6 +20,7 @@ from deploy.docs.bench_tables import (
     bench_startup,
     bench_workflows,
 )
+from deploy.docs.calibration_tables import campaign_calibration
 from deploy.docs.campaign_tables import (
     campaign_contacts,
     campaign_goals,
@@ -39,6 +40,7 @@ from deploy.docs.sources import (
     ACCURACY_JSON,
     ALTERNATIONS_DIR,
     BENCH_DIR,
+    CALIBRATION_DIR,
     CAMPAIGN_DIR,
     CAMPAIGN_JSON,
     CAMPAIGN_RESULTS_JSON,
@@ -87,6 +89,7 @@ BLOCKS: dict[str, Block] = {
     "campaign-contacts": Block(campaign_contacts, CAMPAIGN_RESULTS_JSON),
     "campaign-stability": Block(campaign_stability, f"{CAMPAIGN_STARTS_JSON}, {CAMPAIGN_SOURCES}"),
     "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_SOURCES}, {RESULTS_JSON}"),
+    "campaign-calibration": Block(campaign_calibration, f"{CALIBRATION_DIR}/*/results.json"),
     "vision-accuracy": Block(vision_accuracy, ACCURACY_JSON),
     "scenario-fields": Block(scenario_fields, "common/config.py"),
     "status-fields": Block(status_fields, "services/*/status.py, the supervisor's and the view's"),

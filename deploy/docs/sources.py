@@ -39,6 +39,17 @@ CONSTANT_VARIANTS = (
     ("constant_lift", "constant, clearance lifting", False),  # clearance_correction = lift
     ("constant_hand_held", "constant, hidden hand held", False),  # predict_hand_s = 0
 )
+# The forearm's bound under a camera calibration error: the campaign's first starts, dynamic,
+# the camera's position believed 5 mm off along each axis, with the bound on and off (``umay
+# campaign --n 60 --modes dynamic --set camera.calibration_error.position_m=<offset> --set
+# controller.keep_forearm_off_object=<on> --out docs/campaign/calibration/<folder>_forearm_<on>``).
+CALIBRATION_DIR = f"{CAMPAIGN_DIR}/calibration"
+CALIBRATION_OFFSETS = (  # folder, the offset (m, base frame) as the command gives it
+    ("x_plus", "[0.005,0,0]"),
+    ("x_minus", "[-0.005,0,0]"),
+    ("y_plus", "[0,0.005,0]"),
+    ("y_minus", "[0,-0.005,0]"),
+)
 # The suite at its own camera (480×360 at 15 Hz) and at the default's (640×480 at 30 Hz), both
 # in-process: what moving the suite to the default's camera would change (docs/scenarios.md).
 SUITE_CAMERA_DIR = "docs/results/suite_camera"
@@ -87,6 +98,36 @@ class CampaignVariant:
 
 
 @dataclass(frozen=True)
+class CalibrationRun:
+    """One campaign of the calibration study: its offset, the forearm's bound on or off, its
+    runs' causes and results."""
+
+    folder: str  # under CALIBRATION_DIR
+    offset: str  # camera.calibration_error.position_m, as the command gives it
+    forearm_kept_off: bool
+    causes: Sequence[Mapping[str, Any]]
+    results: Sequence[CompareRow]
+
+    @property
+    def path(self) -> str:
+        return f"{CALIBRATION_DIR}/{self.folder}/results.json"
+
+
+def _calibration_runs(root: Path) -> list[CalibrationRun]:
+    """The calibration study's campaigns that have been run, in the study's order."""
+    runs = []
+    for name, offset in CALIBRATION_OFFSETS:
+        for kept in (True, False):
+            folder = f"{name}_forearm_{str(kept).lower()}"
+            results = _records(root / CALIBRATION_DIR / folder / "results.json")
+            if results:
+                causes = _records(root / CALIBRATION_DIR / folder / "causes.json")
+                rows = [CompareRow.model_validate(r) for r in results]
+                runs.append(CalibrationRun(folder, offset, kept, causes, rows))
+    return runs
+
+
+@dataclass(frozen=True)
 class Inputs:
     results: Sequence[CompareRow] = ()
     bench: Sequence[BenchRun] = ()  # sorted by name
@@ -100,6 +141,7 @@ class Inputs:
     campaign_starts: Sequence[Mapping[str, Any]] = ()  # its starts (CAMPAIGN_STARTS_JSON)
     campaign_results: Sequence[CompareRow] = ()  # its runs' results (CAMPAIGN_RESULTS_JSON)
     variants: Sequence[CampaignVariant] = ()  # constant's variants run (CONSTANT_VARIANTS)
+    calibration: Sequence[CalibrationRun] = ()  # the calibration study (CALIBRATION_OFFSETS)
     accuracy: Sequence[Mapping[str, Any]] = ()  # vision's accuracy, one record per condition
     # The suite's rows per camera (SUITE_CAMERAS), where both have been run.
     suite_cameras: Sequence[tuple[str, Sequence[CompareRow]]] = ()
@@ -161,6 +203,7 @@ def load_inputs(root: Path) -> Inputs:
             for folder, label, in_summary in CONSTANT_VARIANTS
             if (runs := _records(root / CAMPAIGN_DIR / folder / "causes.json"))
         ]
+        calibration = _calibration_runs(root)
         accuracy = _records(root / ACCURACY_JSON)
         cameras = [(n, root / SUITE_CAMERA_DIR / n / "results.json") for n in SUITE_CAMERAS]
         suite_cameras = [
@@ -181,6 +224,7 @@ def load_inputs(root: Path) -> Inputs:
         campaign_starts=campaign_starts,
         campaign_results=campaign_results,
         variants=variants,
+        calibration=calibration,
         accuracy=accuracy,
         suite_cameras=suite_cameras if len(suite_cameras) == len(SUITE_CAMERAS) else (),
     )

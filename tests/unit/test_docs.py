@@ -606,3 +606,35 @@ def test_the_startup_block_shows_each_runs_first_frames_against_its_later_ones()
     # frames 10 to 13: 6, 7, 6, 7 ms
     assert f"| median, frames {STARTUP_FRAMES} on | 6.50 (3.00) / 0.50 / 3.00 |" in rendered
     assert bench_startup(Inputs(), "docs") == "*No start-up run has been made.*"
+
+
+def test_the_calibration_block_counts_each_campaign_s_runs_contacts_and_errors() -> None:
+    """Refused starts left out; a run on goal that touched the object counted as such; the
+    final errors of the runs on goal only; the bound's on and off rows each from their own
+    folder."""
+    from deploy.docs.blocks import BLOCKS
+    from deploy.docs.sources import CalibrationRun
+    from deploy.experiments.compare.rows import CompareRow
+
+    def row(on_goal: bool, error_m: float, contact: str | None = None) -> CompareRow:
+        return CompareRow.model_construct(
+            on_goal=on_goal,
+            final_position_error_m=error_m,
+            first_contact_s=None if contact is None else 0.5,
+            contact_with=contact,
+        )
+
+    causes = [
+        {"start": "s1", "mode": "dynamic", "cause": "converged"},
+        {"start": "s2", "mode": "dynamic", "cause": "converged"},
+        {"start": "s3", "mode": "dynamic", "cause": "local minimum"},
+        {"start": "s4", "mode": "dynamic", "cause": "refused at start"},
+    ]
+    results = [row(True, 0.0004), row(True, 0.0012, "object"), row(False, 0.0059)]
+    on = CalibrationRun("x_plus_forearm_true", "[0.005,0,0]", True, causes, results)
+    off = CalibrationRun("x_plus_forearm_false", "[0.005,0,0]", False, causes[:2], results[:2])
+    assert "Not run yet" in BLOCKS["campaign-calibration"].render(Inputs(), "")
+    table = BLOCKS["campaign-calibration"].render(Inputs(calibration=[on, off]), "docs")
+    assert "| `[0.005,0,0]` | yes | 3 | 2 (66.7%) | local minimum 1 | 1 | 0.80 / 1.20 |" in table
+    assert "| `[0.005,0,0]` | no | 2 | 2 (100.0%) | – | 1 | 0.80 / 1.20 |" in table
+    assert "(campaign/calibration)" in table
