@@ -130,8 +130,8 @@ class IbvsController:
     # again once the goal has moved (its centroid, camera frame, when last checked).
     reachable: list[bool] | None = None
     reachable_for_m: FloatArray | None = None
-    # Each pairing's goal posture as the same check solved it (4×6, rad; None with it): the
-    # forearm's clearance there caps the margin it is kept at (step.object_bounds).
+    # Each pairing's goal posture as the same check solved it (4×6, rad; None with it): near
+    # the goal the forearm's margin falls to its clearance there (forearm.margin_near_goal).
     reach_postures: FloatArray | None = None
     # The pairings' goal orientations when they were checked, and whether vision has lost the
     # hand since (or it was carried by the encoders): on its return its corners may be
@@ -213,9 +213,12 @@ class IbvsController:
 
     def goal_posture_rad(self) -> FloatArray | None:
         """The joint angles the current pairing's goal asks for, as the reach check solved
-        them; None before a check, or when that posture is beyond the joint limits."""
+        them; None before a check, with the check turned off, or when that posture is beyond
+        the joint limits."""
         postures, reached, k = self.reach_postures, self.reachable, self.pairing
         if postures is None or reached is None or k is None or not reached[k]:
+            return None
+        if not self._pairing_open():
             return None
         return postures[k]
 

@@ -158,6 +158,7 @@ def test_the_pairings_are_checked_again_when_the_goal_moves_and_follow_a_relabel
     assert posture is not None and np.array_equal(posture, ctrl.reach_postures[ctrl.pairing])
     # Turned off: never checked, and the last check no longer narrows the choice.
     ctrl.config = ControllerConfig(reachable_pairing=False)
+    assert ctrl.goal_posture_rad() is None  # nor does its posture shape the forearm's margin
     ctrl.reachable = [False, False, True, False]
     away = seen(goal + np.array([0.1, 0.0, 0.0]))
     ctrl.step(hand, away, K, arm, 0.0)
