@@ -154,12 +154,12 @@ def margin_near_goal(
     if goal_q_rad is None:
         return min_distance_m, flat
     goal_frames = kin.frame_transforms(goal_q_rad)
-    at_goal = max(forearm_distance_m(goal_frames, face) - GOAL_SLACK_M, 0.0)
-    if at_goal >= min_distance_m:
-        return min_distance_m, flat
     away = frames[WRIST_FRAME][:3, 3] - goal_frames[WRIST_FRAME][:3, 3]
     off_m = float(np.linalg.norm(away))
-    if off_m >= FUNNEL_RADIUS_M:
+    if off_m >= FUNNEL_RADIUS_M:  # outside the funnel, whatever the goal's clearance
+        return min_distance_m, flat
+    at_goal = max(forearm_distance_m(goal_frames, face) - GOAL_SLACK_M, 0.0)
+    if at_goal >= min_distance_m:
         return min_distance_m, flat
     slope = (min_distance_m - at_goal) / FUNNEL_RADIUS_M
     return at_goal + slope * off_m, (slope * away / off_m if off_m > 1e-12 else flat)
