@@ -29,6 +29,7 @@ def _row(run: CalibrationRun) -> list[str]:
     """One campaign's row: refused starts left out, as in the campaign's own tables."""
     ran = [c for c in run.causes if c["cause"] != REFUSED]
     failures = Counter(cause_family(c["cause"]) for c in ran if c["cause"] != ON_GOAL)
+    on_goal = sum(c["cause"] == ON_GOAL for c in ran)  # over the same runs as ``ran``
     won = [r for r in run.results if r.on_goal]
     touched = sum(r.first_contact_s is not None and r.contact_with == "object" for r in won)
     errors_mm = [1e3 * r.final_position_error_m for r in won]
@@ -37,7 +38,7 @@ def _row(run: CalibrationRun) -> list[str]:
         f"`{run.offset}`",
         "yes" if run.forearm_kept_off else "no",
         str(len(ran)),
-        f"{len(won)} ({100.0 * len(won) / len(ran):.1f}%)" if ran else "–",
+        f"{on_goal} ({100.0 * on_goal / len(ran):.1f}%)" if ran else "–",
         ", ".join(f"{c} {n}" for c, n in failures.most_common()) or "–",
         str(touched),
         spread,

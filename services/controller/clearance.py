@@ -96,7 +96,7 @@ def lift_short(
     twist: FloatArray, rows: FloatArray, bounds: FloatArray, normal: FloatArray
 ) -> tuple[FloatArray, bool]:
     """``twist`` with the least upward velocity ``δ n`` that meets ``rows · twist ≥ bounds``,
-    and whether it was short. An upward velocity raises every corner of the hand box at its
+    and whether it lifted it. An upward velocity raises every corner of the hand box at its
     own rate (:func:`clearance_bounds`: ``δ`` is then the largest shortfall); another bound
     (the forearm's, :mod:`.forearm`) gains ``rows · (n, 0)`` per unit of it, and one that
     rising does not help is left short (:func:`lift_then_nearest` meets it)."""
@@ -118,7 +118,11 @@ def lift_then_nearest(
     """``twist`` meeting ``rows · twist ≥ bounds``, and whether it broke one: lifted by the
     least upward velocity (:func:`lift_short`), then, where a bound is still short because
     rising does not help it, the nearest twist that meets them all (the least ``‖Δ‖``,
-    :func:`.constrained.least_feature_change` with ``W = I``)."""
-    lifted, short = lift_short(twist, rows, bounds, normal)
-    nearest, still_short = least_feature_change(lifted, rows, bounds, np.eye(6))
-    return nearest, short or still_short
+    :func:`.constrained.least_feature_change` with ``W = I``), lifted again by what its
+    sweeps left short: the hand box's corners, which rising always helps, end met."""
+    broke = bool(np.any(rows @ twist < bounds))
+    lifted, _ = lift_short(twist, rows, bounds, normal)
+    if np.all(rows @ lifted >= bounds):
+        return lifted, broke
+    nearest, _ = least_feature_change(lifted, rows, bounds, np.eye(6))
+    return lift_short(nearest, rows, bounds, normal)[0], broke

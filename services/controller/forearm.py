@@ -23,9 +23,11 @@ would put the goal itself inside the margin, and the bound would hold the hand s
 its image error still reaches. So near the goal the margin is capped by the forearm's distance
 at the goal posture (the reach check's, :mod:`.reach`) less :data:`GOAL_SLACK_M`, and rises
 back to ``d_min`` as the wrist moves away from where that posture puts it
-(:func:`margin_near_goal`): a funnel onto the goal. The bound never keeps the arm from its own
-goal, and keeps the whole margin elsewhere, where the same calibration error may put the
-object nearer than it is seen (docs/architecture.md).
+(:func:`margin_near_goal`): a funnel onto the goal. The bound does not keep the arm from its
+own goal, and keeps the whole margin elsewhere, where the same calibration error may put the
+object nearer than it is seen (docs/architecture.md). The funnel stops at the limb's radius:
+a goal posture that would put the forearm's surface into the object as seen holds the hand
+short by that overlap.
 """
 
 from __future__ import annotations
@@ -147,22 +149,33 @@ def margin_near_goal(
     """The forearm's margin with the arm at ``frames``, and its gradient in the wrist's
     position (base frame): ``min_distance_m`` (gradient 0), or, where the goal posture
     ``goal_q_rad`` puts the forearm's axis nearer the object than that and
-    :data:`GOAL_SLACK_M`, a funnel: that distance less the slack (never below 0: the axis
-    itself stays out of the object) with the wrist at its place at the goal, rising linearly
-    with the wrist's distance from there to ``min_distance_m`` at :data:`FUNNEL_RADIUS_M`."""
+    :data:`GOAL_SLACK_M`, a funnel: that distance less the slack with the wrist at its place
+    at the goal, rising linearly with the wrist's distance from there to ``min_distance_m``
+    at :func:`funnel_radius_m`. Never below the limb's radius: a goal posture that would put
+    the forearm's surface into the object as seen is not trusted that far (the hand is then
+    held short of it by the overlap)."""
     flat = np.zeros(3)
     if goal_q_rad is None:
         return min_distance_m, flat
     goal_frames = kin.frame_transforms(goal_q_rad)
     away = frames[WRIST_FRAME][:3, 3] - goal_frames[WRIST_FRAME][:3, 3]
     off_m = float(np.linalg.norm(away))
-    if off_m >= FUNNEL_RADIUS_M:  # outside the funnel, whatever the goal's clearance
+    radius_m = funnel_radius_m(min_distance_m)
+    if off_m >= radius_m:  # outside the funnel, whatever the goal's clearance
         return min_distance_m, flat
-    at_goal = max(forearm_distance_m(goal_frames, face) - GOAL_SLACK_M, 0.0)
+    at_goal = max(forearm_distance_m(goal_frames, face) - GOAL_SLACK_M, kin.LIMB_RADIUS_M)
     if at_goal >= min_distance_m:
         return min_distance_m, flat
-    slope = (min_distance_m - at_goal) / FUNNEL_RADIUS_M
+    slope = (min_distance_m - at_goal) / radius_m
     return at_goal + slope * off_m, (slope * away / off_m if off_m > 1e-12 else flat)
+
+
+def funnel_radius_m(min_distance_m: float) -> float:
+    """How far from the wrist's place at the goal the funnel reaches (m):
+    :data:`FUNNEL_RADIUS_M`, or twice the margin over the limb's radius where that is more,
+    so that the funnel's wall never rises faster than half the wrist's motion (a steeper wall
+    would let the gap shrink as the forearm moves away from the object)."""
+    return max(FUNNEL_RADIUS_M, 2.0 * (min_distance_m - kin.LIMB_RADIUS_M))
 
 
 def forearm_bounds(

@@ -39,7 +39,7 @@ from services.controller.interaction import (
     points3d_control_matrix,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
-from services.controller.reach import carried_over, goal_poses_ee, goal_postures
+from services.controller.reach import carried_over, goal_poses_ee, goal_posture, goal_postures
 from services.controller.stability import frozen_matrix_stability
 from services.controller.twist import camera_twist_to_base_ee, clamp_twist
 
@@ -48,6 +48,10 @@ FloatArray = NDArray[np.float64]
 # The goal's move (m) after which the pairings' goal postures are checked again: a target moved
 # by a few centimetres, or more, can put another pairing's posture in or out of reach.
 REACH_RECHECK_M = 0.02
+# The goal's move (m) after which the current pairing's goal posture alone is solved again,
+# from its last one (a few iterations): the forearm's funnel (.forearm.margin_near_goal) is
+# centred on it, and on a moving target a posture 2 cm old would leave the funnel behind.
+POSTURE_RESOLVE_M = 0.002
 
 
 @dataclass(frozen=True)
@@ -133,6 +137,7 @@ class IbvsController:
     # Each pairing's goal posture as the same check solved it (4×6, rad; None with it): near
     # the goal the forearm's margin falls to its clearance there (forearm.margin_near_goal).
     reach_postures: FloatArray | None = None
+    posture_for_m: FloatArray | None = None  # the goal's centroid (camera frame) it was for
     # The pairings' goal orientations when they were checked, and whether vision has lost the
     # hand since (or it was carried by the encoders): on its return its corners may be
     # labelled afresh, which shifts the pairings' indices (.reach.carried_over).
@@ -185,6 +190,7 @@ class IbvsController:
         q, t_base_ee = arm.q_rad, arm.t_base_ee
         if q is not None and t_base_ee is not None and self._pairing_open() and not hand_predicted:
             self._check_reach(hand, goal, q, t_base_ee)
+            self._follow_goal_posture(hand, goal, t_base_ee)
         return self._servo(hand, goal, k, arm, t_s, remembered, hand_predicted)
 
     def _check_reach(
@@ -203,13 +209,28 @@ class IbvsController:
         rotations = poses[:, :3, :3]
         if moved or self.reachable is None or self.reach_rotations is None:
             self.reach_postures, self.reachable = goal_postures(poses, q_rad)
-            self.reachable_for_m = centroid
+            self.reachable_for_m = self.posture_for_m = centroid
         else:
             then = self.reach_rotations
             self.reachable = carried_over(self.reachable, then, rotations)
             if self.reach_postures is not None:
                 self.reach_postures = np.array(carried_over(self.reach_postures, then, rotations))
         self.reach_rotations, self.reach_stale = rotations, False
+
+    def _follow_goal_posture(self, hand: Marker, goal: Marker, t_base_ee: FloatArray) -> None:
+        """The current pairing's goal posture solved again from its last one once the goal
+        has moved by :data:`POSTURE_RESOLVE_M` since (the verdicts stay the check's)."""
+        k, postures, last = self.pairing, self.reach_postures, self.posture_for_m
+        if k is None or postures is None or last is None:
+            return
+        centroid = goal.points_m.mean(axis=0)
+        if np.linalg.norm(centroid - last) < POSTURE_RESOLVE_M:
+            return
+        pose = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee)[k]
+        q_goal, reached = goal_posture(pose, postures[k])
+        if reached:  # else the last one stands, until the goal has moved as far again
+            postures[k] = q_goal
+        self.posture_for_m = centroid
 
     def goal_posture_rad(self) -> FloatArray | None:
         """The joint angles the current pairing's goal asks for, as the reach check solved

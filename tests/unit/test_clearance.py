@@ -90,6 +90,27 @@ def test_a_bound_rising_does_not_help_is_met_by_the_nearest_twist() -> None:
     assert lift_then_nearest(within, rows, bounds, FLOOR.normal) == (pytest.approx(within), False)
 
 
+def test_after_the_nearest_twist_the_hand_box_s_corners_stay_met() -> None:
+    """Random boxes, planes and a bound rising may hurt or help: every twist that broke a
+    bound is flagged, and whatever the nearest twist's sweeps leave short, the hand box's
+    corners (which rising always helps) end met; never a NaN."""
+    rng = np.random.default_rng(2)
+    for _ in range(3000):
+        turn = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        ee = rng.normal(size=3) * 0.01
+        corners = hand_box_corners_ee() @ turn.T + ee
+        plane = Plane(np.array([0.0, 0.0, rng.uniform(-0.12, 0.02)]), np.array([0.0, 0.0, 1.0]))
+        rows, bounds = clearance_bounds(corners, ee, plane, 0.002, 3.0)
+        other = rng.normal(size=6) * np.array([1.0, 1.0, 1.0, 0.2, 0.2, 0.2])
+        rows = np.vstack([rows, other])
+        bounds = np.concatenate([bounds, [rng.uniform(-0.05, 0.05)]])
+        twist = rng.normal(size=6) * np.array([0.1, 0.1, 0.1, 0.5, 0.5, 0.5])
+        out, corrected = lift_then_nearest(twist, rows, bounds, plane.normal)
+        assert np.all(np.isfinite(out))
+        assert corrected == bool(np.any(rows @ twist < bounds))
+        assert np.all(rows[:8] @ out >= bounds[:8] - 1e-9)
+
+
 def test_the_top_face_plane_comes_from_the_marker_corners_and_faces_the_camera() -> None:
     t_base_cam = kin.homogeneous(np.eye(3), np.array([0.0, 0.5, 0.0]))
     square = np.array([[0.1, -0.2, 0.3], [0.2, -0.2, 0.3], [0.2, -0.2, 0.4], [0.1, -0.2, 0.4]])
