@@ -340,29 +340,25 @@ class Supervisor:
         if removed:
             log.info("removed the frame rings pid %d left: %s", process.pid, ", ".join(removed))
 
-    def summary(self) -> dict[str, ChildStatus]:
-        """For the supervisor's status answer."""
-        return {
-            name: ChildStatus(
-                pid=c.process.pid if c.process else None,
-                running=c.process is not None,
-                answered=c.process is not None and (name, c.process.pid) in self._heard,
-                restarts=c.restarts,
-                last_exit_codes=c.exit_codes[-5:],
-                policy=self.config.policy(name).value,
-                given_up=c.given_up,
-                hang_kills=c.hang_kills,
-                last_hang=c.last_hang,
-                log=str(c.log_path),
-            )
-            for name, c in self.children.items()
-        }
-
     def status_fields(self) -> SupervisorStatus:
         return SupervisorStatus(
             cpu_wakeup_latency=self.cpu_wakeup.state,
             launch=self.launch,
-            children=self.summary(),
+            children={
+                name: ChildStatus(
+                    pid=c.process.pid if c.process else None,
+                    running=c.process is not None,
+                    answered=c.process is not None and (name, c.process.pid) in self._heard,
+                    restarts=c.restarts,
+                    last_exit_codes=c.exit_codes[-5:],
+                    policy=self.config.policy(name).value,
+                    given_up=c.given_up,
+                    hang_kills=c.hang_kills,
+                    last_hang=c.last_hang,
+                    log=str(c.log_path),
+                )
+                for name, c in self.children.items()
+            },
         )
 
     def pids(self) -> dict[str, int | None]:

@@ -32,7 +32,6 @@ from numpy.typing import NDArray
 
 from common import kinematics as kin
 from services.controller.constrained import least_feature_change
-from services.controller.twist import camera_points_to_base
 
 FloatArray = NDArray[np.float64]
 
@@ -52,12 +51,6 @@ def hand_box_corners_ee() -> FloatArray:
     half = np.array([kin.HAND_THICKNESS_M, kin.HAND_LENGTH_M, kin.HAND_WIDTH_M]) / 2
     signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
     return centre + signs * half
-
-
-def target_top_plane(points_cam_m: FloatArray, t_base_cam: FloatArray) -> Plane:
-    """The plane of the red marker's four corners (camera frame, m) in the base frame, its
-    normal turned towards the camera (up, out of the object)."""
-    return plane_of_corners(camera_points_to_base(points_cam_m, t_base_cam), t_base_cam[:3, 3])
 
 
 def plane_of_corners(points: FloatArray, origin: FloatArray) -> Plane:

@@ -237,11 +237,9 @@ class IbvsController:
         them; None before a check, with the check turned off, or when that posture is beyond
         the joint limits."""
         postures, reached, k = self.reach_postures, self.reachable, self.pairing
-        if postures is None or reached is None or k is None or not reached[k]:
+        if postures is None or reached is None or k is None or not self._pairing_open():
             return None
-        if not self._pairing_open():
-            return None
-        return postures[k]
+        return postures[k] if reached[k] else None
 
     def _pairing_open(self) -> bool:
         """Whether the corner pairing is a choice to make (a plain square) and the goal

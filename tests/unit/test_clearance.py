@@ -19,11 +19,11 @@ from services.controller.clearance import (
     heights_m,
     lift_short,
     lift_then_nearest,
-    target_top_plane,
+    plane_of_corners,
 )
 from services.controller.ibvs import ControlOutput, IbvsController
 from services.controller.step import above_the_target, twist_message
-from services.controller.twist import twist_matrix_base_ee_to_cam
+from services.controller.twist import camera_points_to_base, twist_matrix_base_ee_to_cam
 
 FLOOR = Plane(np.zeros(3), np.array([0.0, 1.0, 0.0]))  # y up, as the arm's base frame
 # A hand box lying flat, its lowest face 10 mm above the floor; the end-effector origin above it.
@@ -115,7 +115,7 @@ def test_the_top_face_plane_comes_from_the_marker_corners_and_faces_the_camera()
     t_base_cam = kin.homogeneous(np.eye(3), np.array([0.0, 0.5, 0.0]))
     square = np.array([[0.1, -0.2, 0.3], [0.2, -0.2, 0.3], [0.2, -0.2, 0.4], [0.1, -0.2, 0.4]])
     for corners in (square, square[::-1]):
-        plane = target_top_plane(corners, t_base_cam)
+        plane = plane_of_corners(camera_points_to_base(corners, t_base_cam), t_base_cam[:3, 3])
         np.testing.assert_allclose(plane.normal, [0.0, 1.0, 0.0], atol=1e-12)
         np.testing.assert_allclose(plane.point_m, [0.15, 0.3, 0.35])
 
@@ -172,7 +172,7 @@ def test_the_laws_twist_is_changed_where_its_features_notice_it_least() -> None:
         controller, replace(down, control_matrix=np.linalg.pinv(w_cam)), arm_at(t_ee)
     )
     assert law.lifted and lifted.lifted
-    plane = target_top_plane(square, np.eye(4))
+    plane = plane_of_corners(square, np.zeros(3))
     rows, bounds = clearance_bounds(corners, t_ee[:3, 3], plane, 0.002, 3.0)
     assert np.all(rows @ law.twist_base_ee >= bounds - 1e-9)
     w_base = w_cam @ twist_matrix_base_ee_to_cam(np.eye(4), t_ee[:3, 3])

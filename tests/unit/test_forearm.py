@@ -16,7 +16,7 @@ from common.marker import Marker
 from common.runtime import parse_overrides
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from services.controller.arm import ArmReading
-from services.controller.clearance import Plane, target_top_plane
+from services.controller.clearance import Plane, plane_of_corners
 from services.controller.forearm import (
     ELBOW_FRAME,
     FUNNEL_RADIUS_M,
@@ -158,11 +158,11 @@ def test_the_controller_keeps_the_forearm_off_the_object_it_last_saw() -> None:
     controller = IbvsController(ControllerConfig(keep_above_target=False), np.eye(4))
     controller.object_side_m = 0.075
     controller.target_memory.last = Marker.seen_at(square, load_scenario(None).camera.intrinsics())
-    face = top_face(target_top_plane(square, np.eye(4)), square, 0.075)
+    face = top_face(plane_of_corners(square, np.zeros(3)), square, 0.075)
     d_min = kin.LIMB_RADIUS_M + controller.config.forearm_clearance_m
     towards = -distance_to_object(wrist, face)[1]  # the wrist straight at the object
     down = ControlOutput(np.concatenate([0.1 * towards, np.zeros(3)]), True, 5.0, False)
-    rows, bounds = object_bounds(controller, arm, target_top_plane(square, np.eye(4)), square)
+    rows, bounds = object_bounds(controller, arm, plane_of_corners(square, np.zeros(3)), square)
     assert rows.shape == (1, 6) and float(rows[0] @ down.twist_base_ee) < bounds[0]
     out = above_the_target(controller, down, arm)
     assert out.lifted and float(rows[0] @ out.twist_base_ee) >= bounds[0] - 1e-9
@@ -183,7 +183,7 @@ def test_a_twist_not_the_law_s_is_kept_off_the_object_where_rising_does_not_help
     controller = IbvsController(ControllerConfig(keep_above_target=False), np.eye(4))
     controller.object_side_m = 0.075
     controller.target_memory.last = Marker.seen_at(square, load_scenario(None).camera.intrinsics())
-    plane = target_top_plane(square, np.eye(4))
+    plane = plane_of_corners(square, np.zeros(3))
     rows, bounds = object_bounds(controller, arm, plane, square)
     assert rows.shape == (1, 6) and bounds[0] > 0.0  # inside the margin: it must move out
     assert float(rows[0, :3] @ plane.normal) == pytest.approx(0.0, abs=1e-9)
