@@ -315,9 +315,11 @@ class AppliedCommand(Message):
 
 
 class SimTiming(Message):
-    """The sim's own timing of camera frame ``header.frame_seq`` (published after the frame),
-    and the joint commands it applied since the previous one: with the other services' headers
-    this gives every stage of the loop, frame captured → command applied (``umay bench``).
+    """The sim's own timing of camera frame ``header.frame_seq``, and the joint commands it
+    applied after that frame went out (the command that answered it among them): with the other
+    services' headers this gives every stage of the loop, frame captured → command applied
+    (``umay bench``). Published when the next frame starts, before its render: off the frame's
+    path, and complete.
 
     Wall-clock times are Unix seconds. ``capture_time_s``: the images exist (render and sensor
     model done); ``frame_send_time_s``: the colour frame's ``header.send_time_s``."""

@@ -98,7 +98,9 @@ def run_distributed(
             raise BenchError(f"the sim stopped before frame {start}; see {log_dir}")
         pids = sup.pids()
         cpu_start = {n: process_cpu_s(p) for n, p in pids.items() if p is not None}
-        # Frame start+frames+1 reports the command of the last window frame as applied.
+        # A frame's timing reports the commands applied after it, out when the next frame
+        # starts: frame start+frames+1's has the last window frame's command even when it came
+        # a frame late (realtime).
         per_frame_limit_s = 10.0 + (2.0 if realtime else 5.0)
         end = start + frames + 1
         last_seen, last_progress = -1, time.monotonic()

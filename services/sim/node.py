@@ -4,9 +4,10 @@ and (for evaluation only) ground truth; applies joint velocity commands.
 The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the first colour frame
 at or after each tick of ``camera.depth_hz`` (registered, possibly at a lower resolution; the
 schedule is services/sim/schedule.py, the motors' limit services/sim/motors.py). Per
-frame the joint state goes out first, then the depth image if one was taken, then the colour
-frame, which names the newest depth image (``depth_frame_seq``). The images are drawn straight
-into the next slots of the frame rings (:meth:`TypedPublisher.reserve`) where there are rings.
+frame the joint state, the ground truth and the previous frame's timing go out first, before
+the render, then the depth image if one was taken, then the colour frame, which names the newest
+depth image (``depth_frame_seq``). The images are drawn straight into the next slots of the
+frame rings (:meth:`TypedPublisher.reserve`) where there are rings.
 
 Clock modes:
 - lockstep: render frame k, publish it, wait for the command derived from frame k, apply it for
@@ -73,6 +74,7 @@ class SimService:
         self.pub_truth = self.node.publisher(keys.truth)
         self.pub_timing = self.node.publisher(keys.timing)
         self.applied: list[AppliedCommand] = []  # since the last SimTiming
+        self._timing: SimTiming | None = None  # the last frame's, until its command is applied
         self.resends = 0
         self.node.subscribe(keys.joint_command, JointVelocityCommand)
         self.last_command = np.zeros(kin.N_JOINTS)
@@ -129,6 +131,27 @@ class SimService:
         self.world.update_scene()
         q, qdot = self.world.joint_state()
         with_depth = self.depth_schedule.due(t)
+        messages: list[tuple[TypedPublisher, object]] = []  # kept for a lockstep resend
+
+        def put(publisher: TypedPublisher, message: object) -> None:
+            publisher.put(message)
+            messages.append((publisher, message))
+
+        # Before the render, what the frame does not need: the controller and actuation take
+        # the joint state (they pair it with their input by frame_seq) and a run's monitor the
+        # truth while the frame is drawn, so no process but vision is woken as the frame goes
+        # out (docs/performance.md). The last frame's timing too, with the commands applied
+        # since it, the one that answered it among them.
+        self._publish_timing()
+        put(
+            self.pub_joints,
+            JointState(
+                header=self.node.header(t, seq),
+                position_rad=q.tolist(),
+                velocity_rad_s=qdot.tolist(),
+            ),
+        )
+        put(self.pub_truth, truth_message(self.world.truth(), self.node.header(t, seq), q))
         # Drawn straight into the frame rings' next slots where there are rings (no copy on
         # the way to vision); into fresh arrays otherwise.
         k, k_depth = self.world.intrinsics, self.world.depth_intrinsics
@@ -143,20 +166,11 @@ class SimService:
         rgb, depth_m = self.world.render(with_depth, out)
         self.render_ms = 1000.0 * (time.perf_counter() - started)
         capture_time_s = time.time()
-        header = self.node.header(t, seq)
-        # The images first, without copying their pixels (ImageData.view_of: render() gives the
+        # The images without copying their pixels (ImageData.view_of: render() gives the
         # ring's slots or fresh arrays every frame, never changed afterwards): the publishers
         # commit a slot drawn in place, copy anything else into the ring (or into the whole
         # payload, without a ring). The depth image before the colour frame that names it, so
-        # vision has both when the colour frame arrives. The joint state after them, off the
-        # frame's path: the controller and actuation pair it with their input by frame_seq,
-        # and vision's work on the frame comes between.
-        messages: list[tuple[TypedPublisher, object]] = []  # kept for a lockstep resend
-
-        def put(publisher: TypedPublisher, message: object) -> None:
-            publisher.put(message)
-            messages.append((publisher, message))
-
+        # vision has both when the colour frame arrives.
         if depth_m is not None:
             self.depth_schedule = self.depth_schedule.taken(t, seq)
             put(
@@ -177,32 +191,25 @@ class SimService:
                 depth_frame_seq=self.depth_schedule.depth_frame_seq,
             ),
         )
-        put(
-            self.pub_joints,
-            JointState(
-                header=self.node.header(t, seq),
-                position_rad=q.tolist(),
-                velocity_rad_s=qdot.tolist(),
-            ),
-        )
-        # Ground truth (evaluation only) after the frame, off the loop's critical path.
-        put(self.pub_truth, truth_message(self.world.truth(), header, q))
         self._last_frame = messages
-        # After the frame, off its path: how it was made and the commands applied before it.
-        self.pub_timing.put(
-            SimTiming(
-                header=self.node.header(t, seq),
-                render_start_s=render_start_s,
-                capture_time_s=capture_time_s,
-                frame_send_time_s=rgb_header.send_time_s,
-                with_depth=depth_m is not None,
-                dropped_frames=self.dropped_frames,
-                resends=self.resends,
-                applied=self.applied[-64:],
-            )
+        # How the frame was made; published when the next one starts (_publish_timing).
+        self._timing = SimTiming(
+            header=self.node.header(t, seq),
+            render_start_s=render_start_s,
+            capture_time_s=capture_time_s,
+            frame_send_time_s=rgb_header.send_time_s,
+            with_depth=depth_m is not None,
+            dropped_frames=self.dropped_frames,
+            resends=self.resends,
         )
-        self.applied = []
         self.node.processing.add(1000.0 * (time.perf_counter() - started_publish))
+
+    def _publish_timing(self) -> None:
+        """The last frame's :class:`SimTiming`, with the commands applied since it (none after
+        the last frame of a run: its timing is never complete)."""
+        if self._timing is not None:
+            self.pub_timing.put(self._timing.model_copy(update={"applied": self.applied[-64:]}))
+            self._timing, self.applied = None, []
 
     def republish_frame(self) -> None:
         """The last frame's messages again, unchanged (a lockstep resend)."""

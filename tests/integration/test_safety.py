@@ -92,7 +92,7 @@ def test_controller_killed_and_not_restarted_motors_stop_within_300_ms(tmp_path:
         taken = next((a for a in applied_now if a.send_time_s == sent), None)
         assert taken is not None, "the sim never applied the zero command"
         applied_ms = 1000 * (taken.applied_time_s - killed_wall_s)
-        # A frame's joint state is read before its render and sent after it: the samples read
+        # A frame's joint state is read and sent before its render: the samples read
         # after the stop are those of frames whose render started after it (one sim thread).
         # The first of them may be read before the next physics step, i.e. still show the
         # motion the motors had when they took the command; from the next one on, all still.
