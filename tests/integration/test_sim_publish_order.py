@@ -1,0 +1,98 @@
+"""The sim's publishing order per camera frame, which keeps every process but vision asleep as
+the frame goes out (docs/performance.md): the joint state and the truth before the frame's
+images, and a frame's timing only once the next frame starts, carrying the command that
+answered it. The sim runs alone as its own process in lockstep; this test answers its frames
+with zero commands, as actuation would, and stands in for the other services' liveliness."""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from pathlib import Path
+
+from common.codec import DEFAULT_MAX_BYTES, decode, unpack
+from common.keys import Keys
+from common.messages import Header, JointVelocityCommand, SimTiming
+from common.node import Node
+from common.session import free_tcp_endpoint, open_session
+from deploy.supervisor import Supervisor
+
+FRAMES = 6
+
+
+def test_the_joint_state_and_truth_go_before_the_frame_and_its_timing_after_its_command(
+    tmp_path: Path,
+) -> None:
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    session = open_session(connect=[], listen=[endpoint])
+    arrivals: list[tuple[str, int]] = []  # (key suffix, frame_seq) in arrival order
+    timings: dict[int, SimTiming] = {}
+    lock = threading.Lock()
+    frame_in = threading.Condition(lock)
+
+    def on(suffix: str):
+        def handler(sample) -> None:
+            frame_seq = decode_frame_seq(suffix, sample.payload.to_bytes())
+            with lock:
+                arrivals.append((suffix, frame_seq))
+                frame_in.notify_all()
+
+        return handler
+
+    def decode_frame_seq(suffix: str, payload: bytes) -> int:
+        if suffix == "timing":
+            t = decode(payload, SimTiming, DEFAULT_MAX_BYTES)
+            with lock:
+                timings[t.header.frame_seq] = t
+            return t.header.frame_seq
+        data = unpack(payload)  # the header alone, frames included
+        assert data is not None, f"{suffix}: not a message"
+        return int(data["header"]["frame_seq"])
+
+    subs = [
+        session.declare_subscriber(getattr(keys, k), on(k))
+        for k in ("joint_state", "truth", "depth", "rgb", "timing")
+    ]
+    # The other services, as far as the sim can tell: alive, and actuation's commands.
+    stand_ins = [Node(name, keys, session) for name in ("vision", "controller", "actuation")]
+    for node in stand_ins:
+        node.ready()
+    commands = stand_ins[2].publisher(keys.joint_command)
+    sup = Supervisor(None, keys.prefix, endpoint, tmp_path, services=("sim",))
+    try:
+        sup.start()
+        for seq in range(FRAMES + 1):
+            deadline = time.monotonic() + 60
+            with frame_in:
+                while ("rgb", seq) not in arrivals:
+                    assert not sup.exited(), (tmp_path / "sim.log").read_text()[-2000:]
+                    assert frame_in.wait(max(0.0, deadline - time.monotonic())), f"no frame {seq}"
+            header = Header(seq=seq, sim_time_s=0.0, send_time_s=time.time(), frame_seq=seq)
+            commands.put(JointVelocityCommand(header=header, velocity_rad_s=[0.0] * 6))
+        time.sleep(0.5)  # frame FRAMES+1 starts: frame FRAMES's timing goes out
+        with lock:
+            order = list(arrivals)
+            got = dict(timings)
+    finally:
+        sup.stop()
+        for s in subs:
+            s.undeclare()
+        for node in stand_ins:
+            node.close()
+        session.close()
+
+    def at(suffix: str, seq: int) -> int:
+        return order.index((suffix, seq))
+
+    for seq in range(FRAMES):
+        # A resend would repeat a frame's messages; lockstep answered at once, so none.
+        assert order.count(("rgb", seq)) == 1
+        assert at("joint_state", seq) < at("depth", seq) < at("rgb", seq)
+        assert at("truth", seq) < at("depth", seq)
+        # The timing after its frame and before the next frame's images...
+        assert at("rgb", seq) < at("timing", seq) < at("depth", seq + 1)
+        # ... with the command that answered the frame.
+        assert [a.frame_seq for a in got[seq].applied] == [seq]
+        assert got[seq].frame_send_time_s >= got[seq].capture_time_s >= got[seq].render_start_s
