@@ -337,6 +337,40 @@ def test_sigterm_ends_umay_run_and_its_services(tmp_path: Path) -> None:
     assert kept["detail"] == "interrupted" and not kept["converged"]
 
 
+def test_sigterm_to_the_whole_process_group_stops_umay_up_with_clean_exit_codes(
+    tmp_path: Path,
+) -> None:
+    """`timeout`, `kill -- -PGID` or a cancelled CI job signal a whole process group: the
+    services stop cleanly, and umay up still reports each one's exit code. It takes them from
+    the forkserver, which ignores SIGTERM (deploy/forkserver_guard.py): killed with them, it
+    left every code unknown (255, as if they had crashed)."""
+    prefix = f"test/{os.urandom(6).hex()}"
+    endpoint = free_tcp_endpoint()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "deploy", "up", "--prefix", prefix, "--listen", endpoint,
+         "--connect", endpoint, "--log-dir", str(tmp_path), "--clock", "realtime"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        start_new_session=True,  # its own process group, as under `timeout`
+    )  # fmt: skip
+
+    def services() -> list[int]:
+        return [pid for pid in processes_mentioning(prefix) if pid != proc.pid]
+
+    try:
+        assert wait_for(lambda: len(services()) == len(SERVICES), 60), services()
+        time.sleep(2.0)  # past start-up: sessions open, signal handlers in place
+        pids = services()
+        os.killpg(proc.pid, signal.SIGTERM)
+        output, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert output.strip().splitlines()[-1] == (
+        "umay up: services stopped (exit codes: sim 0, vision 0, controller 0, actuation 0)"
+    ), output
+    assert not any(_alive(p) for p in pids)
+
+
 @pytest.mark.parametrize("launch", ["fork", "exec"])
 def test_services_stop_when_their_supervisor_is_killed(tmp_path: Path, launch: str) -> None:
     """SIGKILL (or the OOM killer) gives the supervisor no chance to stop its children: they
