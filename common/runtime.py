@@ -6,7 +6,6 @@ import argparse
 import logging
 import os
 import select
-import signal
 import sys
 import threading
 import time
@@ -20,6 +19,7 @@ from common.config import Scenario, ScenarioError, load_scenario
 from common.keys import Keys, check_prefix, default_prefix
 from common.node import setup_logging
 from common.session import ZenohConfigError, check_endpoints, open_session
+from common.stop_signals import stop_on_signals
 
 # Set by the supervisor for its children: the PID they stop without (see ServiceContext).
 ENV_SUPERVISOR_PID = "UMAY_SUPERVISOR_PID"
@@ -177,8 +177,7 @@ class ServiceContext:
             print(f"{service}: cannot open the Zenoh session: {exc}", file=sys.stderr)
             raise SystemExit(1) from exc
         self.stop = threading.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: self.stop.set())
+        stop_on_signals(self.stop)  # set from a thread: see common/stop_signals.py
         supervisor = supervisor_pid(os.environ)
         if supervisor is not None:
             threading.Thread(target=self._stop_without, args=(supervisor,), daemon=True).start()

@@ -18,6 +18,7 @@ from common.keys import Keys
 from common.node import Node
 from common.queries import alive_services
 from common.session import open_session
+from common.stop_signals import SignalRelay
 from deploy.exit_codes import EXIT_ALREADY_RUNNING
 from deploy.supervisor import Supervisor
 
@@ -44,9 +45,10 @@ def run_up(
     )  # fmt: skip
     node = Node("supervisor", keys, session, sup.status_fields)
     stop = stop or threading.Event()
+    relay, previous = None, {}
     if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: stop.set())
+        relay = SignalRelay(stop)  # set from a thread: see common/stop_signals.py
+        previous = relay.install()
     try:
         sup.start()
         node.ready()
@@ -62,4 +64,8 @@ def run_up(
         codes = [f"{n} {c.exit_codes[-1]}" for n, c in sup.children.items() if c.exit_codes]
         ended = ", ".join(codes)
         print(f"umay up: services stopped (exit codes: {ended or 'none started'})", flush=True)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if relay is not None:
+            relay.close()
     return 0
