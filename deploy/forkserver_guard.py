@@ -1,14 +1,17 @@
 """Imported by the services' forkserver alone (:data:`deploy.service_process.PRELOAD`), never
-by the supervisor or a service: the forkserver ignores SIGTERM, as multiprocessing already has
-it ignore SIGINT.
+by the supervisor or a service: the forkserver blocks SIGTERM, as multiprocessing has it ignore
+SIGINT.
 
 A SIGTERM sent to a whole process group (``timeout``, ``kill -- -PGID``, a CI job cancelled)
 reaches the services, which stop cleanly, and their supervisor, which waits for them. Their
 exit codes come from the forkserver, whose children they are: killed with them, it could not
 report any (every one read 255, as if they had crashed). It still ends with the supervisor,
-when the pipe that keeps it alive closes. A forked service puts SIGTERM back to its default
-first thing (:func:`deploy.service_process.serve`)."""
+when the pipe that keeps it alive closes.
+
+Blocked, not ignored: a forked service inherits the mask, and unblocks SIGTERM first thing
+(:func:`deploy.service_process.serve`), so one sent to it before then is held, then delivered,
+not lost (ignored, it was dropped, and the service had to be killed)."""
 
 import signal
 
-signal.signal(signal.SIGTERM, signal.SIG_IGN)
+signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})

@@ -35,7 +35,7 @@ from common.runtime import ProcessEnd
 # What the forkserver imports before its first fork: every service's node and what it imports.
 # "__main__": the launching program's main module (a script, such as the ``umay`` entry point),
 # which multiprocessing imports in every process it starts, is then imported once, here.
-# Last, what only the forkserver imports: it ignores SIGTERM (deploy/forkserver_guard.py).
+# Last, what only the forkserver imports: it blocks SIGTERM (deploy/forkserver_guard.py).
 PRELOAD = [
     "__main__",
     *(f"services.{name}.node" for name in SERVICES),
@@ -150,7 +150,8 @@ def fork_service(name: str, argv: list[str], env: dict[str, str], log_path: Path
 def serve(name: str, argv: list[str], env: dict[str, str], log_path: str) -> None:
     """In the forked child: take the service's environment, output and name, then run it as
     ``python -m services.NAME`` would."""
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the forkserver's is ignored
+    # The forkserver blocks SIGTERM (deploy/forkserver_guard.py): one already sent comes now.
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
     # ps, top and /proc show the command line an exec'd service would have, not the
     # forkserver's. Before the environment is replaced: the title takes the room of the
     # original environment's strings, and finds none to take once they were moved.

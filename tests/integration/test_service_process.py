@@ -74,6 +74,22 @@ def test_a_forked_service_has_its_arguments_environment_and_command_line(tmp_pat
         session.close()
 
 
+def test_a_forked_service_stopped_as_it_starts_ends_at_once(tmp_path: Path) -> None:
+    """The forkserver blocks SIGTERM (deploy/forkserver_guard.py) and a forked service inherits
+    the block until it unblocks it first thing: a SIGTERM sent before then is held and
+    delivered, never lost. Ignored instead, it was dropped, and each stop right after a
+    (re)start waited out the grace time and ended in SIGKILL."""
+    sup = Supervisor(
+        None, f"test/{os.getpid()}early", "tcp/127.0.0.1:1", tmp_path, services=("controller",),
+        config=SupervisorConfig(launch="fork"),
+    )  # fmt: skip
+    for _ in range(3):
+        sup.start()
+        sup.stop(grace_s=10.0)  # SIGTERM at once
+        # Killed by the held signal (-15), or stopped by its handler (0); not SIGKILLed (-9).
+        assert sup.children["controller"].exit_codes[-1] in (0, -signal.SIGTERM)
+
+
 def test_where_no_forkserver_starts_the_services_are_execd_and_status_says_why(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

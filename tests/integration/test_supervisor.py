@@ -342,7 +342,7 @@ def test_sigterm_to_the_whole_process_group_stops_umay_up_with_clean_exit_codes(
 ) -> None:
     """`timeout`, `kill -- -PGID` or a cancelled CI job signal a whole process group: the
     services stop cleanly, and umay up still reports each one's exit code. It takes them from
-    the forkserver, which ignores SIGTERM (deploy/forkserver_guard.py): killed with them, it
+    the forkserver, which blocks SIGTERM (deploy/forkserver_guard.py): killed with them, it
     left every code unknown (255, as if they had crashed)."""
     prefix = f"test/{os.urandom(6).hex()}"
     endpoint = free_tcp_endpoint()
