@@ -99,10 +99,10 @@ def run_distributed(
         pids = sup.pids()
         cpu_start = {n: process_cpu_s(p) for n, p in pids.items() if p is not None}
         # A frame's timing reports the commands applied after it, out when the next frame
-        # starts: frame start+frames+1's has the last window frame's command even when it came
+        # starts: frame start+frames's has the last window frame's command even when it came
         # a frame late (realtime).
         per_frame_limit_s = 10.0 + (2.0 if realtime else 5.0)
-        end = start + frames + 1
+        end = start + frames
         last_seen, last_progress = -1, time.monotonic()
         last_collected = time.monotonic()
         while not trace.wait_for_frame(end, 0.5):

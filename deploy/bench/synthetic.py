@@ -43,13 +43,20 @@ def publish_source_frame(
     scenario: Scenario,
     depth_seq: int,
 ) -> float:
-    """Publish one frame as the sim does (depth if any, colour, then the joint state; the images
-    through the same shared-memory writer); returns the colour frame's send time."""
+    """Publish one frame as the sim does (the joint state, then depth if any, then colour; the
+    images through the same shared-memory writer); returns the colour frame's send time."""
     cam = scenario.camera
 
     def header() -> Header:
         return Header(seq=seq, sim_time_s=frame.sim_time_s, send_time_s=time.time(), frame_seq=seq)
 
+    publishers["joint_state"].put(
+        JointState(
+            header=header(),
+            position_rad=frame.q_rad.tolist(),
+            velocity_rad_s=frame.qdot_rad_s.tolist(),
+        )
+    )
     if frame.depth_m is not None:
         publishers["depth"].put(
             DepthFrame(
@@ -65,13 +72,6 @@ def publish_source_frame(
         depth_frame_seq=depth_seq,
     )
     publishers["rgb"].put(rgb)
-    publishers["joint_state"].put(
-        JointState(
-            header=header(),
-            position_rad=frame.q_rad.tolist(),
-            velocity_rad_s=frame.qdot_rad_s.tolist(),
-        )
-    )
     return rgb.header.send_time_s
 
 

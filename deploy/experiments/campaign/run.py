@@ -4,6 +4,7 @@ plan every (start, strategy) run as compare does, run them, and write the output
 from __future__ import annotations
 
 import json
+import multiprocessing
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -47,7 +48,10 @@ def _draw_all(
             yield draw_start(dist, base, i)
             on_drawn(i)
         return
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    # Spawned, as compare's and domains' workers are: nothing inherited from this process, nor
+    # from the services' forkserver (the default start method from Python 3.14).
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
         drawn = pool.map(partial(draw_start, dist, base), indices)
         for i, start in zip(indices, drawn, strict=True):
             yield start
