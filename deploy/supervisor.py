@@ -61,6 +61,7 @@ def backoff_s(recent_restarts: int, config: SupervisorConfig) -> float:
 _FORK_REFUSALS_SAID: set[str] = set()  # why services could not be forked, as logged
 
 HEALTH_CHECK_S = 1.0  # how often the supervisor asks the services for their status
+KILL_WAIT_S = 5.0  # how long stop() waits for a SIGKILLed child before leaving it
 
 
 @dataclass(frozen=True)
@@ -251,6 +252,8 @@ class Supervisor:
         for child in self.children.values():
             if child.process is None or child.process.poll() is not None:
                 continue
+            if child.killed_as_hung:  # killed already, not reaped yet: once is enough
+                continue
             heard = self._heard.get((child.name, child.process.pid))  # this process's
             after = heard.at_s if heard else now
             unanswered = next((t for t in self._queries_s if t > after), None)
@@ -326,7 +329,15 @@ class Supervisor:
             except subprocess.TimeoutExpired:
                 log.warning("%s did not stop within %.1f s; killing it", child.name, grace)
                 child.process.kill()
-                child.process.wait()
+                try:  # a process in an uninterruptible call ends only when the call does
+                    child.process.wait(KILL_WAIT_S)
+                except subprocess.TimeoutExpired:
+                    log.error(
+                        "%s (pid %d) still there %.0f s after SIGKILL; left behind",
+                        child.name, child.process.pid, KILL_WAIT_S,
+                    )  # fmt: skip
+                    child.process = None
+                    continue
             child.exit_codes.append(child.process.returncode)
             self._ended(child.process)
             child.process = None
