@@ -263,8 +263,9 @@ class Node:
             uptime_s=now - self._started,
             state="degraded" if reason else self.state,  # type: ignore[arg-type]
             degraded_reason=reason,
-            received={k: m.stats(now) for k, m in self.received.items()},
-            published={k: p.meter.stats(now) for k, p in self._publishers.items()},
+            # Copies (list() holds the GIL throughout): the main thread may add a key meanwhile.
+            received={k: m.stats(now) for k, m in list(self.received.items())},
+            published={k: p.meter.stats(now) for k, p in list(self._publishers.items())},
             rejected=self.rejected,
             last_rejection=self.last_rejection,
             processing_ms_p50=p50,
@@ -276,7 +277,10 @@ class Node:
     def _fields(self) -> tuple[dict[str, Any], str]:
         """The service's own fields, and "" (or why there are none: a field its model refuses).
         The answer goes out without them rather than not at all, which the supervisor would
-        take for a hung service and kill."""
+        take for a hung service and kill. None while it starts: the status is answered from
+        the node's construction on, before the service object around it is built."""
+        if self.state == "starting":
+            return {}, ""
         try:
             return self._status_fields().model_dump(), ""
         except Exception as exc:

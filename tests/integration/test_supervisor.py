@@ -19,7 +19,7 @@ from zenoh import SampleKind
 from common.codec import encode
 from common.config import SupervisorConfig
 from common.keys import SERVICES, Keys
-from common.messages import ServiceStatus
+from common.messages import ServiceStatus, StatusFields
 from common.node import Node
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
@@ -138,6 +138,30 @@ def test_loop_busy_s_is_zero_while_the_loop_waits_and_grows_while_it_works() -> 
         assert node.status().loop_busy_s == 0.0  # blocked in next_event: idle, not stuck
         waiting.join()
         assert node.status().loop_busy_s < 0.2
+    finally:
+        node.close()
+
+
+def test_a_starting_node_answers_without_the_fields_of_its_half_built_service() -> None:
+    """The status is answered from the node's construction on, before the service object
+    around it has all its attributes: until ready(), the answer leaves the service's own
+    fields out instead of reporting their AttributeError as degraded (and never logging a
+    later, real failure of them: that is logged once)."""
+    session = open_session(connect=[], listen=[free_tcp_endpoint()])
+    built: list[bool] = []
+
+    def fields() -> StatusFields:
+        if not built:
+            raise AttributeError("'VisionService' object has no attribute 'states'")
+        return StatusFields()
+
+    node = Node("vision", Keys(f"test/{os.getpid()}starting"), session, fields)
+    try:
+        starting = node.status()
+        assert (starting.state, starting.fields, starting.degraded_reason) == ("starting", {}, "")
+        built.append(True)
+        node.ready()
+        assert node.status().state == "running"
     finally:
         node.close()
 
