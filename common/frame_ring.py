@@ -41,12 +41,15 @@ that no ``multiprocessing`` resource tracker registers (and later unlinks, or wa
 segment its process only reads. The writer unlinks its segment when it closes, or when its
 process exits normally without closing it; a writer killed outright leaves it behind, and
 :func:`remove_segments_of` (the supervisor calls it when a child ends) removes what a process
-left. Segment names carry the writer's pid and a random token.
+left. A sim killed with its supervisor (``kill -9`` of the group, the OOM killer) leaves its
+segments to no one: the next writer removes those of processes that no longer exist
+(:func:`remove_orphan_segments`). Segment names carry the writer's pid and a random token.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import mmap
 import os
@@ -62,6 +65,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+log = logging.getLogger("umay")
 
 SHM_DIR = Path("/dev/shm")
 SEGMENT_PREFIX = "umay-frames-"
@@ -297,6 +302,10 @@ class RingWriter:
             return data, ref
 
     def _replace_segment(self, frame_bytes: int) -> None:
+        if not self.segment:  # this writer's first: clear what dead writers left
+            removed = remove_orphan_segments(self.directory)
+            if removed:
+                log.info("removed frame rings of ended processes: %s", ", ".join(removed))
         token = secrets.token_hex(8)
         name = f"{SEGMENT_PREFIX}{os.getpid()}-{token}"
         stride, size = _slot_offsets(self.slots, frame_bytes)
@@ -461,6 +470,29 @@ def shared_reader() -> RingReader:
         if _shared_reader is None:
             _shared_reader = RingReader()
         return _shared_reader
+
+
+def remove_orphan_segments(directory: Path = SHM_DIR) -> list[str]:
+    """Unlink the segments whose writer (the pid in the name, looked up in this host's pid
+    namespace) no longer exists; their names."""
+    removed = []
+    for path in directory.glob(f"{SEGMENT_PREFIX}*-*"):
+        pid = path.name.removeprefix(SEGMENT_PREFIX).split("-", 1)[0]
+        if pid.isdigit() and not _process_exists(int(pid)):
+            with contextlib.suppress(OSError):
+                path.unlink()
+                removed.append(path.name)
+    return removed
+
+
+def _process_exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's: it exists
+        return True
+    return True
 
 
 def remove_segments_of(pid: int, directory: Path = SHM_DIR) -> list[str]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import struct
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -206,6 +207,24 @@ def test_close_unlinks_and_a_killed_writer_s_segments_can_be_removed(tmp_path: P
     other.write_bytes(b"")
     assert remove_segments_of(os.getpid(), tmp_path) == [left.segment]
     assert [p.name for p in tmp_path.iterdir()] == [other.name]
+
+
+def test_a_new_writer_removes_the_segments_of_processes_that_ended(tmp_path: Path) -> None:
+    """A sim killed together with its supervisor leaves its segments to no one: the next
+    writer removes those whose pid no longer exists, and only those."""
+    ended = subprocess.Popen(["true"])
+    ended.wait()  # its pid now names no process
+    dead = tmp_path / f"{SEGMENT_PREFIX}{ended.pid}-0123456789abcdef"
+    alive = tmp_path / f"{SEGMENT_PREFIX}{os.getppid()}-fedcba9876543210"
+    unrelated = tmp_path / "not-a-ring"
+    for path in (dead, alive, unrelated):
+        path.write_bytes(b"")
+    writer = RingWriter(SLOTS, tmp_path, HOST)
+    ref = write(writer, image(3))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [alive.name, unrelated.name, ref.segment]
+    )
+    writer.close()
 
 
 def test_a_ring_that_cannot_be_created_says_why(tmp_path: Path) -> None:
