@@ -347,16 +347,18 @@ class Node:
         with self._cond:
             self._closed = True
             self._cond.notify_all()
-        for s in self._subscribers:
-            s.undeclare()
-        for p in self._publishers.values():
-            if p.frames is not None:
-                p.frames.close()  # the ring's segment is unlinked
-        self._queryable.undeclare()
-        self._stamps_queryable.undeclare()
-        if self._token is not None:
-            self._token.undeclare()
-        self.session.close()
+        try:
+            for s in self._subscribers:
+                s.undeclare()
+            for p in self._publishers.values():
+                if p.frames is not None:
+                    p.frames.close()  # the ring's segment is unlinked
+            self._queryable.undeclare()
+            self._stamps_queryable.undeclare()
+            if self._token is not None:
+                self._token.undeclare()
+        finally:  # whatever failed above, the session's threads must not outlive the node
+            self.session.close()
 
 
 def setup_logging(service: str) -> None:

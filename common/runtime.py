@@ -182,6 +182,16 @@ class ServiceContext:
         if supervisor is not None:
             threading.Thread(target=self._stop_without, args=(supervisor,), daemon=True).start()
 
+    def __enter__(self) -> ServiceContext:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        """Close the session however the service ended. An exception that skipped the
+        service's own close left Zenoh's callback threads (not daemons) holding the process
+        open: it neither exited nor could be stopped by SIGTERM, and its supervisor, which
+        still heard it, never restarted it."""
+        self.session.close()
+
     def _stop_without(self, supervisor: int) -> None:
         """Set ``stop`` once the process ``supervisor`` has ended."""
         ended = ProcessEnd(supervisor)

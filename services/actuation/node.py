@@ -140,5 +140,6 @@ class ActuationService:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ActuationService(ServiceContext("actuation", argv)).run()
+    with ServiceContext("actuation", argv) as ctx:  # its session closed however it ends
+        ActuationService(ctx).run()
     return 0

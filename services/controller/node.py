@@ -163,5 +163,6 @@ class ControllerService:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ControllerService(ServiceContext("controller", argv)).run()
+    with ServiceContext("controller", argv) as ctx:  # its session closed however it ends
+        ControllerService(ctx).run()
     return 0

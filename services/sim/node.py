@@ -340,6 +340,6 @@ class SimService:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ctx = ServiceContext("sim", argv)
-    SimService(ctx).run()
+    with ServiceContext("sim", argv) as ctx:  # its session closed however it ends
+        SimService(ctx).run()
     return 0

@@ -167,5 +167,6 @@ class VisionService:
 
 
 def main(argv: list[str] | None = None) -> int:
-    VisionService(ServiceContext("vision", argv)).run()
+    with ServiceContext("vision", argv) as ctx:  # its session closed however it ends
+        VisionService(ctx).run()
     return 0

@@ -6,6 +6,9 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import subprocess
+import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -88,6 +91,31 @@ def test_a_forked_service_stopped_as_it_starts_ends_at_once(tmp_path: Path) -> N
         sup.stop(grace_s=10.0)  # SIGTERM at once
         # Killed by the held signal (-15), or stopped by its handler (0); not SIGKILLed (-9).
         assert sup.children["controller"].exit_codes[-1] in (0, -signal.SIGTERM)
+
+
+SERVICE_CLASSES = {
+    "sim": "SimService",
+    "vision": "VisionService",
+    "controller": "ControllerService",
+    "actuation": "ActuationService",
+}
+
+
+@pytest.mark.parametrize("name", SERVICE_CLASSES)
+def test_a_service_that_fails_after_its_node_exists_exits_instead_of_hanging(name: str) -> None:
+    """Its session is closed however it ends (ServiceContext as a context manager): left
+    open, Zenoh's callback threads (not daemons) held the process after the exception, and
+    it neither exited nor answered SIGTERM, so its supervisor never restarted it."""
+    code = textwrap.dedent(f"""
+        import services.{name}.node as node
+        def fail(self):
+            raise RuntimeError("failed after the node was made")
+        node.{SERVICE_CLASSES[name]}.run = fail
+        node.main(["--prefix", "test/{os.getpid()}fails", "--connect", "{free_tcp_endpoint()}"])
+        """)  # fmt: skip
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert "RuntimeError: failed after the node was made" in proc.stderr
 
 
 def test_where_no_forkserver_starts_the_services_are_execd_and_status_says_why(
