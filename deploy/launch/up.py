@@ -35,16 +35,25 @@ def run_up(
 ) -> int:
     keys = Keys(prefix)
     session = open_session(connect=connect, listen=[listen])
-    if "supervisor" in alive_services(session, keys, 1.0):
+    try:
+        if "supervisor" in alive_services(session, keys, 1.0):
+            print(f"umay up: a supervisor is already running under {prefix}", file=sys.stderr)
+            return EXIT_ALREADY_RUNNING
+        sup = Supervisor(
+            scenario_path, prefix, listen, log_dir, overrides, config=scenario.supervisor,
+            session=session,
+        )  # fmt: skip
+        node = Node("supervisor", keys, session, sup.status_fields)
+        return supervise(sup, node, prefix, listen, stop or threading.Event())
+    finally:
+        # Also when something above failed: an open session's threads (not daemons) would
+        # keep this process from exiting. Closed twice when node.close did it: harmless.
         session.close()
-        print(f"umay up: a supervisor is already running under {prefix}", file=sys.stderr)
-        return EXIT_ALREADY_RUNNING
-    sup = Supervisor(
-        scenario_path, prefix, listen, log_dir, overrides, config=scenario.supervisor,
-        session=session,
-    )  # fmt: skip
-    node = Node("supervisor", keys, session, sup.status_fields)
-    stop = stop or threading.Event()
+
+
+def supervise(sup: Supervisor, node: Node, prefix: str, listen: str, stop: threading.Event) -> int:
+    """Run the services until ``stop`` (Ctrl-C, SIGTERM), then stop them and say how each
+    ended."""
     relay, previous = None, {}
     if threading.current_thread() is threading.main_thread():
         relay = SignalRelay(stop)  # set from a thread: see common/stop_signals.py

@@ -411,6 +411,27 @@ def test_services_stop_when_their_supervisor_is_killed(tmp_path: Path, launch: s
     assert "supervisor" in (tmp_path / "vision.log").read_text()
 
 
+def test_umay_up_that_fails_before_supervising_ends_and_closes_its_session(
+    tmp_path: Path,
+) -> None:
+    """run_up failing after its supervisor node exists, before it supervises (here: the
+    signal relay made to raise): the error comes out and the process ends, its session
+    closed (left open, with the node holding it, its Zenoh threads kept the process alive)."""
+    code = (
+        "from pathlib import Path\n"
+        "import deploy.launch.up as up\n"
+        "from common.config import load_scenario\n"
+        "def refuse(*args, **kwargs):\n"
+        "    raise RuntimeError('no signal relay')\n"
+        "up.SignalRelay = refuse\n"
+        f"up.run_up(None, load_scenario(), [], 'test/{tmp_path.name}up', "
+        f"'{free_tcp_endpoint()}', [], Path({str(tmp_path)!r}))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1
+    assert "RuntimeError: no signal relay" in proc.stderr
+
+
 def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path: Path) -> None:
     """run_once called directly (no CLI check first) with a log folder that cannot be made:
     the error comes out and the process ends. It used to hang at exit, its Zenoh session
