@@ -81,6 +81,7 @@ from deploy.foxglove.transforms import arm_transforms, camera_transforms, stamp,
 TRAIL_MAX_POINTS = 3000  # the hand-marker centre's trail (the thesis's white dots)
 TRAIL_MIN_STEP_PX = 1.0  # a dot is added once the centre has moved this far from the last
 STATIC_PERIOD_S = 1.0  # the fixed scene is sent again this often (sim s), for late clients
+RESTART_BACK_S = 1.0  # simulated time going back by more than this: a new run began
 
 
 @dataclass(frozen=True)
@@ -164,6 +165,13 @@ class ViewState:
     def oriented(self) -> bool:
         """Corners paired i with i, as the controller does with ``marker.orientation_cue``."""
         return self.scenario.marker.orientation_cue
+
+    def restarted(self, t_s: float) -> bool:
+        """Whether a message at ``t_s`` belongs to a new run: simulated time went back by more
+        than :data:`RESTART_BACK_S` (another run, or the sim restarted by its supervisor).
+        Kept, this state would hold the old run's trail and clock, and send no fixed scene
+        or calibration until the new run passed the old one's time."""
+        return t_s < self.sim_time_s - RESTART_BACK_S
 
     def _advance(self, t_s: float) -> None:
         self.sim_time_s = max(self.sim_time_s, t_s)

@@ -35,10 +35,17 @@ from typing import Any
 import foxglove
 from foxglove.websocket import Capability
 
-from common.codec import DEFAULT_MAX_BYTES, FRAME_MAX_BYTES, MessageError, decode
+from common.codec import (
+    DEFAULT_MAX_BYTES,
+    FRAME_MAX_BYTES,
+    FrameUnreachable,
+    MessageError,
+    decode,
+)
 from common.config import Scenario
 from common.keys import DEPTH, JOINT_STATE, RGB, Keys
 from common.node import Node
+from common.publishers import fetch_whole_frame
 from common.queries import query_status
 from deploy.arguments import NOTHING_RUNNING_THERE
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
@@ -53,6 +60,10 @@ log = logging.getLogger("umay.view")
 STATUS_PERIOD_S = 1.0
 FRAME_KEYS = (RGB, DEPTH)
 SILENT_AFTER_S = 10.0  # no message on any viewed key for this long from the start: say so
+# Outgoing messages the SDK queues per client before it drops the oldest. By count, not
+# bytes: its default of 1024 let a stalled client hold a gigabyte of depth images.
+CLIENT_BACKLOG = 64
+SERVER_STOP_S = 2.0  # how long stopping waits for the server (a stalled client holds it)
 
 
 def listening_note(
@@ -85,6 +96,7 @@ def start_server(host: str, port: int, context: foxglove.Context) -> foxglove.We
             port=port,
             context=context,
             capabilities=[Capability.Time],
+            message_backlog_size=CLIENT_BACKLOG,
         )
     except RuntimeError as exc:  # the SDK reports bind failures as RuntimeError
         text = str(exc)
@@ -114,6 +126,7 @@ class ViewNode:
         jpeg_quality: int,
         looked_on: str = "",
     ) -> None:
+        self.scenario = scenario
         self.state = convert.ViewState(scenario)
         self.looked_on = looked_on  # where the session looks for the system, in words
         self.heard = 0  # samples on the viewed keys, wanted or not
@@ -165,9 +178,26 @@ class ViewNode:
             self._accepted_s[suffix] = now
             try:
                 message = decode(sample.payload.to_bytes(), model, max_bytes)
+            except FrameUnreachable as exc:  # a ring this process cannot map: ask for it whole
+                fetch_whole_frame(
+                    self.session, f"{self.keys.prefix}/{suffix}", exc.ref, on_whole, on_failure
+                )
+                return
             except MessageError:
                 self.rejected += 1
                 return
+            keep(message)
+
+        def on_whole(payload: bytes) -> None:
+            try:
+                keep(decode(payload, model, max_bytes))
+            except MessageError:
+                self.rejected += 1
+
+        def on_failure(_reason: str) -> None:
+            self.rejected += 1
+
+        def keep(message: Any) -> None:
             with self._cond:
                 if self._latest.pop(suffix, None) is not None:
                     self.dropped[suffix] += 1  # the view is behind: the newer one wins
@@ -177,6 +207,10 @@ class ViewNode:
         return on_sample
 
     def on_event(self, suffix: str, message: Any) -> None:
+        header = getattr(message, "header", None)
+        if header is not None and self.state.restarted(header.sim_time_s):
+            log.info("simulated time went back to %.2f s: a new run", header.sim_time_s)
+            self.state = convert.ViewState(self.scenario)
         outs = self.state.on_message(suffix, message, self.jpeg_quality)
         image = getattr(message, "rgb", None) or getattr(message, "depth_m", None)
         if suffix in FRAME_KEYS and image is not None and not image.intact():
@@ -271,8 +305,22 @@ def serve(args: argparse.Namespace) -> int:
             )
             view.run(stop)  # closes the session on the way out
         finally:
-            server.stop()
+            stop_server(server)
     return EXIT_OK
+
+
+def stop_server(server: foxglove.WebSocketServer, timeout_s: float = SERVER_STOP_S) -> None:
+    """Stop the server, waiting at most ``timeout_s``: a client that stopped reading holds
+    its stop until it goes away, and Ctrl-C must not wait for a client."""
+    stopping = threading.Thread(target=server.stop, name="foxglove-stop", daemon=True)
+    stopping.start()
+    stopping.join(timeout_s)
+    if stopping.is_alive():
+        print(
+            f"umay view: a client still holds the server after {timeout_s:g} s; leaving it",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 LAYOUT_PATH = Path(__file__).resolve().parent / "layout.json"

@@ -202,6 +202,22 @@ def test_phase_changes_are_logged_once(scenario: Scenario) -> None:
     assert tw["linear_m_s"] == [0.01, 0.0, 0.0] and tw["error_px_rms"] == 3.0
 
 
+def test_a_new_run_is_told_by_time_going_back_and_a_fresh_state_sends_the_fixed_scene(
+    scenario: Scenario,
+) -> None:
+    old = convert.ViewState(scenario)
+    for k in range(3):
+        old.on_features(features(scenario, 284.0 + k, shift_m=0.01 * k, seq=k))
+    assert old.sim_time_s == 286.0 and len(old.trail_px) == 3
+    assert not old.restarted(285.5)  # a message a little behind the newest: the same run
+    assert old.fixed(286.0) != [] and old.fixed(286.5) == []  # not again within a second
+    assert old.restarted(47.0)  # the sim restarted
+    # Kept, the old state would send no fixed scene at 47 s; a fresh one does at once.
+    assert old.fixed(47.0) == []
+    new = convert.ViewState(scenario)
+    assert {o.topic for o in new.fixed(47.0)} == {topics.SCENE, topics.CALIBRATION}
+
+
 def test_status_logs_warn_of_a_silent_service() -> None:
     st = ServiceStatus(service="vision", pid=12, host="h", uptime_s=3.0, state="running")
     outs = convert.status_logs([st], 4.0)
