@@ -427,9 +427,14 @@ def test_umay_up_that_fails_before_supervising_ends_and_closes_its_session(
         f"up.run_up(None, load_scenario(), [], 'test/{tmp_path.name}up', "
         f"'{free_tcp_endpoint()}', [], Path({str(tmp_path)!r}))\n"
     )
+    ends_with_error(code, "RuntimeError: no signal relay")
+
+
+def ends_with_error(code: str, error: str) -> None:
+    """``code``, run by a fresh Python, ends (exit 1; no hang) with ``error`` on stderr."""
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 1
-    assert "RuntimeError: no signal relay" in proc.stderr
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert error in proc.stderr
 
 
 def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path: Path) -> None:
@@ -444,7 +449,5 @@ def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path:
         f"run_once(None, load_scenario(), [], 'test/{tmp_path.name}', "
         f"Path({str(tmp_path / 'file' / 'logs')!r}), listen='{free_tcp_endpoint()}', quiet=True)\n"
     )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 1
-    assert "NotADirectoryError" in proc.stderr
+    ends_with_error(code, "NotADirectoryError")
     assert not processes_mentioning(f"test/{tmp_path.name}")
