@@ -87,12 +87,12 @@ class RecordingReader:
                     records = make_reader(f).iter_messages(wanted, log_time_order=log_time_order)
                     yield from self._until_damage(records)
                 return
+            # As written, which is log-time order: the recorder takes each message's log time
+            # under the lock it writes with (record.py). Sorting would hold the whole file.
             records = NonSeekingReader(f).iter_messages(log_time_order=False)
-            found = (r for r in self._until_damage(records) if select is None or select(r[1].topic))
-            if log_time_order:  # a linear scan gives them as written: sort as the index would
-                yield from sorted(found, key=lambda r: r[2].log_time)
-            else:
-                yield from found
+            for record in self._until_damage(records):
+                if select is None or select(record[1].topic):
+                    yield record
 
     def _until_damage(self, records: Iterator[Any]) -> Iterator[Any]:
         count = 0
@@ -135,7 +135,10 @@ def read_info(path: str | Path) -> RecordingInfo:
     first: dict[int, int] = {}
     last: dict[int, int] = {}
     counts: dict[int, int] = {}
-    for schema, channel, message in reader.messages(log_time_order=False):
+    # In log-time order where there is an index: mcap's indexed reader streams chunk by chunk
+    # then, but decompresses every chunk before the first message when asked for file order
+    # (a 301 MB recording took 3.9 GB).
+    for schema, channel, message in reader.messages(log_time_order=summary is not None):
         cid = channel.id
         channels_by_id.setdefault(cid, channel)
         if schema is not None:
