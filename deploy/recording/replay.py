@@ -267,6 +267,16 @@ def replay_service(
 
     all_overrides = [*_recorded_overrides(metadata), *(overrides or [])]
     skipped = 0
+    first = min(r.frame_seq for r in recorded_inputs if r.suffix == io.trigger)
+    if check and first > 0:
+        # The service carries state from frame to frame (vision's tracking, the controller's
+        # memory, actuation's last command): from a frame mid-run, its outputs cannot match.
+        raise ReplayError(
+            f"{path}: --check needs the run from its first frame, and this recording starts "
+            f"at frame {first} ({service} keeps state from frame to frame, and the frames "
+            "before are not in it; `umay run --record` records a run whole). Replay it "
+            "without --check to see what the service makes of it"
+        )
     if check:
         answered = recorded_outputs.keys()
         kept = [r for r in recorded_inputs if r.frame_seq in answered]

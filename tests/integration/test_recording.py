@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
 
 from common.codec import FRAME_MAX_BYTES, decode, encode, is_by_reference
 from common.keys import Keys
@@ -28,6 +29,7 @@ from common.session import free_tcp_endpoint, open_session
 from deploy.recording.channels import model_for_key
 from deploy.recording.read import iter_messages, read_info
 from deploy.recording.record import Recorder
+from deploy.recording.replay import frame_seq_of
 
 UMAY = [sys.executable, "-m", "deploy"]
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "reference.mcap"
@@ -255,6 +257,39 @@ def test_a_recording_cut_short_is_read_and_replayed_up_to_the_damage(tmp_path: P
     assert "note: recording cut short (no summary)" in replayed.stdout
     matched = re.search(r"matched (\d+)  differing 0  missing 0  extra 0", replayed.stdout)
     assert matched and int(matched.group(1)) >= 5, replayed.stdout
+
+
+def test_replay_check_refuses_a_recording_that_starts_mid_run_and_says_why(
+    tmp_path: Path,
+) -> None:
+    """`umay record` joins a running system: its first frames are missing, and a service
+    that keeps state from frame to frame cannot match what it recorded. --check says so
+    instead of failing on every frame; a replay without --check still runs."""
+    mid_run = tmp_path / "mid_run.mcap"
+    with REFERENCE.open("rb") as f, mid_run.open("wb") as out:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        writer = Writer(out, compression=CompressionType.ZSTD)
+        writer.start(profile=reader.get_header().profile, library="test")
+        for m in reader.iter_metadata():
+            writer.add_metadata(m.name, m.metadata)
+        schemas = {i: writer.register_schema(s.name, s.encoding, s.data)
+                   for i, s in summary.schemas.items()}  # fmt: skip
+        channels = {i: writer.register_channel(c.topic, c.message_encoding, schemas[c.schema_id])
+                    for i, c in summary.channels.items()}  # fmt: skip
+        for _schema, channel, message in reader.iter_messages():
+            seq = frame_seq_of(message.data)
+            if seq is None or seq >= 3:  # frames 0-2 were never heard
+                writer.add_message(channels[channel.id], message.log_time, message.data,
+                                   message.publish_time, message.sequence)  # fmt: skip
+        writer.finish()
+    checked = replay(mid_run, "vision", tmp_path, "--check")
+    assert checked.returncode == 2, checked.stdout + checked.stderr
+    assert "--check needs the run from its first frame" in checked.stderr
+    assert "starts at frame 3" in checked.stderr
+    plain = replay(mid_run, "vision", tmp_path)
+    assert plain.returncode == 0, plain.stdout + plain.stderr
 
 
 @pytest.mark.xdist_group("recording")  # the module's recording is made once per worker
