@@ -264,6 +264,13 @@ def replay_service(
         notes.append(f"recording {recording.damage}")
     if not any(r.suffix == io.trigger for r in recorded_inputs):
         raise ReplayError(f"{path}: no {io.trigger} messages to replay into {service}")
+    present = {r.suffix for r in recorded_inputs}
+    missing = [k for k in io.inputs if k not in present]
+    if missing:  # it would wait for each frame's in vain (a recording made with --keys)
+        raise ReplayError(
+            f"{path}: no {', '.join(missing)} messages: {service} needs "
+            f"{' and '.join(io.inputs)} for every frame"
+        )
 
     all_overrides = [*_recorded_overrides(metadata), *(overrides or [])]
     skipped = 0

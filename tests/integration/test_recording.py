@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -259,14 +260,10 @@ def test_a_recording_cut_short_is_read_and_replayed_up_to_the_damage(tmp_path: P
     assert matched and int(matched.group(1)) >= 5, replayed.stdout
 
 
-def test_replay_check_refuses_a_recording_that_starts_mid_run_and_says_why(
-    tmp_path: Path,
-) -> None:
-    """`umay record` joins a running system: its first frames are missing, and a service
-    that keeps state from frame to frame cannot match what it recorded. --check says so
-    instead of failing on every frame; a replay without --check still runs."""
-    mid_run = tmp_path / "mid_run.mcap"
-    with REFERENCE.open("rb") as f, mid_run.open("wb") as out:
+def copy_recording(src: Path, dst: Path, keep: Callable[[str, int | None], bool]) -> None:
+    """``src`` copied to ``dst`` (metadata, schemas, channels), with the messages ``keep``
+    accepts by topic and frame number (None: a message without a header)."""
+    with src.open("rb") as f, dst.open("wb") as out:
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None
@@ -279,17 +276,37 @@ def test_replay_check_refuses_a_recording_that_starts_mid_run_and_says_why(
         channels = {i: writer.register_channel(c.topic, c.message_encoding, schemas[c.schema_id])
                     for i, c in summary.channels.items()}  # fmt: skip
         for _schema, channel, message in reader.iter_messages():
-            seq = frame_seq_of(message.data)
-            if seq is None or seq >= 3:  # frames 0-2 were never heard
+            if keep(channel.topic, frame_seq_of(message.data)):
                 writer.add_message(channels[channel.id], message.log_time, message.data,
                                    message.publish_time, message.sequence)  # fmt: skip
         writer.finish()
+
+
+def test_replay_check_refuses_a_recording_that_starts_mid_run_and_says_why(
+    tmp_path: Path,
+) -> None:
+    """`umay record` joins a running system: its first frames are missing, and a service
+    that keeps state from frame to frame cannot match what it recorded. --check says so
+    instead of failing on every frame; a replay without --check still runs."""
+    mid_run = tmp_path / "mid_run.mcap"
+    copy_recording(REFERENCE, mid_run, lambda _topic, seq: seq is None or seq >= 3)
     checked = replay(mid_run, "vision", tmp_path, "--check")
     assert checked.returncode == 2, checked.stdout + checked.stderr
     assert "--check needs the run from its first frame" in checked.stderr
     assert "starts at frame 3" in checked.stderr
     plain = replay(mid_run, "vision", tmp_path)
     assert plain.returncode == 0, plain.stdout + plain.stderr
+
+
+def test_replay_refuses_a_recording_without_one_of_the_services_inputs(tmp_path: Path) -> None:
+    """A recording made with --keys may lack an input the service needs every frame: replay
+    says which at once, instead of waiting for it frame after frame."""
+    no_joints = tmp_path / "no_joints.mcap"
+    copy_recording(REFERENCE, no_joints, lambda topic, _seq: not topic.endswith("/joint_state"))
+    replayed = replay(no_joints, "actuation", tmp_path)
+    # Refused before anything starts (it waited 5 s a frame, then exited 0 with no output).
+    assert replayed.returncode == 2, replayed.stdout + replayed.stderr
+    assert "no sim/joint_state messages: actuation needs" in replayed.stderr
 
 
 @pytest.mark.xdist_group("recording")  # the module's recording is made once per worker
