@@ -61,13 +61,21 @@ class RecordingReader:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        if self.path.is_dir():
+            raise NotARecordingError(f"{self.path}: a folder, not a recording")
         with self.path.open("rb") as f:
             if f.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
                 raise NotARecordingError(
                     f"{self.path}: not an MCAP recording (no MCAP magic at its start)"
                 )
             f.seek(0)
-            self.header = NonSeekingReader(f).get_header()
+            try:
+                self.header = NonSeekingReader(f).get_header()
+            except Exception as exc:  # EndOfFile, or a damaged header record
+                raise NotARecordingError(
+                    f"{self.path}: an MCAP file cut short before its header ended (a recorder "
+                    f"killed as it started?): {type(exc).__name__}"
+                ) from exc
             f.seek(0)
             try:
                 self.summary: Summary | None = make_reader(f).get_summary()

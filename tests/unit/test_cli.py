@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from mcap.writer import MCAP0_MAGIC
 
 from tests.conftest import CliResult
 
@@ -18,7 +19,7 @@ Cli = Callable[..., CliResult]
 # Run in a folder holding only these: a plain file (no folder can be made under it) and a
 # file named like a recording that is not one. Outputs are named relative to the folder, so
 # that anything a command wrote would show up there.
-FILE, JUNK = "file", "junk.mcap"
+FILE, JUNK, CUT = "file", "junk.mcap", "cut.mcap"  # CUT: an MCAP file cut after its magic
 RUN = ["run", "--quiet", "--prefix", "test/cli", "--result", "result.json", "--log-dir", "logs"]
 REPLAY = ["replay", REFERENCE, "--service", "vision", "--log-dir", "logs"]
 
@@ -98,6 +99,10 @@ REFUSED = [
     case(*REPLAY, "--log-dir", "/proc/no/logs", says="replay: --log-dir /proc/no/logs: cannot"),
     case("info", "none.mcap", says="no such file"),
     case("info", JUNK, says="junk.mcap: not an MCAP recording"),
+    case("info", CUT, says="cut.mcap: an MCAP file cut short before its header ended"),
+    case("info", ".", says=".: a folder, not a recording"),
+    case("plot", CUT, "--out", "plots", says="umay plot: cut.mcap: an MCAP file cut short"),
+    case("export", CUT, "--foxglove", "o.mcap", says="umay export: cut.mcap: an MCAP file cut"),
     case("plot", JUNK, "--out", "plots", says="umay plot: junk.mcap: not an MCAP recording"),
     case("plot", REFERENCE, "--out", f"{FILE}/in", says=f"umay plot: --out {FILE}/in:"),
     case("export", "none.mcap", "--foxglove", "o.mcap", says="no such file"),
@@ -119,11 +124,12 @@ def test_bad_input_exits_2_naming_it_and_writes_nothing(
     monkeypatch.chdir(tmp_path)
     (tmp_path / FILE).write_text("x")
     (tmp_path / JUNK).write_bytes(b"not an mcap file")
+    (tmp_path / CUT).write_bytes(MCAP0_MAGIC)
     refused = umay_cli(*argv)
     assert refused.returncode == 2, refused.stderr
     assert says in refused.stderr, refused.stderr
     assert ".rs:" not in refused.stderr  # no Rust source location from a Zenoh error
-    assert sorted(p.name for p in tmp_path.iterdir()) == [FILE, JUNK]  # nothing written
+    assert sorted(p.name for p in tmp_path.iterdir()) == [CUT, FILE, JUNK]  # nothing written
 
 
 def test_umay_logs_shows_the_last_lines_of_a_service_log(tmp_path: Path, umay_cli: Cli) -> None:
