@@ -106,9 +106,14 @@ def frame_seq_of(payload: bytes) -> int | None:
 
 
 def source_prefix(recording: RecordingReader, metadata: dict[str, str]) -> str:
-    if metadata.get("prefix"):
-        return metadata["prefix"]
-    prefixes = {s[0] for s in map(split_data_key, recording.topics()) if s is not None}
+    """The key prefix the recording's data was published under: its metadata's, unless no
+    recorded key has it (``umay record --keys P/**`` without ``--prefix`` noted the default
+    one), then the one its data keys share."""
+    topics = recording.topics()
+    noted = metadata.get("prefix")
+    if noted and any(t.startswith(f"{noted}/") for t in topics):
+        return noted
+    prefixes = {s[0] for s in map(split_data_key, topics) if s is not None}
     if len(prefixes) != 1:
         found = ", ".join(sorted(prefixes)) or "none"
         raise ReplayError(

@@ -7,7 +7,13 @@ import msgpack
 
 from common.codec import encode
 from common.messages import EndEffectorTwist, Header
-from deploy.recording.replay import JOINT_STATE, SERVICE_IO, Recorded, lockstep_steps
+from deploy.recording.replay import (
+    JOINT_STATE,
+    SERVICE_IO,
+    Recorded,
+    lockstep_steps,
+    source_prefix,
+)
 from deploy.recording.replay_check import (
     ReplayReport,
     check_outputs,
@@ -69,3 +75,22 @@ def test_a_field_a_recording_predates_reads_as_its_default() -> None:
         without = report.model_copy(update={"compared": 0, "matched": 0, "differing": 0})
         check_outputs(without, {0: msgpack.packb(old)}, {0: encode(twist)})
         assert without.other_diffs == {"lifted": 1}  # without the defaults: absent vs False
+
+
+class Topics:
+    """A recording as source_prefix sees it: its path and its topics."""
+
+    def __init__(self, *topics: str) -> None:
+        self.path = "r.mcap"
+        self._topics = list(topics)
+
+    def topics(self) -> list[str]:
+        return self._topics
+
+
+def test_the_prefix_is_the_metadata_s_unless_no_recorded_key_has_it() -> None:
+    recorded = Topics("run/a1/sim/rgb", "run/a1/sim/depth", "run/a1/vision/status")
+    assert source_prefix(recorded, {"prefix": "run/a1"}) == "run/a1"  # type: ignore[arg-type]
+    # `umay record --keys 'run/a1/**'` without --prefix noted the default prefix.
+    assert source_prefix(recorded, {"prefix": "umay/umay1"}) == "run/a1"  # type: ignore[arg-type]
+    assert source_prefix(recorded, {}) == "run/a1"  # type: ignore[arg-type]
