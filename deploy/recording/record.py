@@ -50,6 +50,11 @@ from deploy.recording.channels import (
     split_data_key,
 )
 
+# A chunk is compressed and written once this many bytes of messages are in it: what a
+# recorder killed outright loses at most (a camera frame fills one alone; small messages
+# alone, 30 twists a second, fill one in a few seconds: at 1 MiB, over a minute was lost).
+CHUNK_BYTES = 64 << 10
+
 
 def run_metadata(
     scenario_path: str | Path | None, overrides: list[str], prefix: str
@@ -87,7 +92,7 @@ class Recorder:
         keys: Keys,
         key_expr: str | None = None,
         metadata: dict[str, str] | None = None,
-        chunk_size: int = 1 << 20,
+        chunk_size: int = CHUNK_BYTES,
         rings: RingReader | None = None,
         without_frames: bool = False,
     ) -> None:
@@ -118,6 +123,9 @@ class Recorder:
             if without_frames:
                 described["frames"] = "left out"
             self._writer.add_metadata(METADATA_NAME, described)
+        # What the writer has written (the header, the metadata, then each finished chunk)
+        # goes to the file at once, for a recorder killed outright to leave behind.
+        self._stream.flush()
         self._subscriber = session.declare_subscriber(self.key_expr, self._on_sample)
 
     def __enter__(self) -> Recorder:
@@ -202,6 +210,7 @@ class Recorder:
                 publish_time=now_ns if sent_ns is None else sent_ns,
                 sequence=self.counts[key],
             )
+            self._stream.flush()  # a no-op until the writer finishes a chunk
             self.counts[key] += 1
 
     def message_counts(self) -> dict[str, int]:
