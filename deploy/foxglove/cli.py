@@ -32,7 +32,9 @@ def cmd_export(args: argparse.Namespace) -> int:
         print("umay export: say what to write: --foxglove OUT.mcap", file=sys.stderr)
         return EXIT_BAD_INPUT
     check_output_file("--foxglove", args.foxglove)
-    if Path(args.foxglove).resolve() == Path(args.file).resolve():
+    out, recording = Path(args.foxglove), Path(args.file)
+    # The same file by another name too (a hard link): opening it to write would empty it.
+    if out.resolve() == recording.resolve() or (out.exists() and out.samefile(recording)):
         print("umay export: --foxglove must not overwrite the recording", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:

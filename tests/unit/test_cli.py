@@ -20,6 +20,7 @@ Cli = Callable[..., CliResult]
 # file named like a recording that is not one. Outputs are named relative to the folder, so
 # that anything a command wrote would show up there.
 FILE, JUNK, CUT = "file", "junk.mcap", "cut.mcap"  # CUT: an MCAP file cut after its magic
+LINK = "link.mcap"  # a hard link to JUNK: the same file by another name
 RUN = ["run", "--quiet", "--prefix", "test/cli", "--result", "result.json", "--log-dir", "logs"]
 REPLAY = ["replay", REFERENCE, "--service", "vision", "--log-dir", "logs"]
 
@@ -108,6 +109,7 @@ REFUSED = [
     case("export", "none.mcap", "--foxglove", "o.mcap", says="no such file"),
     case("export", JUNK, "--foxglove", "o.mcap", says="not an MCAP recording"),
     case("export", JUNK, says="--foxglove OUT.mcap"),
+    case("export", JUNK, "--foxglove", LINK, says="--foxglove must not overwrite the recording"),
 ]
 
 
@@ -125,11 +127,13 @@ def test_bad_input_exits_2_naming_it_and_writes_nothing(
     (tmp_path / FILE).write_text("x")
     (tmp_path / JUNK).write_bytes(b"not an mcap file")
     (tmp_path / CUT).write_bytes(MCAP0_MAGIC)
+    (tmp_path / LINK).hardlink_to(tmp_path / JUNK)
     refused = umay_cli(*argv)
     assert refused.returncode == 2, refused.stderr
     assert says in refused.stderr, refused.stderr
     assert ".rs:" not in refused.stderr  # no Rust source location from a Zenoh error
-    assert sorted(p.name for p in tmp_path.iterdir()) == [CUT, FILE, JUNK]  # nothing written
+    assert sorted(p.name for p in tmp_path.iterdir()) == [CUT, FILE, JUNK, LINK]  # as they were
+    assert (tmp_path / LINK).read_bytes() == b"not an mcap file"
 
 
 def test_umay_logs_shows_the_last_lines_of_a_service_log(tmp_path: Path, umay_cli: Cli) -> None:
