@@ -66,6 +66,8 @@ from typing import Any
 
 import numpy as np
 
+from common.processes import pid_exists
+
 log = logging.getLogger("umay")
 
 SHM_DIR = Path("/dev/shm")
@@ -475,24 +477,10 @@ def shared_reader() -> RingReader:
 def remove_orphan_segments(directory: Path = SHM_DIR) -> list[str]:
     """Unlink the segments whose writer (the pid in the name, looked up in this host's pid
     namespace) no longer exists; their names."""
-    removed = []
-    for path in directory.glob(f"{SEGMENT_PREFIX}*-*"):
-        pid = path.name.removeprefix(SEGMENT_PREFIX).split("-", 1)[0]
-        if pid.isdigit() and not _process_exists(int(pid)):
-            with contextlib.suppress(OSError):
-                path.unlink()
-                removed.append(path.name)
-    return removed
-
-
-def _process_exists(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's: it exists
-        return True
-    return True
+    names = (p.name.removeprefix(SEGMENT_PREFIX) for p in directory.glob(f"{SEGMENT_PREFIX}*-*"))
+    pids = {int(pid) for pid, _, _ in (n.partition("-") for n in names) if pid.isdigit()}
+    ended = sorted(pid for pid in pids if not pid_exists(pid))
+    return [name for pid in ended for name in remove_segments_of(pid, directory)]
 
 
 def remove_segments_of(pid: int, directory: Path = SHM_DIR) -> list[str]:

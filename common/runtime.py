@@ -5,10 +5,8 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import select
 import sys
 import threading
-import time
 import tomllib
 from collections.abc import Mapping
 from typing import Any
@@ -18,6 +16,7 @@ import zenoh
 from common.config import Scenario, ScenarioError, load_scenario
 from common.keys import Keys, check_prefix, default_prefix
 from common.node import setup_logging
+from common.processes import ProcessEnd
 from common.session import ZenohConfigError, check_endpoints, open_session
 from common.stop_signals import stop_on_signals
 
@@ -104,52 +103,6 @@ def supervisor_pid(env: Mapping[str, str]) -> int | None:
     value = env.get(ENV_SUPERVISOR_PID, "").strip()
     pid = int(value) if value.isdigit() else 0
     return pid if pid > 1 else None
-
-
-class ProcessEnd:
-    """Whether process ``pid`` has ended: called, it answers at once or within ``timeout_s``.
-    Through a pidfd where Linux has one (that very process, whoever it is a child of, even if
-    its pid is later reused), else by whether the pid still exists."""
-
-    def __init__(self, pid: int) -> None:
-        self.pid = pid
-        self._pidfd: int | None = None
-        self._ended = False
-        try:
-            self._pidfd = os.pidfd_open(pid)
-        except ProcessLookupError:
-            self._ended = True
-        except (AttributeError, OSError):  # no pidfd here: Python or kernel too old
-            pass
-
-    def __call__(self, timeout_s: float | None = 0.0) -> bool:
-        """``timeout_s``: how long to wait for the end (None: until it comes)."""
-        if not self._ended:
-            if self._pidfd is not None:  # readable once the process has ended
-                self._ended = bool(select.select([self._pidfd], [], [], timeout_s)[0])
-            else:
-                deadline = None if timeout_s is None else time.monotonic() + timeout_s
-                while _pid_exists(self.pid) and (deadline is None or time.monotonic() < deadline):
-                    time.sleep(0.01)
-                self._ended = not _pid_exists(self.pid)
-            if self._ended:
-                self.close()
-        return self._ended
-
-    def close(self) -> None:
-        if self._pidfd is not None:
-            os.close(self._pidfd)
-            self._pidfd = None
-
-
-def _pid_exists(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process: it exists
-        return True
-    return True
 
 
 class ServiceContext:

@@ -30,7 +30,7 @@ from typing import Protocol
 import setproctitle
 
 from common.keys import SERVICES
-from common.runtime import ProcessEnd
+from common.processes import ProcessEnd
 
 # What the forkserver imports before its first fork: every service's node and what it imports.
 # "__main__": the launching program's main module (a script, such as the ``umay`` entry point),

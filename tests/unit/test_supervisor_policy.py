@@ -7,7 +7,8 @@ import subprocess
 import sys
 
 from common.config import RestartPolicy, SupervisorConfig
-from common.runtime import ENV_SUPERVISOR_PID, ProcessEnd, supervisor_pid
+from common.processes import ProcessEnd
+from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
 from deploy.supervisor import Heard, backoff_s, hang_reason, wants_restart
 
 
