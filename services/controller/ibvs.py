@@ -11,7 +11,7 @@ object (:mod:`.clearance`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,7 +38,13 @@ from services.controller.interaction import (
     interaction_matrix,
     points3d_control_matrix,
 )
-from services.controller.pairing import choose_pairing, pairing_costs_px2, rolled
+from services.controller.pairing import (
+    choose_pairing,
+    label_shift,
+    pairing_costs_px2,
+    relabelled_pairing,
+    rolled,
+)
 from services.controller.reach import carried_over, goal_poses_ee, goal_posture, goal_postures
 from services.controller.stability import frozen_matrix_stability
 from services.controller.twist import camera_twist_to_base_ee, clamp_twist
@@ -143,6 +149,10 @@ class IbvsController:
     # labelled afresh, which shifts the pairings' indices (.reach.carried_over).
     reach_rotations: FloatArray | None = None
     reach_stale: bool = False
+    # Each marker's corners as last used (seen, fitted or carried): vision labels a marker
+    # afresh when it has lost it or restarted, which the next view shows (._follow_labels).
+    hand_px: FloatArray | None = None
+    target_px: FloatArray | None = None
     # The target's last usable view and motion, and whether the goal is a prediction.
     target_memory: TargetMemory = field(default_factory=TargetMemory)
     hold_since_s: float | None = None  # sim time the current hold began
@@ -172,6 +182,7 @@ class IbvsController:
         target, remembered, seen_again = self.target_memory.now(target, hand, k, t_s)
         if seen_again:  # the window's errors were against the prediction: afresh
             self.window.clear()
+        self._follow_labels(hand, target)
         if self.acquisition is not None:
             if seen.usable or not hand.usable or not self.config.acquire:
                 self.acquisition = None  # uncovered (or the hand lost): back to the rules
@@ -192,6 +203,35 @@ class IbvsController:
             self._check_reach(hand, goal, q, t_base_ee)
             self._follow_goal_posture(hand, goal, t_base_ee)
         return self._servo(hand, goal, k, arm, t_s, remembered, hand_predicted)
+
+    def _follow_labels(self, hand: Marker, target: Marker) -> None:
+        """Keep what is indexed by corner or by pairing on the same physical corners when
+        vision has labelled a marker afresh since the last frame (after it lost the marker, or
+        a restart of vision, whose tracker starts with no labels to keep): the pairing's index,
+        the constant matrix's rows (the target's labels), the acquisition's goal (the hand's),
+        and the reach verdicts (carried over by their goal orientations, :meth:`_check_reach`).
+        Else a fresh vision's labels, a quarter turn from the old ones, would have the hand
+        servoed to a pairing it was never meant to take, or held off the one it must."""
+        hand_shift = target_shift = 0
+        if hand.usable:
+            if self.hand_px is not None:
+                hand_shift = label_shift(self.hand_px, hand.corners_px)
+            self.hand_px = hand.corners_px
+        if target.usable:
+            if self.target_px is not None:
+                target_shift = label_shift(self.target_px, target.corners_px)
+            self.target_px = target.corners_px
+        if hand_shift == 0 and target_shift == 0:
+            return
+        self.window.clear()  # its errors are by corner
+        if self.pairing is not None:
+            self.pairing = relabelled_pairing(self.pairing, hand_shift, target_shift)
+        if self.l_constant is not None:
+            self.l_constant = np.roll(self.l_constant, -2 * target_shift, axis=0)
+        if self.acquisition is not None:
+            goal_px = np.roll(self.acquisition.goal_px, -hand_shift, axis=0)
+            self.acquisition = replace(self.acquisition, goal_px=goal_px)
+        self.reach_stale = self.reachable is not None
 
     def _check_reach(
         self, hand: Marker, goal: Marker, q_rad: FloatArray, t_base_ee: FloatArray

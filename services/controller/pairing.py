@@ -56,3 +56,21 @@ def choose_pairing(costs_px2: FloatArray, current: int | None) -> int:
     if current is None or costs_px2[best] < CORNER_SWITCH_RATIO * costs_px2[current]:
         return best
     return current
+
+
+def label_shift(previous_px: FloatArray, current_px: FloatArray) -> int:
+    """The cyclic shift ``s`` of a marker's labels between two views of it close in time:
+    its corner ``i`` now is its corner ``(i + s) % 4`` then (compared about the centroids, so
+    the marker's move in between does not count; a turn past 45° in between would).
+
+    Vision keeps a marker's labels from frame to frame, and labels its corners afresh when it
+    has lost the marker or restarted; anything indexed by corner or by pairing must follow."""
+    previous = previous_px - previous_px.mean(axis=0)
+    current = current_px - current_px.mean(axis=0)
+    return int(np.argmin(np.sum((current - previous[_CYCLIC_PAIRINGS]) ** 2, axis=(1, 2))))
+
+
+def relabelled_pairing(pairing: int, hand_shift: int, target_shift: int) -> int:
+    """The same physical pairing once the hand's labels shifted by ``hand_shift`` and the
+    target's by ``target_shift`` (:func:`label_shift`)."""
+    return (pairing + hand_shift - target_shift) % 4

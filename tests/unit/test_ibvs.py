@@ -469,3 +469,41 @@ def test_the_controller_freezes_the_constant_matrix_with_the_configured_depths()
         frozen = ctrl.l_constant.copy()
         ctrl.step(observe(hand), moved, K, ArmReading(hand.mean(axis=0)))
         np.testing.assert_array_equal(ctrl.l_constant, frozen)
+
+
+@pytest.mark.parametrize("mode", list(JacobianMode))
+def test_corners_labelled_afresh_mid_run_leave_the_twists_as_they_were(mode: JacobianMode) -> None:
+    """A restarted vision labels each marker from scratch (its tracker keeps no labels): the
+    pairing, the constant matrix's rows and the rest follow the physical corners, so the
+    run goes on with the very twists it would have had, and still converges."""
+    target = square_points(np.array([0.0, 0.05, 0.55]))
+    start_rot = _axis_angle(np.array([0.2, 0.3, 0.93]) / np.linalg.norm([0.2, 0.3, 0.93]), 0.4)
+    start = (start_rot @ (square_points(np.zeros(3))).T).T + np.array([0.08, -0.04, 0.5])
+    dt = 1 / 30
+
+    def run(relabel_at: int) -> tuple[list[np.ndarray], bool]:
+        ctrl = IbvsController(ControllerConfig(mode=mode, gain=1.0), np.eye(4))
+        hand, twists, converged = start.copy(), [], False
+        for i in range(600):
+            hand_shift, target_shift = (1, 2) if i >= relabel_at else (0, 0)
+            centre = hand.mean(axis=0)
+            out = ctrl.step(
+                observe(np.roll(hand, -hand_shift, axis=0)),
+                observe(np.roll(target, -target_shift, axis=0)),
+                K,
+                ArmReading(centre),
+            )
+            twists.append(out.twist_base_ee)
+            if out.converged:
+                converged = True
+                break
+            v, w = out.twist_base_ee[:3], out.twist_base_ee[3:]
+            hand = centre + v * dt + (_axis_angle_safe(w, dt) @ (hand - centre).T).T
+        return twists, converged
+
+    kept, kept_converged = run(10**9)
+    relabelled, relabelled_converged = run(20)
+    assert kept_converged and relabelled_converged
+    assert len(relabelled) >= len(kept)  # its convergence window starts again at the relabel
+    same = len(kept) - 1  # the last of them converged; the relabelled run had not yet
+    np.testing.assert_allclose(np.array(relabelled[:same]), np.array(kept[:same]), atol=1e-9)

@@ -119,7 +119,8 @@ def test_the_pairings_are_checked_again_when_the_goal_moves_and_follow_a_relabel
 ) -> None:
     """Checked on the first frame servoed, not again while the goal stays put (a few
     millimetres of measurement wobble), again once it has moved by REACH_RECHECK_M; carried
-    over to the corners' new labels once vision sees the hand again; never when turned off."""
+    over to the corners' new labels once vision sees the hand again, or labels it afresh (a
+    restarted vision); never when turned off."""
     from common.config import ControllerConfig
     from services.controller import ibvs
     from services.controller.arm import ArmReading
@@ -156,6 +157,14 @@ def test_the_pairings_are_checked_again_when_the_goal_moves_and_follow_a_relabel
     assert np.array_equal(ctrl.reach_postures, postures_before[[(k - 1) % 4 for k in range(4)]])
     posture = ctrl.goal_posture_rad()
     assert posture is not None and np.array_equal(posture, ctrl.reach_postures[ctrl.pairing])
+    # A restarted vision labels it afresh with no loss in between (corner i now the old
+    # corner i + 2): the same, the pairing in use with them.
+    pairing = ctrl.pairing
+    assert pairing is not None
+    ctrl.step(rolled(hand, 2), there, K, arm, 0.0)
+    assert len(calls) == 2
+    assert ctrl.reachable == [before[(k - 2) % 4] for k in range(4)]
+    assert ctrl.pairing == (pairing + 1) % 4
     # Turned off: never checked, and the last check no longer narrows the choice.
     ctrl.config = ControllerConfig(reachable_pairing=False)
     assert ctrl.goal_posture_rad() is None  # nor does its posture shape the forearm's margin
