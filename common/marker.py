@@ -35,7 +35,7 @@ class Marker:
     optical frame. ``state``: ``visible``, ``partial``, ``lost`` or ``no_depth``; the arrays
     are zeros unless it is ``visible`` or ``fitted`` (a partly hidden marker whose corners were
     fitted from its visible edges). ``occluded``: something is seen in front of it (hidden,
-    not gone). ``reason``: why it is not visible.
+    not gone; None: vision cannot tell). ``reason``: why it is not visible.
     """
 
     state: MarkerState
@@ -43,7 +43,7 @@ class Marker:
     depth_m: FloatArray
     depth_sigma_m: FloatArray
     points_m: FloatArray
-    occluded: bool = False
+    occluded: bool | None = False
     fitted: bool = False
     reason: str = ""
 
@@ -58,7 +58,7 @@ class Marker:
         return is_usable(self.state, self.fitted)
 
     @classmethod
-    def unseen(cls, state: MarkerState, reason: str = "", occluded: bool = False) -> Marker:
+    def unseen(cls, state: MarkerState, reason: str = "", occluded: bool | None = False) -> Marker:
         """A marker that cannot be used (``state`` not ``visible``): zero arrays."""
         return cls(
             state=state,

@@ -217,7 +217,9 @@ class MarkerFeatures(Message):
     set: a ``partial`` marker whose corners (hidden ones included) were found by fitting its
     known square, on its known plane, to the edges of it that are seen. ``occluded``: the
     depth image (or, between depth images, the hand marker) shows something in front of the
-    marker or of where it was last seen, i.e. it is hidden, not gone.
+    marker or of where it was last seen, i.e. it is hidden, not gone; None on a ``lost``
+    marker vision has no view of to look in front of (not seen since it started: a restarted
+    vision cannot tell hidden from gone).
 
     Vision and the controller work on :class:`common.marker.Marker` (the same fields as
     arrays); ``Marker.to_wire`` / ``Marker.from_wire`` convert.
@@ -228,7 +230,9 @@ class MarkerFeatures(Message):
     depth_m: Depths4
     depth_sigma_m: Depths4 = Field(description="1-σ uncertainty of each corner depth")
     points_m: Corners3 = Field(description="corners in the camera optical frame")
-    occluded: bool = False
+    occluded: bool | None = Field(
+        False, description="something in front of it: hidden, not gone (None: cannot tell)"
+    )
     fitted: bool = False
     reason: str = Field("", max_length=200, description="why not visible")
 

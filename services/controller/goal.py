@@ -60,9 +60,9 @@ def hand_hides_target(hand: Marker, last_target: Marker) -> bool:
 
 
 def may_be_behind_the_hand(target: Marker) -> bool:
-    """Seen partly, or with something in front: what moving the hand away can uncover (a
-    target simply gone, with nothing in front of it, cannot be)."""
-    return target.state == "partial" or target.occluded
+    """Seen partly, or with something in front, or vision cannot tell: what moving the hand
+    away can uncover (a target simply gone, with nothing in front of it, cannot be)."""
+    return target.state == "partial" or target.occluded is not False
 
 
 @dataclass
@@ -72,7 +72,8 @@ class TargetMemory:
     As the hand closes in it necessarily hides the target from the fixed camera. While vision
     can fit the partly hidden square it is used as seen; when it cannot, the goal comes from
     the last view carried along the target's estimated velocity, but only while vision sees
-    something in front of the target (``occluded``) and the hand is near it. ``predicted``:
+    something in front of the target (``occluded``), or cannot tell (a restarted vision with
+    no view of it yet), and the hand is near it. ``predicted``:
     the goal is where that motion says a hidden target went, unconfirmed since, so not a goal
     to stop on."""
 
@@ -91,7 +92,7 @@ class TargetMemory:
             self.last, self.predicted = target, False
             self.motion = self.motion.seen(t_s, target.points_m)
             return target, False, seen_again
-        if target.occluded and self.last is not None:
+        if target.occluded is not False and self.last is not None:  # hidden, or may be
             shift = self.motion.shift_m(t_s)
             expected = carried(self.last, shift, k)
             if hand_hides_target(hand, expected):

@@ -18,6 +18,7 @@ from services.actuation.limiter import LimiterState, actuation_step
 from services.pipeline import STAGES, Pipeline
 from services.sim.motors import motor_velocities
 from services.sim.schedule import DepthSchedule, substeps_per_frame
+from services.vision.tracking import TrackerState
 
 
 # --- the sim's schedule and motors --------------------------------------------------------
@@ -167,3 +168,29 @@ def test_many_runs_in_one_process_leave_no_descriptors_or_threads_behind() -> No
         assert result.reason == "timeout" and result.frames == 4
         counts.append((open_fds(), threading.active_count()))
     assert counts[-1] == counts[1], counts  # the first run may open lasting caches
+
+
+@pytest.mark.parametrize(
+    "restart_at, why",
+    [
+        (20, "the hand turned past 45° since the start: labelled a quarter turn away"),
+        (110, "the hand over the target: a new vision has no view of it to look behind"),
+    ],
+)
+def test_a_vision_restarted_mid_run_leaves_the_hand_converging(restart_at: int, why: str) -> None:
+    """What a supervisor's restart of vision leaves the loop with: a tracker with no labels,
+    no views, no motions (TrackerState()), the controller's state kept. The hand still
+    reaches the target (it was servoed to the wrong pairing, or held over a target the new
+    vision called lost, before the controller followed relabelled corners and took a target
+    vision cannot tell about as maybe hidden)."""
+    frames = []
+    with Pipeline(short()) as pipeline:
+        for seq in range(400):
+            if seq == restart_at:
+                pipeline.tracker = TrackerState()
+            frame = pipeline.step()
+            frames.append(frame)
+            if seq > restart_at and frame.control.converged:
+                break
+    assert frames[-1].control.converged, (why, frames[-1].control.status)
+    assert frames[restart_at].features.hand.state == "visible"  # no loss between the labels

@@ -46,3 +46,17 @@ def test_a_target_gone_without_the_hand_in_front_is_not_remembered() -> None:
     gone = Marker.unseen("lost")  # nothing in front of it: gone, not hidden
     target, remembered, _ = memory.now(gone, observe(square((0.0, 0.0, 0.48))), K, 0.2)
     assert target is gone and not remembered and not memory.predicted
+
+
+def test_a_target_vision_cannot_tell_about_is_remembered_where_the_hand_is() -> None:
+    """A restarted vision reports the target lost with ``occluded`` None (no view of it to
+    look in front of): where the hand is over its last view it is remembered, as a hidden one
+    would be; away from the hand it is not."""
+    memory = TargetMemory()
+    seen = observe(square((0.0, 0.0, 0.5)))
+    memory.now(seen, observe(square((0.2, 0.1, 0.45))), K, 0.0)
+    unknown = Marker.unseen("lost", occluded=None)
+    target, remembered, _ = memory.now(unknown, observe(square((0.0, 0.0, 0.48))), K, 0.1)
+    assert remembered and np.array_equal(target.corners_px, seen.corners_px)
+    target, remembered, _ = memory.now(unknown, observe(square((0.2, 0.1, 0.45))), K, 0.2)
+    assert target is unknown and not remembered

@@ -169,6 +169,26 @@ def test_a_sliver_is_not_fitted_but_known_to_be_hidden() -> None:
 )
 def test_hidden_is_told_from_gone(case: str, occluded: bool) -> None:
     state, hand, target = first_view()
+    rgb, depth = frame_without_target(case, hand, target)
+    measured, _ = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, state, 1 / 30)
+    m = measured["target"]
+    assert m.state == "lost" and m.occluded == occluded, (case, m.reason)
+
+
+@pytest.mark.parametrize("case", ["covered whole", "taken away"])
+def test_a_restarted_vision_cannot_tell_hidden_from_gone(case: str) -> None:
+    """Not seen since vision started (a restart: its tracker is new), a lost target has no
+    last view to look in front of: hidden or gone, ``occluded`` is None, not False."""
+    _, hand, target = first_view()
+    rgb, depth = frame_without_target(case, hand, target)
+    measured, _ = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, TrackerState(), 1 / 30)
+    m = measured["target"]
+    assert m.state == "lost" and m.occluded is None, (case, m.reason)
+    assert measured["hand"].visible and measured["hand"].occluded is False
+
+
+def frame_without_target(case: str, hand: Marker, target: Marker) -> tuple[np.ndarray, np.ndarray]:
+    """A frame with the hand and without the red square: ``case`` says why it is not seen."""
     rgb, depth = render([hand])  # no red square in this frame
     inside = polygon_mask(target.corners_px)
     surface = fit_inverse_depth_plane(
@@ -183,9 +203,7 @@ def test_hidden_is_told_from_gone(case: str, occluded: bool) -> None:
         cover(rgb, depth, box_over(target.corners_px, 1.2), 0.40)
     elif case != "taken away":
         cover(rgb, depth, box_over(target.corners_px, 0.5), 0.40)
-    measured, _ = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, state, 1 / 30)
-    m = measured["target"]
-    assert m.state == "lost" and m.occluded == occluded, (case, m.reason)
+    return rgb, depth
 
 
 def _plane_depths(marker: Marker) -> np.ndarray:
