@@ -24,23 +24,12 @@ from typing import Any, TypeVar
 import zenoh
 from pydantic import BaseModel
 
-from common.codec import (
-    DEFAULT_MAX_BYTES,
-    FrameUnreachable,
-    MessageError,
-    decode,
-    encode,
-    image_field,
-)
+from common.codec import DEFAULT_MAX_BYTES, encode, image_field
 from common.frame_ring import RingReader
 from common.keys import Keys
 from common.messages import Header, PublishedStamps, ServiceStatus, StatusFields
 from common.metrics import DurationMeter, TopicMeter
-from common.publishers import (
-    TypedPublisher,
-    fetch_whole_frame,
-    typed_publisher,
-)
+from common.publishers import TypedPublisher, decode_or_fetch, typed_publisher
 
 M = TypeVar("M", bound=BaseModel)
 log = logging.getLogger("umay")
@@ -149,7 +138,7 @@ class Node:
         as dropped), so a slow consumer always works on the newest data.
         ``rings``: what maps the publisher's ring for camera frames sent by reference
         (default: the process's :func:`~common.frame_ring.shared_reader`); a frame it cannot
-        map is asked whole from the publisher (:func:`fetch_whole_frame`).
+        map is asked whole from the publisher (:func:`~common.publishers.decode_or_fetch`).
         """
         meter = self.received[key] = TopicMeter()
         if latest_only:
@@ -179,34 +168,26 @@ class Node:
                 self._inbox.append((key, message, received))
                 self._cond.notify()
 
-        def on_whole_frame(payload: bytes) -> None:
-            received = time.time()
-            try:
-                message = decode(payload, model, max_bytes)
-            except MessageError as exc:
-                self._reject(key, f"whole frame: {exc}")
-                return
-            deliver(message, received, by_ref=False, fetched=True)
-
         def on_sample(sample: zenoh.Sample) -> None:
             received = time.time()  # before the copy and decode: those count as processing
-            try:
-                message = decode(sample.payload.to_bytes(), model, max_bytes, rings)
-            except FrameUnreachable as exc:  # by reference, but not to a ring this host maps
-                seq = exc.ref.seq
-                fetch_whole_frame(
-                    self.session,
-                    key,
-                    exc.ref,
-                    on_whole_frame,
-                    lambda reason: self._reject(key, f"whole frame {seq}: {reason}"),
-                )
-                return
-            except MessageError as exc:
-                self._reject(key, str(exc))
-                return
-            by_ref = field is not None and getattr(message, field).ring_ref is not None
-            deliver(message, received, by_ref, fetched=False)
+
+            def on_message(message: BaseModel, fetched: bool) -> None:
+                if fetched:  # asked whole from its publisher: received as it came
+                    deliver(message, time.time(), by_ref=False, fetched=True)
+                    return
+                by_ref = field is not None and getattr(message, field).ring_ref is not None
+                deliver(message, received, by_ref, fetched=False)
+
+            decode_or_fetch(
+                self.session,
+                key,
+                sample.payload.to_bytes(),
+                model,
+                max_bytes,
+                on_message,
+                lambda reason: self._reject(key, reason),
+                rings,
+            )
 
         self._subscribers.append(self.session.declare_subscriber(key, on_sample))
 

@@ -37,7 +37,10 @@ import zenoh
 from pydantic import BaseModel
 
 from common.codec import (
+    FrameUnreachable,
+    MessageError,
     by_reference,
+    decode,
     encode,
     frame_parts,
     image_field,
@@ -46,6 +49,7 @@ from common.frame_ring import (
     RING_SLOTS,
     FrameRef,
     RingError,
+    RingReader,
     RingUnavailable,
     RingWriter,
     SlotLease,
@@ -194,6 +198,44 @@ def fetch_whole_frame(
 
     selector = f"{whole_frame_key(key)}?segment={ref.segment};seq={ref.seq}"
     session.get(selector, zenoh.handlers.Callback(on_reply, on_done), timeout=timeout_s)
+
+
+def decode_or_fetch(
+    session: zenoh.Session,
+    key: str,
+    payload: bytes,
+    model: type[M],
+    max_bytes: int,
+    on_message: Callable[[M, bool], None],
+    on_reject: Callable[[str], None],
+    rings: RingReader | None = None,
+) -> None:
+    """What a subscriber does with a sample's ``payload`` on ``key``: ``on_message(message,
+    fetched)`` gets it decoded and validated, at once, or, for a camera frame by reference to a
+    ring this process cannot map (``rings``, default the process's shared reader), once its
+    publisher has sent it whole (:func:`fetch_whole_frame`; ``fetched`` True, on a Zenoh
+    thread). ``on_reject`` gets why a payload, or a frame asked for whole, cannot be used."""
+    try:
+        message = decode(payload, model, max_bytes, rings)
+    except FrameUnreachable as exc:
+        seq = exc.ref.seq
+
+        def on_whole(whole: bytes) -> None:
+            try:
+                fetched = decode(whole, model, max_bytes)
+            except MessageError as error:
+                on_reject(f"whole frame {seq}: {error}")
+                return
+            on_message(fetched, True)
+
+        fetch_whole_frame(
+            session, key, exc.ref, on_whole, lambda why: on_reject(f"whole frame {seq}: {why}")
+        )
+        return
+    except MessageError as exc:
+        on_reject(str(exc))
+        return
+    on_message(message, False)
 
 
 @dataclass

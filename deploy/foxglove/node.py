@@ -38,14 +38,11 @@ from foxglove.websocket import Capability
 from common.codec import (
     DEFAULT_MAX_BYTES,
     FRAME_MAX_BYTES,
-    FrameUnreachable,
-    MessageError,
-    decode,
 )
 from common.config import Scenario
 from common.keys import DEPTH, JOINT_STATE, RGB, Keys
 from common.node import Node
-from common.publishers import fetch_whole_frame
+from common.publishers import decode_or_fetch
 from common.queries import query_status
 from deploy.arguments import NOTHING_RUNNING_THERE
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
@@ -176,25 +173,18 @@ class ViewNode:
                 self.dropped[suffix] += 1  # before the copy and the decode: costs nothing
                 return
             self._accepted_s[suffix] = now
-            try:
-                message = decode(sample.payload.to_bytes(), model, max_bytes)
-            except FrameUnreachable as exc:  # a ring this process cannot map: ask for it whole
-                fetch_whole_frame(
-                    self.session, f"{self.keys.prefix}/{suffix}", exc.ref, on_whole, on_failure
-                )
-                return
-            except MessageError:
-                self.rejected += 1
-                return
-            keep(message)
+            # A frame in a ring this process cannot map is asked whole from its publisher.
+            decode_or_fetch(
+                self.session,
+                f"{self.keys.prefix}/{suffix}",
+                sample.payload.to_bytes(),
+                model,
+                max_bytes,
+                lambda message, _fetched: keep(message),
+                on_reject,
+            )
 
-        def on_whole(payload: bytes) -> None:
-            try:
-                keep(decode(payload, model, max_bytes))
-            except MessageError:
-                self.rejected += 1
-
-        def on_failure(_reason: str) -> None:
+        def on_reject(_reason: str) -> None:
             self.rejected += 1
 
         def keep(message: Any) -> None:
