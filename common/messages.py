@@ -57,6 +57,14 @@ class Header(Message):
         "completed this message's inputs (0: none, e.g. a camera frame); with send_time_s it "
         "splits latency into transport and processing per hop",
     )
+    run: int = Field(
+        0,
+        ge=0,
+        lt=1 << 62,
+        description="the sim's run the message derives from: drawn by the sim at its start, "
+        "copied by every service from its input (common.runs); a new one means the sim "
+        "restarted and frame numbers began again (0: not stamped)",
+    )
 
 
 ImageDtype = Literal["uint8", "float32"]

@@ -109,9 +109,12 @@ class Node:
         self._publishers[key] = pub
         return pub
 
-    def header(self, sim_time_s: float, frame_seq: int, recv_time_s: float | None = None) -> Header:
+    def header(
+        self, sim_time_s: float, frame_seq: int, recv_time_s: float | None = None, run: int = 0
+    ) -> Header:
         """A fresh header: per-node sequence number, wall-clock send time, and the receive time
-        of the event being handled by :meth:`spin` (0 outside one) unless ``recv_time_s``."""
+        of the event being handled by :meth:`spin` (0 outside one) unless ``recv_time_s``;
+        ``run``: the sim's run the message derives from (:mod:`common.runs`)."""
         recv = self._handling_recv_time_s if recv_time_s is None else recv_time_s
         h = Header(
             seq=self._seq,
@@ -119,6 +122,7 @@ class Node:
             send_time_s=time.time(),
             frame_seq=frame_seq,
             recv_time_s=recv,
+            run=run,
         )
         self._seq += 1
         return h
@@ -144,16 +148,20 @@ class Node:
         if latest_only:
             self._latest_only.add(key)
         field = image_field(model)
-        newest_seq = -1  # header.seq of the newest message delivered on this key
+        newest = (0, -1)  # header.run and .seq of the newest message delivered on this key
 
         def deliver(message: BaseModel, received: float, by_ref: bool, fetched: bool) -> None:
-            nonlocal newest_seq
-            seq = message.header.seq if isinstance(getattr(message, "header", None), Header) else -1
+            nonlocal newest
+            header = getattr(message, "header", None)
+            run, seq = (header.run, header.seq) if isinstance(header, Header) else (0, -1)
             with self._cond:
-                if fetched and seq < newest_seq:  # a newer frame came first: this one is late
+                # A frame asked for whole after a newer one came: late. Only within one run of
+                # its publisher, whose sequence numbers begin again when it restarts.
+                if fetched and run == newest[0] and seq < newest[1]:
                     meter.dropped += 1
                     return
-                newest_seq = max(newest_seq, seq)
+                if run != newest[0] or seq > newest[1]:
+                    newest = (run, seq)
                 meter.tick()
                 if field is not None:
                     meter.by_ref += by_ref

@@ -100,12 +100,26 @@ def compare_messages(
 
 
 def field_defaults(model: type[BaseModel]) -> dict[str, Any]:
-    """The top-level fields of ``model`` that have a default, with it."""
-    return {
-        name: info.get_default(call_default_factory=True)
-        for name, info in model.model_fields.items()
-        if not info.is_required()
-    }
+    """The fields of ``model`` that have a default, with it, and those of the models it nests
+    (a required ``header`` whose ``run`` a recording predates), as nested dicts."""
+    defaults: dict[str, Any] = {}
+    for name, info in model.model_fields.items():
+        kind = info.annotation
+        if not info.is_required():
+            defaults[name] = info.get_default(call_default_factory=True)
+        elif isinstance(kind, type) and issubclass(kind, BaseModel) and field_defaults(kind):
+            defaults[name] = field_defaults(kind)
+    return defaults
+
+
+def with_defaults(defaults: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` with what it lacks of ``defaults`` (:func:`field_defaults`), at every depth."""
+    out = dict(defaults)
+    for key, value in data.items():
+        default = defaults.get(key)
+        nested = isinstance(default, dict) and isinstance(value, dict)
+        out[key] = with_defaults(default, value) if nested else value
+    return out
 
 
 def check_outputs(
@@ -123,7 +137,7 @@ def check_outputs(
     other: dict[str, int] = {}
     fill = defaults or {}
     for seq in sorted(recorded.keys() & replayed.keys()):
-        was = {**fill, **msgpack.unpackb(recorded[seq], raw=False)}
+        was = with_defaults(fill, msgpack.unpackb(recorded[seq], raw=False))
         now = msgpack.unpackb(replayed[seq], raw=False)
         numeric, different = compare_messages(was, now)
         report.compared += 1

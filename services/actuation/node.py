@@ -23,6 +23,7 @@ from common.config import ClockMode
 from common.messages import EndEffectorTwist, JointState, JointVelocityCommand
 from common.node import Node
 from common.pairing import FramePairer
+from common.runs import RunVerdict, RunWatch
 from common.runtime import ServiceContext
 from services.actuation.inverse import Clamps, deadman_expired
 from services.actuation.limiter import LimiterState, actuation_step
@@ -38,14 +39,14 @@ class ActuationService:
         self.pub = self.node.publisher(ctx.keys.joint_command)
         self.node.subscribe(ctx.keys.twist, EndEffectorTwist)
         self.node.subscribe(ctx.keys.joint_state, JointState)
-        self.pairer: FramePairer[EndEffectorTwist, JointState] = FramePairer()
+        self.runs = RunWatch()  # the sim's run the inputs come from (common.runs)
+        self.run_id = 0  # ... the one in progress, for the commands
         self.last_valid_twist_s: float | None = None
         self.last_deadman_s = 0.0
         self.deadman_stops = 0
         self.saturated: list[int] = []
         self.manipulability = float("nan")
-        self.last_output: JointVelocityCommand | None = None
-        self.limiter = LimiterState()  # the command the motors follow now
+        self.new_run()
         # Every stop and clamp, counted (commands, not joints).
         self.counts = {
             "hold_stops": 0,
@@ -55,6 +56,15 @@ class ActuationService:
             "nonfinite_guards": 0,
             "damped_commands": 0,
         }
+
+    def new_run(self) -> None:
+        """A restarted sim starts its run again from frame 0 with the motors at rest: no input
+        waits for a partner of the run before, no answer is kept for a resend, and the
+        acceleration limit ramps from rest (sim time began again: the last command's time
+        base is gone)."""
+        self.pairer: FramePairer[EndEffectorTwist, JointState] = FramePairer()
+        self.last_output: JointVelocityCommand | None = None
+        self.limiter = LimiterState()  # the command the motors follow now
 
     def deadman_active(self) -> bool:
         return deadman_expired(
@@ -77,7 +87,7 @@ class ActuationService:
 
     def publish(self, velocity: np.ndarray, reason: str, sim_time_s: float, frame_seq: int) -> None:
         command = JointVelocityCommand(
-            header=self.node.header(sim_time_s, frame_seq),
+            header=self.node.header(sim_time_s, frame_seq, run=self.run_id),
             velocity_rad_s=velocity.tolist(),
             reason=reason,  # type: ignore[arg-type]
         )
@@ -128,6 +138,13 @@ class ActuationService:
             self.publish(np.zeros(kin.N_JOINTS), "deadman", 0.0, -1)
 
     def on_event(self, key: str, msg: EndEffectorTwist | JointState) -> None:
+        run = self.runs.see(msg.header.run)
+        if run is RunVerdict.OVER:  # sent before the sim restarted: frame numbers mean others now
+            self.node.received[key].dropped += 1
+            return
+        if run is RunVerdict.NEW:
+            self.run_id = msg.header.run
+            self.new_run()
         if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:
             self.pub.put(self.last_output)  # a re-published frame: same answer again
             return

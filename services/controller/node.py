@@ -14,6 +14,7 @@ import numpy as np
 from common.messages import EndEffectorTwist, Features, JointState
 from common.node import Node
 from common.pairing import FramePairer
+from common.runs import RunVerdict, RunWatch
 from common.runtime import ServiceContext
 from services.controller.ibvs import IbvsController, describe_hold, is_stuck
 from services.controller.progress import Progress, describe_stall
@@ -27,17 +28,26 @@ log = logging.getLogger("umay.controller")
 class ControllerService:
     def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
-        self.controller = IbvsController(
-            ctx.scenario.controller,
-            ctx.scenario.camera.assumed_pose(),  # the calibration, not the simulator's truth
-            ctx.scenario.target.approach_height_m,
-            oriented_markers=ctx.scenario.marker.orientation_cue,
-            object_side_m=ctx.scenario.object_side_m,
-        )
         self.node = Node("controller", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.twist)
         self.node.subscribe(ctx.keys.features, Features)
         self.node.subscribe(ctx.keys.joint_state, JointState)
+        self.runs = RunWatch()  # the sim's run the inputs come from (common.runs)
+        self.clearance_lifts = 0  # twists corrected to keep the arm off the object
+        self.new_run()
+
+    def new_run(self) -> None:
+        """Servo afresh: a restarted sim starts its run again from frame 0, the arm in its
+        start posture, so nothing the controller kept from the run before holds (its goal
+        memories, pairing, frozen matrix, progress, the inputs waiting for a partner)."""
+        scenario = self.ctx.scenario
+        self.controller = IbvsController(
+            scenario.controller,
+            scenario.camera.assumed_pose(),  # the calibration, not the simulator's truth
+            scenario.target.approach_height_m,
+            oriented_markers=scenario.marker.orientation_cue,
+            object_side_m=scenario.object_side_m,
+        )
         self.pairer: FramePairer[Features, JointState] = FramePairer()
         self.error_px = float("nan")
         self.converged = False
@@ -49,11 +59,10 @@ class ControllerService:
         self.target_speed_m_s = 0.0  # estimated; set by the event loop, read by status queries
         self.last_output: EndEffectorTwist | None = None
         self.target_remembered = False
-        self.clearance_lifts = 0  # twists corrected to keep the arm off the object
         self.lifted = False  # the last twist was
         self.hand_predicted = False  # the last twist servoed on the hand carried by the encoders
         self.progress = Progress()  # whether servoing still brings the error down
-        self.events_end_s = ctx.scenario.events_end_s  # progress counts once they are over
+        self.events_end_s = scenario.events_end_s  # progress counts once they are over
 
     def status_fields(self) -> ControllerStatus:
         since = self.hold_since_s
@@ -115,7 +124,9 @@ class ControllerService:
         self.progress = self.progress.after(self.sim_time_s, out.error_px_rms, servoing)
         self.last_output = twist_message(
             out,
-            self.node.header(features.header.sim_time_s, features.header.frame_seq),
+            self.node.header(
+                features.header.sim_time_s, features.header.frame_seq, run=features.header.run
+            ),
             self.controller.config.mode.value,
         )
         self.pub.put(self.last_output)
@@ -149,6 +160,12 @@ class ControllerService:
             )
 
     def on_event(self, key: str, msg: Features | JointState) -> None:
+        run = self.runs.see(msg.header.run)
+        if run is RunVerdict.OVER:  # sent before the sim restarted: frame numbers mean others now
+            self.node.received[key].dropped += 1
+            return
+        if run is RunVerdict.NEW:
+            self.new_run()
         if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:
             # A re-published frame (lockstep resend after a restart downstream): answer it
             # again with the same twist instead of stepping the controller twice.

@@ -42,6 +42,7 @@ from common.messages import (
 from common.node import Node
 from common.publishers import RingPublisher, TypedPublisher
 from common.queries import alive_services
+from common.runs import new_run
 from common.runtime import ServiceContext
 from common.session import ENV_SHM
 from services.sim.motors import motor_velocities
@@ -61,6 +62,7 @@ class SimService:
         self.period_s = 1.0 / ctx.scenario.camera.rgb_hz
         self.substeps = substeps_per_frame(ctx.scenario.camera.rgb_hz, self.world.physics_dt_s)
         self.frame_seq = 0
+        self.run_id = new_run()  # on every message: a restarted sim is a new run (common.runs)
         self.depth_schedule = DepthSchedule.of(ctx.scenario.camera)
         self._last_frame: list[tuple[TypedPublisher, object]] = []  # for a lockstep resend
         self.dropped_frames = 0
@@ -146,12 +148,13 @@ class SimService:
         put(
             self.pub_joints,
             JointState(
-                header=self.node.header(t, seq),
+                header=self.node.header(t, seq, run=self.run_id),
                 position_rad=q.tolist(),
                 velocity_rad_s=qdot.tolist(),
             ),
         )
-        put(self.pub_truth, truth_message(self.world.truth(), self.node.header(t, seq), q))
+        truth_header = self.node.header(t, seq, run=self.run_id)
+        put(self.pub_truth, truth_message(self.world.truth(), truth_header, q))
         # Drawn straight into the frame rings' next slots where there are rings (no copy on
         # the way to vision); into fresh arrays otherwise.
         k, k_depth = self.world.intrinsics, self.world.depth_intrinsics
@@ -176,12 +179,12 @@ class SimService:
             put(
                 self.pub_depth,
                 DepthFrame(
-                    header=self.node.header(t, seq),
+                    header=self.node.header(t, seq, run=self.run_id),
                     intrinsics=self.world.depth_intrinsics,
                     depth_m=ImageData.view_of(depth_m),
                 ),
             )
-        rgb_header = self.node.header(t, seq)
+        rgb_header = self.node.header(t, seq, run=self.run_id)
         put(
             self.pub_rgb,
             RgbFrame(
@@ -194,7 +197,7 @@ class SimService:
         self._last_frame = messages
         # How the frame was made; published when the next one starts (_publish_timing).
         self._timing = SimTiming(
-            header=self.node.header(t, seq),
+            header=self.node.header(t, seq, run=self.run_id),
             render_start_s=render_start_s,
             capture_time_s=capture_time_s,
             frame_send_time_s=rgb_header.send_time_s,
@@ -216,6 +219,16 @@ class SimService:
         self.resends += 1
         for publisher, message in self._last_frame:
             publisher.put(message)
+
+    def of_this_run(self, command: JointVelocityCommand) -> bool:
+        """A command derived from this run's frames, or a stop (which answers no frame): not
+        one left over from a run of the sim before a restart, whose frame numbers meant
+        other frames."""
+        return command.header.run == self.run_id or command.header.frame_seq < 0
+
+    def answers(self, command: JointVelocityCommand, frame_seq: int) -> bool:
+        """Whether ``command`` is this run's for frame ``frame_seq`` (lockstep applies no other)."""
+        return command.header.frame_seq == frame_seq and command.header.run == self.run_id
 
     def apply(self, command: JointVelocityCommand, recv_time_s: float) -> None:
         """``recv_time_s``: when the command arrived (wall clock), for :class:`SimTiming`."""
@@ -265,7 +278,7 @@ class SimService:
             sent = time.monotonic()
             while not self.ctx.stop.is_set():
                 event = self.node.next_event(0.05)
-                if event is not None and event[1].header.frame_seq == self.frame_seq:
+                if event is not None and self.answers(event[1], self.frame_seq):
                     self.apply(event[1], self.node.event_recv_time_s)
                     break
                 if time.monotonic() - sent > resend_s:
@@ -295,6 +308,9 @@ class SimService:
             nonlocal awaited
             event = self.node.next_event(timeout_s)  # a command wakes the loop at once
             while event is not None:  # apply every command in order: the newest one stays
+                if not self.of_this_run(event[1]):
+                    event = self.node.next_event(0.0)
+                    continue
                 self.apply(event[1], self.node.event_recv_time_s)
                 answered = event[1].header.frame_seq
                 if awaited is not None and (answered >= awaited or answered < 0):

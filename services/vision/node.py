@@ -25,8 +25,9 @@ import time
 from collections import OrderedDict
 
 from common.codec import FRAME_MAX_BYTES
-from common.messages import DepthFrame, RgbFrame
+from common.messages import DepthFrame, Features, RgbFrame
 from common.node import Node
+from common.runs import RunVerdict, RunWatch
 from common.runtime import ServiceContext
 from services.vision.status import VisionStatus
 from services.vision.step import depth_for, depth_image, vision_step
@@ -50,16 +51,25 @@ class VisionService:
         self.pub = self.node.publisher(ctx.keys.features)
         self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=True)
         self.node.subscribe(ctx.keys.depth, DepthFrame, FRAME_MAX_BYTES)
-        self.tracker = TrackerState()
-        self.depths: OrderedDict[int, DepthFrame] = OrderedDict()
-        self.waiting: RgbFrame | None = None  # a colour frame whose depth image is on its way
-        self.waiting_since_s = 0.0
+        self.runs = RunWatch()  # the sim's run the frames come from (common.runs)
+        self.new_run()
         self.depth_waits = 0  # colour frames that had to wait for their depth image
         self.depth_missed = 0  # ... and went on without it
         self.frames_overwritten = 0  # measurements dropped: a ring slot changed while read
         self.depth_age_s: float | None = None
         self.states: dict[str, str] = {"hand": "lost", "target": "lost"}
         self.reasons: dict[str, str] = {"hand": "", "target": ""}
+
+    def new_run(self) -> None:
+        """Forget what belongs to the sim's run before (a restarted sim starts again from
+        frame 0): the tracking, the depth images kept, a frame waiting, the last answer."""
+        self.tracker = TrackerState()
+        self.depths: OrderedDict[int, DepthFrame] = OrderedDict()
+        self.waiting: RgbFrame | None = None  # a colour frame whose depth image is on its way
+        self.waiting_since_s = 0.0
+        # The last frame measured and what vision answered: a lockstep resend of that frame
+        # gets the same answer, the tracker not stepped twice on it.
+        self.answered: tuple[int, Features] | None = None
 
     def _warm_up(self) -> None:
         """One step on a synthetic frame; only an optimisation, so a failure is logged and
@@ -134,10 +144,19 @@ class VisionService:
         self.tracker = step.tracker
         for name, m in step.measured.items():
             self.states[name], self.reasons[name] = m.state, m.reason
-        header = self.node.header(frame.header.sim_time_s, frame.header.frame_seq)
-        self.pub.put(step.features(header, frame.intrinsics))
+        seq = frame.header.frame_seq
+        header = self.node.header(frame.header.sim_time_s, seq, run=frame.header.run)
+        features = step.features(header, frame.intrinsics)
+        self.pub.put(features)
+        self.answered = (seq, features)
 
     def on_event(self, key: str, msg: RgbFrame | DepthFrame) -> None:
+        run = self.runs.see(msg.header.run)
+        if run is RunVerdict.OVER:  # sent before the sim restarted: frame numbers mean others now
+            self.node.received[key].dropped += 1
+            return
+        if run is RunVerdict.NEW:
+            self.new_run()
         if isinstance(msg, DepthFrame):
             self.depths[msg.header.frame_seq] = msg
             while len(self.depths) > DEPTH_CACHE:
@@ -145,6 +164,9 @@ class VisionService:
             if self.waiting is not None and msg.header.frame_seq >= self.waiting.depth_frame_seq:
                 frame, self.waiting = self.waiting, None
                 self.on_frame(frame)
+            return
+        if self.answered is not None and self.answered[0] == msg.header.frame_seq:
+            self.pub.put(self.answered[1])  # a lockstep resend of the frame measured last
             return
         newest_depth = max(self.depths, default=-1)
         if msg.depth_frame_seq > newest_depth:

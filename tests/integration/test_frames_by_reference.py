@@ -38,9 +38,9 @@ K = CameraIntrinsics.from_fov(64, 48, 57.0)
 ELSEWHERE = RingReader(host="another-host/boot")  # as a subscriber on another machine maps
 
 
-def frame(seq: int) -> RgbFrame:
+def frame(seq: int, run: int = 0) -> RgbFrame:
     rgb = np.random.default_rng(seq).integers(0, 255, (48, 64, 3), dtype=np.uint8)
-    header = Header(seq=seq, sim_time_s=0.0, send_time_s=1.0, frame_seq=seq)
+    header = Header(seq=seq, sim_time_s=0.0, send_time_s=1.0, frame_seq=seq, run=run)
     return RgbFrame(header=header, intrinsics=K, rgb=ImageData.view_of(rgb))
 
 
@@ -112,6 +112,26 @@ def test_a_subscriber_that_cannot_map_the_ring_gets_whole_frames(net: Loopback) 
         assert stats.by_copy == stats.fetched == stats.count >= 1 and stats.by_ref == 0
         assert pub.frames is not None and pub.frames.served >= 1
         assert pub.meter.by_ref == pub.meter.count  # the publisher still sent references
+    finally:
+        pub.close()
+
+
+def test_a_restarted_publisher_s_frames_are_fetched_whole_again(net: Loopback) -> None:
+    """A fetched frame older than one delivered is late and dropped, but only within one run:
+    a restarted sim numbers its messages from 0 again, and a remote vision must not drop them
+    all until the new numbers pass the old ones (the loop stalled that long)."""
+    session, keys = net.session, net.keys
+    remote = net.node("vision")
+    remote.subscribe(keys.rgb, RgbFrame, FRAME_MAX_BYTES, rings=ELSEWHERE)
+    pub = typed_publisher(session, keys.rgb, frames=True)
+    try:
+        assert receive(remote, lambda: pub.put(frame(50, run=1))).header.seq == 50
+        deadline = time.monotonic() + 10.0
+        got = None
+        while (got is None or got.header.run != 2) and time.monotonic() < deadline:
+            got = receive(remote, lambda: pub.put(frame(0, run=2)))
+        assert got is not None and got.header.run == 2 and got.header.seq == 0
+        np.testing.assert_array_equal(got.rgb.to_array(), frame(0).rgb.to_array())
     finally:
         pub.close()
 

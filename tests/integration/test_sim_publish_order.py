@@ -28,6 +28,7 @@ def test_the_joint_state_and_truth_go_before_the_frame_and_its_timing_after_its_
     keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
     session = open_session(connect=[], listen=[endpoint])
     arrivals: list[tuple[str, int]] = []  # (key suffix, frame_seq) in arrival order
+    runs: set[int] = set()  # the sim's run, on every message (a command must carry it)
     timings: dict[int, SimTiming] = {}
     lock = threading.Lock()
     frame_in = threading.Condition(lock)
@@ -48,6 +49,7 @@ def test_the_joint_state_and_truth_go_before_the_frame_and_its_timing_after_its_
             data = unpack(payload)  # the header alone, frames included
             assert data is not None, f"{suffix}: not a message"
             frame_seq = int(data["header"]["frame_seq"])
+            runs.add(int(data["header"]["run"]))
         with lock:
             if suffix == "timing":
                 timings[frame_seq] = t
@@ -69,7 +71,10 @@ def test_the_joint_state_and_truth_go_before_the_frame_and_its_timing_after_its_
                 while ("rgb", seq) not in arrivals:
                     assert not sup.exited(), (tmp_path / "sim.log").read_text()[-2000:]
                     assert frame_in.wait(max(0.0, deadline - time.monotonic())), f"no frame {seq}"
-            header = Header(seq=seq, sim_time_s=0.0, send_time_s=time.time(), frame_seq=seq)
+                (run,) = runs  # one run, and no message of the sim without it
+            header = Header(
+                seq=seq, sim_time_s=0.0, send_time_s=time.time(), frame_seq=seq, run=run
+            )
             commands.put(JointVelocityCommand(header=header, velocity_rad_s=[0.0] * 6))
         time.sleep(0.5)  # frame FRAMES+1 starts: frame FRAMES's timing goes out
         with lock:

@@ -53,8 +53,8 @@ def test_a_frame_s_joint_state_logged_after_its_trigger_is_still_replayed_with_i
 
 
 def test_a_field_a_recording_predates_reads_as_its_default() -> None:
-    """A twist recorded before ``lifted`` existed checks against a replayed one that carries
-    it at its default; a replayed ``lifted`` of True is a difference."""
+    """A twist recorded before ``lifted`` and ``header.run`` existed checks against a replayed
+    one that carries them at their defaults; a replayed ``lifted`` of True is a difference."""
     header = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
     twist = EndEffectorTwist(
         header=header, linear_m_s=[0.0] * 3, angular_rad_s=[0.0] * 3, valid=True,
@@ -62,8 +62,10 @@ def test_a_field_a_recording_predates_reads_as_its_default() -> None:
     )  # fmt: skip
     old = twist.model_dump()
     del old["lifted"]
+    del old["header"]["run"]  # nested: a header recorded before runs were stamped
     defaults = field_defaults(EndEffectorTwist)
     assert defaults["lifted"] is False and "valid" not in defaults  # required: no default
+    assert defaults["header"] == {"frame_seq": -1, "recv_time_s": 0.0, "run": 0}
     for replayed, same in ((twist, True), (twist.model_copy(update={"lifted": True}), False)):
         report = ReplayReport(
             recording="r.mcap", service="controller", speed="max", prefix="p", log_path="l",
@@ -74,7 +76,7 @@ def test_a_field_a_recording_predates_reads_as_its_default() -> None:
         assert report.ok is same and report.matched == int(same), report
         without = report.model_copy(update={"compared": 0, "matched": 0, "differing": 0})
         check_outputs(without, {0: msgpack.packb(old)}, {0: encode(twist)})
-        assert without.other_diffs == {"lifted": 1}  # without the defaults: absent vs False
+        assert without.other_diffs == {"lifted": 1, "header.run": 1}  # absent vs the default
 
 
 class Topics:

@@ -1,0 +1,52 @@
+"""Which run of the sim a message belongs to. Pure.
+
+The sim draws a number when it starts (:func:`new_run`) and stamps it on every message it
+publishes (``Header.run``); vision, the controller and actuation copy their input's into what
+they derive from it. A restarted sim begins a new run: frame numbers and sim time start again
+from 0 and the arm from its start posture, so what a service keeps for a run (messages waiting
+for their partner frame, vision's tracking, the controller's memory, the limiter's last
+command) belongs to a run that is over. :class:`RunWatch` tells, message by message, whether it
+belongs to the run in progress, begins a new one, or is left over from an earlier one (in
+flight when the sim restarted: to be dropped, since its frame numbers mean other frames now).
+Run 0 is a run like any other: the messages of recordings made before runs were stamped, and
+of sources that do not draw one (the bench's synthetic frames, the in-process pipeline).
+"""
+
+from __future__ import annotations
+
+import secrets
+from collections import deque
+from enum import Enum
+
+RUN_BITS = 62  # fits msgpack's and JSON's integers, and Header.run's range
+
+
+def new_run() -> int:
+    """A run number for a sim starting now: random, so a restart never repeats its last."""
+    return secrets.randbits(RUN_BITS) or 1  # 0 is left to the unstamped
+
+
+class RunVerdict(Enum):
+    SAME = "same"  # the run in progress
+    NEW = "new"  # a run not seen before: it replaces the one in progress
+    OVER = "over"  # a run that was replaced: its messages are left over
+
+
+class RunWatch:
+    """The run in progress, from the runs of the messages as they come, and the last
+    ``remembered`` runs it replaced."""
+
+    def __init__(self, remembered: int = 8) -> None:
+        self.current: int | None = None
+        self._over: deque[int] = deque(maxlen=remembered)
+
+    def see(self, run: int) -> RunVerdict:
+        """What a message of ``run`` is; a new run becomes the one in progress."""
+        if run == self.current:
+            return RunVerdict.SAME
+        if run in self._over:
+            return RunVerdict.OVER
+        if self.current is not None:
+            self._over.append(self.current)
+        self.current = run
+        return RunVerdict.NEW

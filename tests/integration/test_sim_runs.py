@@ -1,0 +1,192 @@
+"""A restarted sim begins a new run (common/runs.py): vision, the controller and actuation start
+it afresh and drop what is left over from the run before, and vision answers a lockstep resend
+without measuring the frame again. The services' event handlers are driven directly (one
+process, a loopback Zenoh session under a unique key prefix), on the messages the in-process
+pipeline computes for the default scenario's first frames."""
+
+from __future__ import annotations
+
+import threading
+import uuid
+from collections.abc import Iterator
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from common.config import load_scenario
+from common.keys import Keys
+from common.messages import (
+    Header,
+    ImageData,
+    JointState,
+    JointVelocityCommand,
+    RgbFrame,
+)
+from common.runs import RunVerdict, RunWatch, new_run
+from common.session import free_tcp_endpoint, open_session
+from services.pipeline import Pipeline
+
+FRAMES = 6
+RUN_A, RUN_B = 11, 22
+
+
+def test_runs_are_told_apart_and_a_replaced_one_stays_over() -> None:
+    watch = RunWatch()
+    assert watch.see(RUN_A) is RunVerdict.NEW  # the first one seen
+    assert watch.see(RUN_A) is RunVerdict.SAME
+    assert watch.see(RUN_B) is RunVerdict.NEW  # the sim restarted
+    assert watch.see(RUN_A) is RunVerdict.OVER  # in flight from before: left over
+    assert watch.current == RUN_B
+    runs = {new_run() for _ in range(100)}
+    assert len(runs) == 100 and 0 not in runs  # 0 is left to unstamped messages
+
+
+@pytest.fixture(scope="module")
+def pipeline_frames() -> list[SimpleNamespace]:
+    """The default run's first frames as the services exchange them (run 0)."""
+    out = []
+    with Pipeline(load_scenario()) as pipeline:
+        for _ in range(FRAMES):
+            f = pipeline.step()
+            joints = JointState(
+                header=f.features.header,
+                position_rad=f.q_rad.tolist(),
+                velocity_rad_s=f.qdot_rad_s.tolist(),
+            )
+            rgb = RgbFrame(
+                header=f.features.header,
+                intrinsics=f.features.intrinsics,
+                rgb=ImageData.view_of(f.rgb),
+                depth_frame_seq=-1,  # measured without depth: no wait for a depth image
+            )
+            out.append(SimpleNamespace(features=f.features, joints=joints, twist=f.twist, rgb=rgb))
+    return out
+
+
+def in_run(message, run: int):
+    return message.model_copy(update={"header": message.header.model_copy(update={"run": run})})
+
+
+@pytest.fixture()
+def ctx() -> Iterator[SimpleNamespace]:
+    endpoint = free_tcp_endpoint()
+    session = open_session(connect=[], listen=[endpoint])
+    yield SimpleNamespace(
+        scenario=load_scenario(),
+        keys=Keys(f"test/{uuid.uuid4().hex[:12]}"),
+        session=session,
+        stop=threading.Event(),
+    )
+    session.close()
+
+
+def published(service) -> list:
+    """What the service puts from now on (and still sends)."""
+    sent: list = []
+    put = service.pub.put
+    service.pub.put = lambda message: (sent.append(message), put(message))
+    return sent
+
+
+def test_the_controller_starts_a_new_run_afresh_and_drops_the_old_one_s_leftovers(
+    ctx, pipeline_frames
+) -> None:
+    """The sim dies after frame 4 and comes back: the new run's frame 0 is answered (it was
+    taken for a frame paired already, and a lockstep loop stalled for good), by a controller
+    with nothing of the run before; a message of the old run still in flight is dropped."""
+    from services.controller.node import ControllerService
+
+    service = ControllerService(ctx)  # type: ignore[arg-type]
+    try:
+        twists = published(service)
+        keys = ctx.keys
+        for f in pipeline_frames[:5]:
+            service.on_event(keys.joint_state, in_run(f.joints, RUN_A))
+            service.on_event(keys.features, in_run(f.features, RUN_A))
+        assert [t.header.frame_seq for t in twists] == [0, 1, 2, 3, 4]
+        assert {t.header.run for t in twists} == {RUN_A}
+        before = service.controller
+        first = pipeline_frames[0]
+        service.on_event(keys.joint_state, in_run(first.joints, RUN_B))
+        service.on_event(keys.features, in_run(first.features, RUN_B))
+        assert [t.header.frame_seq for t in twists] == [0, 1, 2, 3, 4, 0]
+        assert twists[-1].header.run == RUN_B
+        assert service.controller is not before  # servoing afresh
+        # The same twist as the run's first frame had: the state of the run before is gone.
+        assert twists[-1].linear_m_s == twists[0].linear_m_s
+        late = in_run(pipeline_frames[5].features, RUN_A)
+        service.on_event(keys.features, late)
+        service.on_event(keys.joint_state, in_run(pipeline_frames[5].joints, RUN_A))
+        assert len(twists) == 6 and service.node.received[keys.features].dropped == 1
+    finally:
+        service.node.close()
+
+
+def test_actuation_ramps_a_new_run_from_rest(ctx, pipeline_frames) -> None:
+    """After the sim restarted, the first command comes from rest (a fresh limiter), not from
+    the last command of the run before with no time base (sim time began again)."""
+    from services.actuation.node import ActuationService
+
+    def commands(service, runs: list[int]) -> list[JointVelocityCommand]:
+        sent = published(service)
+        for run in runs:
+            for f in pipeline_frames[:4] if run == RUN_A else pipeline_frames[:1]:
+                service.on_event(ctx.keys.joint_state, in_run(f.joints, run))
+                service.on_event(ctx.keys.twist, in_run(f.twist, run))
+        return sent
+
+    restarted = ActuationService(ctx)  # type: ignore[arg-type]
+    fresh = ActuationService(ctx)  # type: ignore[arg-type]
+    try:
+        after_restart = commands(restarted, [RUN_A, RUN_B])
+        from_scratch = commands(fresh, [RUN_B])
+        assert [c.header.frame_seq for c in after_restart] == [0, 1, 2, 3, 0]
+        assert after_restart[-1].header.run == RUN_B
+        assert after_restart[-1].velocity_rad_s == from_scratch[-1].velocity_rad_s
+        assert np.any(after_restart[3].velocity_rad_s)  # moving when the sim died
+    finally:
+        restarted.node.close()
+        fresh.node.close()
+
+
+def test_vision_answers_a_resend_again_and_forgets_a_run_that_is_over(ctx, pipeline_frames) -> None:
+    """A lockstep resend of the frame vision measured last gets the same features, its tracker
+    not stepped a second time on it (which made lockstep runs differ); a new run starts with a
+    fresh tracker, and a frame of the run before, still in flight, is dropped."""
+    from services.vision.node import VisionService
+
+    service = VisionService(ctx)  # type: ignore[arg-type]
+    try:
+        sent = published(service)
+        rgb = ctx.keys.rgb
+        for f in pipeline_frames[:3]:
+            service.on_event(rgb, in_run(f.rgb, RUN_A))
+        assert [m.header.frame_seq for m in sent] == [0, 1, 2]
+        tracker = service.tracker
+        service.on_event(rgb, in_run(pipeline_frames[2].rgb, RUN_A))  # resent
+        assert sent[-1] is sent[-2] and service.tracker is tracker
+        service.on_event(rgb, in_run(pipeline_frames[0].rgb, RUN_B))
+        assert service.tracker is not tracker and sent[-1].header.run == RUN_B
+        assert sent[-1].hand == sent[0].hand and sent[-1].target == sent[0].target
+        service.on_event(rgb, in_run(pipeline_frames[3].rgb, RUN_A))
+        assert len(sent) == 5 and service.node.received[rgb].dropped == 1
+    finally:
+        service.node.close()
+
+
+def test_the_sim_applies_commands_of_its_own_run_and_stops_of_any() -> None:
+    from services.sim.node import SimService
+
+    sim = SimpleNamespace(run_id=RUN_B)
+
+    def command(run: int, frame_seq: int) -> JointVelocityCommand:
+        header = Header(seq=0, sim_time_s=0.0, send_time_s=1.0, frame_seq=frame_seq, run=run)
+        return JointVelocityCommand(header=header, velocity_rad_s=[0.1] * 6, reason="track")
+
+    assert SimService.answers(sim, command(RUN_B, 3), 3)  # type: ignore[arg-type]
+    assert not SimService.answers(sim, command(RUN_A, 3), 3)  # type: ignore[arg-type]
+    assert not SimService.answers(sim, command(RUN_B, 2), 3)  # type: ignore[arg-type]
+    assert SimService.of_this_run(sim, command(RUN_B, 7))  # type: ignore[arg-type]
+    assert not SimService.of_this_run(sim, command(RUN_A, 7))  # type: ignore[arg-type]
+    assert SimService.of_this_run(sim, command(RUN_A, -1))  # type: ignore[arg-type]  # a stop
