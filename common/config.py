@@ -432,7 +432,7 @@ class ActuationConfig(_Strict):
         le=5.0,
         description="zero velocity without a fresh valid twist this long (wall s): 6 camera "
         "periods at 30 Hz, and room within the 300 ms stop budget for the stop to reach the "
-        "motors on a loaded machine",
+        "motors on a loaded machine; below sim.command_watchdog_s",
     )
     damping: float = Field(0.02, ge=0.0, le=1.0, description="DLS damping near singularities")
     manipulability_threshold: float = Field(
@@ -610,6 +610,17 @@ class Scenario(_Strict):
             raise ValueError(
                 f"target.object_side_m ({self.object_side_m}) below marker.size_m "
                 f"({self.marker.size_m}): the red marker lies on the object's top face"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _deadman_before_watchdog(self) -> Scenario:
+        deadman, watchdog = self.actuation.deadman_timeout_s, self.sim.command_watchdog_s
+        if deadman >= watchdog:
+            raise ValueError(
+                f"actuation.deadman_timeout_s ({deadman}) not below sim.command_watchdog_s "
+                f"({watchdog}): the deadman is the first stop, the sim's watchdog the second, "
+                "and the stop must have time to reach the motors before the watchdog acts"
             )
         return self
 

@@ -57,6 +57,27 @@ JOINT_LOWER_RAD: FloatArray = np.deg2rad([-150.0, -100.0, -150.0, -150.0, -150.0
 JOINT_UPPER_RAD: FloatArray = np.deg2rad([150.0, 100.0, 150.0, 150.0, 150.0, 100.0])
 # Joint speed limits (rad/s), servo-class values for a child-sized arm.
 JOINT_VELOCITY_LIMIT_RAD_S: FloatArray = np.full(N_JOINTS, 1.5)
+# Within this of a joint limit the speed towards it falls to zero at the limit.
+POSITION_LIMIT_ZONE_RAD = float(np.deg2rad(10.0))
+
+
+def position_bound_rad_s(
+    qdot_rad_s: FloatArray,
+    q_rad: FloatArray,
+    lower_rad: FloatArray = JOINT_LOWER_RAD,
+    upper_rad: FloatArray = JOINT_UPPER_RAD,
+    slow_zone_rad: float = POSITION_LIMIT_ZONE_RAD,
+    vmax_rad_s: FloatArray = JOINT_VELOCITY_LIMIT_RAD_S,
+) -> FloatArray:
+    """Each joint's speed bound in the direction it is asked to move: its speed limit times
+    the fraction of the slow-down zone left before the limit that way (1 outside the zone, 0
+    at the limit). Actuation bounds its commands with it, at the angles of their frame; the
+    sim's motors bound what they follow with it again, at the angles the joints have now."""
+    q = np.asarray(q_rad, dtype=float)
+    to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)
+    to_lower = np.clip((q - lower_rad) / slow_zone_rad, 0.0, 1.0)
+    qdot = np.asarray(qdot_rad_s, dtype=float)
+    return np.asarray(vmax_rad_s, dtype=float) * np.where(qdot > 0, to_upper, to_lower)
 
 
 def rot_x(angle_rad: float) -> FloatArray:

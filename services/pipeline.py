@@ -75,6 +75,7 @@ class Pipeline:
         camera = scenario.camera
         self.world = World(scenario)
         self.substeps = substeps_per_frame(camera.rgb_hz, self.world.physics_dt_s)
+        self.camera_period_s = 1.0 / camera.rgb_hz  # the acceleration limit's longest gap
         self.schedule = DepthSchedule.of(camera)
         self.depth: tuple[np.ndarray, float] | None = None  # newest depth image, its sim time
         self.tracker = TrackerState()
@@ -159,6 +160,7 @@ class Pipeline:
             twist.valid,
             q,
             t,
+            self.camera_period_s,
         )
         self.limiter = acted.state
         a1 = clock()

@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common import kinematics as kin
+from common.kinematics import position_bound_rad_s
 
 FloatArray = NDArray[np.float64]
 
@@ -28,31 +29,13 @@ def damped_pinv(jacobian: FloatArray, damping: float) -> FloatArray:
     return j.T @ np.linalg.inv(j @ j.T + damping**2 * np.eye(j.shape[0]))
 
 
-def position_bound_rad_s(
-    qdot_rad_s: FloatArray,
-    q_rad: FloatArray,
-    lower_rad: FloatArray = kin.JOINT_LOWER_RAD,
-    upper_rad: FloatArray = kin.JOINT_UPPER_RAD,
-    slow_zone_rad: float = np.deg2rad(10.0),
-    vmax_rad_s: FloatArray = kin.JOINT_VELOCITY_LIMIT_RAD_S,
-) -> FloatArray:
-    """Each joint's speed bound in the direction it is asked to move: its speed limit times
-    the fraction of the slow-down zone left before the limit that way (1 outside the zone, 0
-    at the limit)."""
-    q = np.asarray(q_rad, dtype=float)
-    to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)
-    to_lower = np.clip((q - lower_rad) / slow_zone_rad, 0.0, 1.0)
-    qdot = np.asarray(qdot_rad_s, dtype=float)
-    return np.asarray(vmax_rad_s, dtype=float) * np.where(qdot > 0, to_upper, to_lower)
-
-
 def redistribute_at_limits(
     jacobian: FloatArray,
     twist_base_ee: FloatArray,
     qdot_rad_s: FloatArray,
     q_rad: FloatArray,
     damping: float,
-    slow_zone_rad: float = np.deg2rad(10.0),
+    slow_zone_rad: float = kin.POSITION_LIMIT_ZONE_RAD,
 ) -> tuple[FloatArray, list[int]]:
     """Joints asked to move towards a limit faster than :func:`position_bound_rad_s` allows
     are held at their bound (inside the slow-down zone only: the speed limit outside it scales
@@ -87,7 +70,7 @@ def limit_joint_positions(
     q_rad: FloatArray,
     lower_rad: FloatArray = kin.JOINT_LOWER_RAD,
     upper_rad: FloatArray = kin.JOINT_UPPER_RAD,
-    slow_zone_rad: float = np.deg2rad(10.0),
+    slow_zone_rad: float = kin.POSITION_LIMIT_ZONE_RAD,
     vmax_rad_s: FloatArray = kin.JOINT_VELOCITY_LIMIT_RAD_S,
 ) -> tuple[FloatArray, list[int]]:
     """Inside ``slow_zone_rad`` of a joint limit, the speed towards it is bounded by the
@@ -141,7 +124,7 @@ def limit_joint_velocities(
     lower_rad: FloatArray = kin.JOINT_LOWER_RAD,
     upper_rad: FloatArray = kin.JOINT_UPPER_RAD,
     vmax_rad_s: FloatArray = kin.JOINT_VELOCITY_LIMIT_RAD_S,
-    slow_zone_rad: float = np.deg2rad(10.0),
+    slow_zone_rad: float = kin.POSITION_LIMIT_ZONE_RAD,
 ) -> tuple[FloatArray, list[int], list[int]]:
     """The hard limits, which always hold: speed limits (the whole vector scaled), then
     position limits (each joint's speed towards its limit bounded; below the speed limit, so

@@ -35,6 +35,7 @@ class ActuationService:
         self.ctx = ctx
         self.config = ctx.scenario.actuation
         self.lockstep = ctx.scenario.run.clock == ClockMode.LOCKSTEP
+        self.camera_period_s = 1.0 / ctx.scenario.camera.rgb_hz  # the acceleration's longest gap
         self.node = Node("actuation", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.joint_command)
         self.node.subscribe(ctx.keys.twist, EndEffectorTwist)
@@ -102,6 +103,11 @@ class ActuationService:
     def on_pair(self, twist: EndEffectorTwist, joints: JointState) -> None:
         t, seq = twist.header.sim_time_s, twist.header.frame_seq
         if twist.valid:
+            if not self.lockstep and self.deadman_active():
+                # No fresh twist for the deadman's time: the motors were stopped, by the
+                # deadman or, if it could not send (this process frozen), by the sim's
+                # watchdog. Ramp up from rest, not from the command before the gap.
+                self.limiter = LimiterState.at_rest()
             self.last_valid_twist_s = time.monotonic()
         step = actuation_step(
             self.config,
@@ -110,6 +116,7 @@ class ActuationService:
             twist.valid,
             np.array(joints.position_rad),
             t,
+            self.camera_period_s,
         )
         if step.joint is None:
             self.counts["hold_stops"] += 1

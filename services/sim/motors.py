@@ -1,5 +1,6 @@
-"""The motors' own speed limit, whatever a joint command says. Pure: the sim node and the
-in-process pipeline (services/pipeline.py) apply commands through it."""
+"""The motors' own limits, whatever a joint command says: their speed limit, and the joints'
+angle limits. Pure: the sim node and the in-process pipeline (services/pipeline.py) apply
+commands through them."""
 
 from __future__ import annotations
 
@@ -15,3 +16,19 @@ def motor_velocities(wanted_rad_s: FloatArray | list[float]) -> tuple[FloatArray
     limit = kin.JOINT_VELOCITY_LIMIT_RAD_S
     wanted = np.array(wanted_rad_s, dtype=float)
     return np.clip(wanted, -limit, limit), bool(np.any(np.abs(wanted) > limit))
+
+
+def bounded_at_angles(velocity_rad_s: FloatArray, q_rad: FloatArray) -> FloatArray:
+    """The velocities the motors follow with the joints at ``q_rad`` now: as commanded, but
+    towards a joint limit no faster than the bound at the angle now
+    (:func:`common.kinematics.position_bound_rad_s`), as a servo holds its own angle limits.
+
+    Actuation bounds each command at the angles of its frame. In lockstep a command lasts one
+    camera period, too short to reach a limit from its bound; in realtime it stays in force
+    until the next one comes, or a deadman or watchdog stop, however late that is (a stalled
+    vision, a frozen actuation), and at its speed the joint crossed its limit by degrees and
+    met the joint's end stop. Bounded again before each stretch of physics, the joint slows
+    down towards the limit on its own, whatever the latency."""
+    velocity = np.asarray(velocity_rad_s, dtype=float)
+    bound = kin.position_bound_rad_s(velocity, q_rad)
+    return np.clip(velocity, -bound, bound)

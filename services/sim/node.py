@@ -45,7 +45,7 @@ from common.queries import alive_services
 from common.runs import new_run
 from common.runtime import ServiceContext
 from common.session import ENV_SHM
-from services.sim.motors import motor_velocities
+from services.sim.motors import bounded_at_angles, motor_velocities
 from services.sim.schedule import DepthSchedule, substeps_per_frame
 from services.sim.status import SimStatus
 from services.sim.truth import truth_message
@@ -81,6 +81,7 @@ class SimService:
         self.node.subscribe(keys.joint_command, JointVelocityCommand)
         self.last_command = np.zeros(kin.N_JOINTS)
         self.last_command_s: float | None = None  # wall clock (monotonic)
+        self.following = np.zeros(kin.N_JOINTS)  # what the motors follow (realtime: bounded)
         self.watchdog_stops = 0
         self.motor_clamps = 0  # commands beyond the motors' own speed limit
 
@@ -235,7 +236,7 @@ class SimService:
         self.last_command, clamped = motor_velocities(command.velocity_rad_s)
         self.motor_clamps += clamped
         self.last_command_s = time.monotonic()
-        self.world.set_joint_velocities(self.last_command)
+        self.set_motors(self.last_command)
         self.applied.append(
             AppliedCommand(
                 frame_seq=command.header.frame_seq,
@@ -246,13 +247,26 @@ class SimService:
             )
         )
 
+    def set_motors(self, velocity_rad_s: np.ndarray) -> None:
+        self.following = velocity_rad_s
+        self.world.set_joint_velocities(velocity_rad_s)
+
+    def hold_joint_limits(self) -> None:
+        """Realtime, before each stretch of physics: the motors' velocities bounded again at
+        the joints' angles now (:func:`~services.sim.motors.bounded_at_angles`), since the
+        command they follow may be far older than this stretch."""
+        q_rad, _ = self.world.joint_state()
+        following = bounded_at_angles(self.last_command, q_rad)
+        if not np.array_equal(following, self.following):
+            self.set_motors(following)
+
     def check_watchdog(self) -> None:
         """Second line of defence behind the actuation deadman: no command, no motion."""
         if self.last_command_s is None or not np.any(self.last_command):
             return
         if time.monotonic() - self.last_command_s > self.scenario.sim.command_watchdog_s:
             self.last_command = np.zeros(kin.N_JOINTS)
-            self.world.set_joint_velocities(self.last_command)
+            self.set_motors(self.last_command)
             self.watchdog_stops += 1
             log.warning(
                 "no joint command for %.2f s: motors stopped", self.scenario.sim.command_watchdog_s
@@ -326,6 +340,8 @@ class SimService:
             # during a long render must not wait for all of the catch-up).
             while behind > 0 and not self.ctx.stop.is_set():
                 chunk = min(behind, self.substeps)
+                self.check_watchdog()  # also between stretches of a catch-up after a long render
+                self.hold_joint_limits()
                 self.world.step(chunk)
                 behind -= chunk
                 if behind > 0:

@@ -1,8 +1,9 @@
 """A restarted sim begins a new run (common/runs.py): vision, the controller and actuation start
-it afresh and drop what is left over from the run before, and vision answers a lockstep resend
-without measuring the frame again. The services' event handlers are driven directly (one
-process, a loopback Zenoh session under a unique key prefix), on the messages the in-process
-pipeline computes for the default scenario's first frames."""
+it afresh and drop what is left over from the run before; vision answers a lockstep resend
+without measuring the frame again; actuation resumed after a freeze ramps from rest. The
+services' event handlers are driven directly (one process, a loopback Zenoh session under a
+unique key prefix), on the messages the in-process pipeline computes for the default
+scenario's first frames."""
 
 from __future__ import annotations
 
@@ -190,3 +191,29 @@ def test_the_sim_applies_commands_of_its_own_run_and_stops_of_any() -> None:
     assert SimService.of_this_run(sim, command(RUN_B, 7))  # type: ignore[arg-type]
     assert not SimService.of_this_run(sim, command(RUN_A, 7))  # type: ignore[arg-type]
     assert SimService.of_this_run(sim, command(RUN_A, -1))  # type: ignore[arg-type]  # a stop
+
+
+def test_actuation_frozen_past_its_deadman_ramps_up_from_rest(ctx, pipeline_frames) -> None:
+    """Realtime: actuation frozen (SIGSTOP) for longer than its deadman cannot send the stop,
+    and the sim's watchdog stops the motors instead. On resume its first command must ramp from
+    rest, not jump back to the speed it last commanded (the acceleration limit broken)."""
+    from common.runtime import parse_overrides
+    from services.actuation.node import ActuationService
+
+    ctx.scenario = load_scenario(None, parse_overrides(["run.clock='realtime'"]))
+    service = ActuationService(ctx)  # type: ignore[arg-type]
+    try:
+        sent = published(service)
+        for f in pipeline_frames[:5]:
+            service.on_event(ctx.keys.joint_state, in_run(f.joints, RUN_A))
+            service.on_event(ctx.keys.twist, in_run(f.twist, RUN_A))
+        assert np.any(sent[3].velocity_rad_s)  # moving
+        assert service.last_valid_twist_s is not None
+        service.last_valid_twist_s -= 1.0  # a second frozen: the deadman's time, unsent
+        last = pipeline_frames[5]
+        assert last.twist.valid
+        service.on_event(ctx.keys.joint_state, in_run(last.joints, RUN_A))
+        service.on_event(ctx.keys.twist, in_run(last.twist, RUN_A))
+        assert sent[-1].header.frame_seq == 5 and not np.any(sent[-1].velocity_rad_s)
+    finally:
+        service.node.close()

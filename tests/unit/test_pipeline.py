@@ -16,7 +16,7 @@ from deploy.launch.run_end import EndLimits, HoldState, judge_twist, timeout_det
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from services.actuation.limiter import LimiterState, actuation_step
 from services.pipeline import STAGES, Pipeline
-from services.sim.motors import motor_velocities
+from services.sim.motors import bounded_at_angles, motor_velocities
 from services.sim.schedule import DepthSchedule, substeps_per_frame
 from services.vision.tracking import TrackerState
 
@@ -67,6 +67,32 @@ def test_the_motors_clip_to_their_own_limit_and_say_so() -> None:
     assert np.array_equal(follows[2:], np.zeros(4))
 
 
+def test_the_motors_hold_the_joint_limits_whatever_the_command_s_age() -> None:
+    """A command toward a limit stays in force for as long as nothing replaces it (realtime:
+    until the next frame's, a deadman or a watchdog stop). Bounded again at the joint's angle
+    before each stretch of physics, the joint slows down on its own and never crosses the
+    limit; followed as it was given, it did, by degrees."""
+    upper = kin.JOINT_UPPER_RAD[0]
+    command = np.zeros(kin.N_JOINTS)
+    command[0] = kin.JOINT_VELOCITY_LIMIT_RAD_S[0]  # at full speed towards it, from 20° before
+    dt_s = 1.0 / 240.0  # a stretch of physics
+
+    def joint_after(seconds: float, bounded: bool) -> float:
+        q = np.zeros(kin.N_JOINTS)
+        q[0] = upper - np.deg2rad(20.0)
+        for _ in range(round(seconds / dt_s)):
+            q += (bounded_at_angles(command, q) if bounded else command) * dt_s
+        return float(q[0])
+
+    assert joint_after(0.3, bounded=False) > upper  # a watchdog's 0.3 s at speed: past it
+    assert upper - np.deg2rad(1.0) < joint_after(2.0, bounded=True) < upper
+    at = np.zeros(kin.N_JOINTS)
+    at[0] = upper - np.deg2rad(1.0)  # a tenth of the zone left: a tenth of the speed
+    assert bounded_at_angles(command, at)[0] == pytest.approx(0.1 * command[0])
+    assert bounded_at_angles(-command, at)[0] == -command[0]  # away from it: untouched
+    assert np.array_equal(bounded_at_angles(command, np.zeros(kin.N_JOINTS)), command)
+
+
 # --- actuation's limiter --------------------------------------------------------------------
 Q = np.array([-1.559, 0.952, -1.832, 1.487, 0.600, -0.070])  # the default start
 TWIST = np.array([0.05, -0.02, 0.03, 0.0, 0.1, 0.0])
@@ -92,6 +118,23 @@ def test_the_change_between_commands_is_bounded_by_the_acceleration_over_sim_tim
     # The same direction in joint space, scaled down.
     ratio = step.velocity_rad_s / unlimited.velocity_rad_s
     assert np.allclose(ratio, ratio[0])
+
+
+def test_a_gap_between_commands_allows_no_larger_jump_than_one_camera_period() -> None:
+    """The change reaches the motors at once however long they held the command before (frames
+    skipped in realtime, a stall): the acceleration limit counts one camera period at most,
+    and the rounding of consecutive lockstep frames' sim times is not a gap."""
+    cfg = ActuationConfig(max_joint_acceleration_rad_s2=2.0)
+    period = 1.0 / 30.0
+    state = LimiterState().commanded(np.zeros(kin.N_JOINTS), 1.0)
+    after_a_second = actuation_step(cfg, state, TWIST, True, Q, 2.0, max_dt_s=period)
+    assert np.max(np.abs(after_a_second.velocity_rad_s)) == pytest.approx(2.0 * period)
+    uncapped = actuation_step(cfg, state, TWIST, True, Q, 2.0)
+    assert np.max(np.abs(uncapped.velocity_rad_s)) > 3 * 2.0 * period  # a second's worth
+    rounded = 1.0 + period * (1.0 + 1e-15)  # one period, as accumulated physics steps give it
+    capped = actuation_step(cfg, state, TWIST, True, Q, rounded, max_dt_s=period)
+    as_before = actuation_step(cfg, state, TWIST, True, Q, rounded)
+    assert np.array_equal(capped.velocity_rad_s, as_before.velocity_rad_s)
 
 
 def test_a_hold_stops_at_once_and_the_next_motion_ramps_from_rest() -> None:
@@ -194,3 +237,13 @@ def test_a_vision_restarted_mid_run_leaves_the_hand_converging(restart_at: int, 
                 break
     assert frames[-1].control.converged, (why, frames[-1].control.status)
     assert frames[restart_at].features.hand.state == "visible"  # no loss between the labels
+
+
+def test_a_deadman_no_shorter_than_the_watchdog_is_refused_by_name() -> None:
+    """The deadman is the first stop and the sim's watchdog the second: a scenario that has
+    them the other way round is bad input, named, before anything starts."""
+    from common.config import ScenarioError
+
+    with pytest.raises(ScenarioError, match=r"actuation\.deadman_timeout_s \(0\.3\) not below"):
+        short(None, "actuation.deadman_timeout_s=0.3")
+    assert short(None, "actuation.deadman_timeout_s=0.29").actuation.deadman_timeout_s == 0.29
