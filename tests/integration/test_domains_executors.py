@@ -132,3 +132,23 @@ def test_a_published_study_resumes_from_its_domains_json(tmp_path: Path) -> None
         "--resume",
     )  # fmt: skip
     assert study_differences(records(first), records(again)) == []
+
+
+def test_resume_refuses_the_runs_of_another_study(tmp_path: Path) -> None:
+    """Runs are kept by cell, draw and strategy: another seed draws other starts under the same
+    keys, so --resume with another seed (or other --set) would have mixed two studies. It is
+    refused by name, before anything runs, and the runs kept are left as they were."""
+    study = tiny_study(tmp_path, draws=1)
+    domains(tmp_path / "out", study, "--pipeline", FAKE, "--modes", "dynamic")
+    kept = (tmp_path / "out" / "runs.jsonl").read_text()
+    for change, named in ((["--seed", "99"], "seed"), (["--set", "controller.gain=2.0"], "--set")):
+        proc = subprocess.run(
+            [sys.executable, "-m", "deploy", "domains", "--study", str(study), "--out",
+             str(tmp_path / "out"), "--pipeline", FAKE, "--modes", "dynamic", "--resume", *change],
+            cwd=REPO, capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        assert proc.returncode == 2, proc.stderr[-2000:]
+        assert "belong to another study" in proc.stderr and named in proc.stderr, proc.stderr
+        assert (tmp_path / "out" / "runs.jsonl").read_text() == kept
+    again = domains(tmp_path / "out", study, "--pipeline", FAKE, "--modes", "dynamic", "--resume")
+    assert again["complete"]

@@ -10,10 +10,14 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from deploy.consoles import progress_bar, progress_console
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OK
 from deploy.interrupts import stop_requested
+
+if TYPE_CHECKING:
+    from deploy.experiments.domains.study import StudyDefinition
 
 
 def add_domains_parser(sub: argparse._SubParsersAction) -> None:
@@ -90,6 +94,43 @@ def parse_cells(text: str | None, n: int) -> range:
     return range(lo, hi)
 
 
+# Next to runs.jsonl: the study its runs belong to, so that --resume never keeps the runs of
+# another (the runs are keyed by cell, draw and strategy only: another seed draws other starts
+# under the same keys).
+STUDY_OF_RUNS = "runs.study.json"
+
+
+def resume_refusal(out_dir: Path, study: StudyDefinition, sets: list[str]) -> str:
+    """Why ``--resume`` cannot keep the runs in ``out_dir`` for ``study`` with ``--set``
+    ``sets`` ("" when it can): they were made for another definition or other overrides."""
+    from deploy.experiments.domains.report import load_study_json
+
+    here = {"study": study.model_dump(mode="json"), "set": list(sets)}
+    sidecar = out_dir / STUDY_OF_RUNS
+    if (out_dir / "runs.jsonl").is_file():
+        if not sidecar.is_file():
+            return ""  # written before studies were noted: taken as the same
+        there = json.loads(sidecar.read_text())
+    elif (out_dir / "domains.json").is_file():
+        kept = load_study_json(out_dir / "domains.json")
+        there = {"study": kept.study.model_dump(mode="json"), "set": list(sets)}
+    else:
+        return ""
+    differ = [
+        f"{name} {there['study'].get(name)!r} there, {here['study'].get(name)!r} here"
+        for name in here["study"]
+        if there["study"].get(name) != here["study"].get(name)
+    ]
+    if there.get("set") != here["set"]:
+        differ.append(f"--set {there.get('set')} there, {here['set']} here")
+    if not differ:
+        return ""
+    return (
+        f"--resume: the runs in {out_dir} belong to another study ({'; '.join(differ)}); "
+        "resume with the same study, seed, draws and --set, or choose another --out"
+    )
+
+
 def cmd_domains(args: argparse.Namespace) -> int:
     """Exit 0 when the study completed (whatever its runs' outcomes), 2 on bad input, 130
     when interrupted (the finished runs are written)."""
@@ -125,6 +166,9 @@ def cmd_domains(args: argparse.Namespace) -> int:
             resolve_runner(args.pipeline)
         check_cluster(args.cluster)  # before --out is made
         out_dir = check_output_dir("--out", args.out)
+        refusal = resume_refusal(out_dir, study, args.set) if args.resume else ""
+        if refusal:
+            raise ValueError(refusal)
         executor = make_executor(args.jobs, args.cluster)
     except (CompareError, OutputPathError, ExecutorError, ValueError) as exc:
         print(f"umay domains: {exc}", file=sys.stderr)
@@ -170,6 +214,8 @@ def cmd_domains(args: argparse.Namespace) -> int:
             jsonl.write_text("".join(rec.model_dump_json() + "\n" for rec in done.values()))
         else:
             jsonl.write_text("")
+        sidecar = {"study": study.model_dump(mode="json"), "set": list(args.set)}
+        (out_dir / STUDY_OF_RUNS).write_text(json.dumps(sidecar, indent=1) + "\n")
         todo = [t for t in tasks if t.key not in done]
         refused = sum(bool(s.refused) for s in starts)
         console.print(
