@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import secrets
 from collections import deque
+from collections.abc import Callable
 from enum import Enum
 
 RUN_BITS = 62  # fits msgpack's and JSON's integers, and Header.run's range
@@ -50,3 +51,12 @@ class RunWatch:
             self._over.append(self.current)
         self.current = run
         return RunVerdict.NEW
+
+    def admit(self, run: int, on_new: Callable[[], None]) -> bool:
+        """Whether a message of ``run`` is to be used, i.e. not left over from a run that is
+        over (the caller counts it dropped); ``on_new`` is called first when it begins a new
+        run, for the service to start it afresh."""
+        verdict = self.see(run)
+        if verdict is RunVerdict.NEW:
+            on_new()
+        return verdict is not RunVerdict.OVER

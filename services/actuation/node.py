@@ -23,7 +23,7 @@ from common.config import ClockMode
 from common.messages import EndEffectorTwist, JointState, JointVelocityCommand
 from common.node import Node
 from common.pairing import FramePairer
-from common.runs import RunVerdict, RunWatch
+from common.runs import RunWatch
 from common.runtime import ServiceContext
 from services.actuation.inverse import Clamps, deadman_expired
 from services.actuation.limiter import LimiterState, actuation_step
@@ -41,7 +41,6 @@ class ActuationService:
         self.node.subscribe(ctx.keys.twist, EndEffectorTwist)
         self.node.subscribe(ctx.keys.joint_state, JointState)
         self.runs = RunWatch()  # the sim's run the inputs come from (common.runs)
-        self.run_id = 0  # ... the one in progress, for the commands
         self.last_valid_twist_s: float | None = None
         self.last_deadman_s = 0.0
         self.deadman_stops = 0
@@ -88,7 +87,7 @@ class ActuationService:
 
     def publish(self, velocity: np.ndarray, reason: str, sim_time_s: float, frame_seq: int) -> None:
         command = JointVelocityCommand(
-            header=self.node.header(sim_time_s, frame_seq, run=self.run_id),
+            header=self.node.header(sim_time_s, frame_seq, run=self.runs.current or 0),
             velocity_rad_s=velocity.tolist(),
             reason=reason,  # type: ignore[arg-type]
         )
@@ -145,13 +144,9 @@ class ActuationService:
             self.publish(np.zeros(kin.N_JOINTS), "deadman", 0.0, -1)
 
     def on_event(self, key: str, msg: EndEffectorTwist | JointState) -> None:
-        run = self.runs.see(msg.header.run)
-        if run is RunVerdict.OVER:  # sent before the sim restarted: frame numbers mean others now
-            self.node.received[key].dropped += 1
+        if not self.runs.admit(msg.header.run, self.new_run):
+            self.node.received[key].dropped += 1  # sent before the sim restarted
             return
-        if run is RunVerdict.NEW:
-            self.run_id = msg.header.run
-            self.new_run()
         if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:
             self.pub.put(self.last_output)  # a re-published frame: same answer again
             return

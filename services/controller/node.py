@@ -14,7 +14,7 @@ import numpy as np
 from common.messages import EndEffectorTwist, Features, JointState
 from common.node import Node
 from common.pairing import FramePairer
-from common.runs import RunVerdict, RunWatch
+from common.runs import RunWatch
 from common.runtime import ServiceContext
 from services.controller.ibvs import IbvsController, describe_hold, is_stuck
 from services.controller.progress import Progress, describe_stall
@@ -160,12 +160,9 @@ class ControllerService:
             )
 
     def on_event(self, key: str, msg: Features | JointState) -> None:
-        run = self.runs.see(msg.header.run)
-        if run is RunVerdict.OVER:  # sent before the sim restarted: frame numbers mean others now
-            self.node.received[key].dropped += 1
+        if not self.runs.admit(msg.header.run, self.new_run):
+            self.node.received[key].dropped += 1  # sent before the sim restarted
             return
-        if run is RunVerdict.NEW:
-            self.new_run()
         if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:
             # A re-published frame (lockstep resend after a restart downstream): answer it
             # again with the same twist instead of stepping the controller twice.

@@ -27,7 +27,7 @@ from collections import OrderedDict
 from common.codec import FRAME_MAX_BYTES
 from common.messages import DepthFrame, Features, RgbFrame
 from common.node import Node
-from common.runs import RunVerdict, RunWatch
+from common.runs import RunWatch
 from common.runtime import ServiceContext
 from services.vision.status import VisionStatus
 from services.vision.step import depth_for, depth_image, vision_step
@@ -151,12 +151,9 @@ class VisionService:
         self.answered = (seq, features)
 
     def on_event(self, key: str, msg: RgbFrame | DepthFrame) -> None:
-        run = self.runs.see(msg.header.run)
-        if run is RunVerdict.OVER:  # sent before the sim restarted: frame numbers mean others now
-            self.node.received[key].dropped += 1
+        if not self.runs.admit(msg.header.run, self.new_run):
+            self.node.received[key].dropped += 1  # sent before the sim restarted
             return
-        if run is RunVerdict.NEW:
-            self.new_run()
         if isinstance(msg, DepthFrame):
             self.depths[msg.header.frame_seq] = msg
             while len(self.depths) > DEPTH_CACHE:

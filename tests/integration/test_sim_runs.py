@@ -41,6 +41,10 @@ def test_runs_are_told_apart_and_a_replaced_one_stays_over() -> None:
     assert watch.current == RUN_B
     runs = {new_run() for _ in range(100)}
     assert len(runs) == 100 and 0 not in runs  # 0 is left to unstamped messages
+    started: list[int] = []
+    watch = RunWatch()
+    used = [watch.admit(run, lambda: started.append(watch.current)) for run in (1, 1, 2, 1, 2)]
+    assert used == [True, True, True, False, True] and started == [1, 2]
 
 
 @pytest.fixture(scope="module")
