@@ -156,7 +156,13 @@ class CameraConfig(_Strict):
     hfov_deg: float = Field(
         57.0, gt=10.0, lt=120.0, description="horizontal field of view (°), the Kinect's"
     )
-    rgb_hz: float = Field(30.0, gt=0.0, le=120.0, description="colour frames per second")
+    rgb_hz: float = Field(
+        30.0,
+        ge=9.0,
+        le=120.0,
+        description="colour frames per second; at least 9: a joint command is followed for a "
+        "frame, and a longer frame could carry a joint from its slow-down bound past its limit",
+    )
     depth_hz: float | None = Field(
         None,
         gt=0.0,
@@ -631,10 +637,22 @@ class Scenario(_Strict):
         return OBJECT_SIDE_PER_MARKER * self.marker.size_m if side is None else side
 
     @property
+    def frame_period_s(self) -> float:
+        """The sim time between two camera frames: the camera period in whole physics steps
+        (:func:`substeps_per_frame`), as the sim advances its clock."""
+        physics_dt_s = 1.0 / self.sim.physics_hz
+        return substeps_per_frame(self.camera.rgb_hz, physics_dt_s) * physics_dt_s
+
+    @property
     def events_end_s(self) -> float:
         """When the last scheduled event is over (0 without events): a run is not judged
         converged before it."""
         return max((e.end_s for e in self.events), default=0.0)
+
+
+def substeps_per_frame(rgb_hz: float, physics_dt_s: float) -> int:
+    """Physics steps in one camera period (at least one)."""
+    return max(1, round(1.0 / rgb_hz / physics_dt_s))
 
 
 class ScenarioError(ValueError):

@@ -226,8 +226,8 @@ class MarkerFeatures(Message):
     known square, on its known plane, to the edges of it that are seen. ``occluded``: the
     depth image (or, between depth images, the hand marker) shows something in front of the
     marker or of where it was last seen, i.e. it is hidden, not gone; None on a ``lost``
-    marker vision has no view of to look in front of (not seen since it started: a restarted
-    vision cannot tell hidden from gone).
+    marker vision has no view of to look in front of (none measured with a depth image since
+    it started: a restarted vision cannot tell hidden from gone).
 
     Vision and the controller work on :class:`common.marker.Marker` (the same fields as
     arrays); ``Marker.to_wire`` / ``Marker.from_wire`` convert.

@@ -179,9 +179,9 @@ class Node:
         def on_sample(sample: zenoh.Sample) -> None:
             received = time.time()  # before the copy and decode: those count as processing
 
-            def on_message(message: BaseModel, fetched: bool) -> None:
-                if fetched:  # asked whole from its publisher: received as it came
-                    deliver(message, time.time(), by_ref=False, fetched=True)
+            def on_message(message: BaseModel, fetched_s: float | None) -> None:
+                if fetched_s is not None:  # asked whole from its publisher: received as it came
+                    deliver(message, fetched_s, by_ref=False, fetched=True)
                     return
                 by_ref = field is not None and getattr(message, field).ring_ref is not None
                 deliver(message, received, by_ref, fetched=False)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -206,27 +207,29 @@ def decode_or_fetch(
     payload: bytes,
     model: type[M],
     max_bytes: int,
-    on_message: Callable[[M, bool], None],
+    on_message: Callable[[M, float | None], None],
     on_reject: Callable[[str], None],
     rings: RingReader | None = None,
 ) -> None:
     """What a subscriber does with a sample's ``payload`` on ``key``: ``on_message(message,
-    fetched)`` gets it decoded and validated, at once, or, for a camera frame by reference to a
-    ring this process cannot map (``rings``, default the process's shared reader), once its
-    publisher has sent it whole (:func:`fetch_whole_frame`; ``fetched`` True, on a Zenoh
-    thread). ``on_reject`` gets why a payload, or a frame asked for whole, cannot be used."""
+    fetched_s)`` gets it decoded and validated, at once (``fetched_s`` None), or, for a camera
+    frame by reference to a ring this process cannot map (``rings``, default the process's
+    shared reader), once its publisher has sent it whole (:func:`fetch_whole_frame`;
+    ``fetched_s`` the wall-clock time it came, before its decode; on a Zenoh thread).
+    ``on_reject`` gets why a payload, or a frame asked for whole, cannot be used."""
     try:
         message = decode(payload, model, max_bytes, rings)
     except FrameUnreachable as exc:
         seq = exc.ref.seq
 
         def on_whole(whole: bytes) -> None:
+            came_s = time.time()  # the decode counts as processing, as for any message
             try:
                 fetched = decode(whole, model, max_bytes)
             except MessageError as error:
                 on_reject(f"whole frame {seq}: {error}")
                 return
-            on_message(fetched, True)
+            on_message(fetched, came_s)
 
         fetch_whole_frame(
             session, key, exc.ref, on_whole, lambda why: on_reject(f"whole frame {seq}: {why}")
@@ -235,7 +238,7 @@ def decode_or_fetch(
     except MessageError as exc:
         on_reject(str(exc))
         return
-    on_message(message, False)
+    on_message(message, None)
 
 
 @dataclass

@@ -25,14 +25,14 @@ from types import TracebackType
 
 import numpy as np
 
-from common.config import Scenario
+from common.config import Scenario, substeps_per_frame
 from common.kinematics import FloatArray
 from common.messages import EndEffectorTwist, Features, Header, SimTruth
 from services.actuation.limiter import ActuationStep, LimiterState, actuation_step
 from services.controller.ibvs import ControlOutput, IbvsController
 from services.controller.step import control_step, twist_message
 from services.sim.motors import motor_velocities
-from services.sim.schedule import DepthSchedule, substeps_per_frame
+from services.sim.schedule import DepthSchedule
 from services.sim.truth import truth_message
 from services.sim.world import World
 from services.vision.step import VisionStep, depth_image, vision_step
@@ -75,7 +75,7 @@ class Pipeline:
         camera = scenario.camera
         self.world = World(scenario)
         self.substeps = substeps_per_frame(camera.rgb_hz, self.world.physics_dt_s)
-        self.camera_period_s = 1.0 / camera.rgb_hz  # the acceleration limit's longest gap
+        self.camera_period_s = scenario.frame_period_s  # the acceleration limit's longest gap
         self.schedule = DepthSchedule.of(camera)
         self.depth: tuple[np.ndarray, float] | None = None  # newest depth image, its sim time
         self.tracker = TrackerState()

@@ -180,7 +180,7 @@ class ViewNode:
                 sample.payload.to_bytes(),
                 model,
                 max_bytes,
-                lambda message, _fetched: keep(message),
+                lambda message, _fetched_s: keep(message),
                 on_reject,
             )
 

@@ -35,7 +35,7 @@ class ActuationService:
         self.ctx = ctx
         self.config = ctx.scenario.actuation
         self.lockstep = ctx.scenario.run.clock == ClockMode.LOCKSTEP
-        self.camera_period_s = 1.0 / ctx.scenario.camera.rgb_hz  # the acceleration's longest gap
+        self.camera_period_s = ctx.scenario.frame_period_s  # the acceleration's longest gap
         self.node = Node("actuation", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.joint_command)
         self.node.subscribe(ctx.keys.twist, EndEffectorTwist)

@@ -209,7 +209,7 @@ class IbvsController:
         vision has labelled a marker afresh since the last frame (after it lost the marker, or
         a restart of vision, whose tracker starts with no labels to keep): the pairing's index,
         the constant matrix's rows (the target's labels), the acquisition's goal (the hand's),
-        and the reach verdicts (carried over by their goal orientations, :meth:`_check_reach`).
+        and the reach verdicts with their postures and goal orientations.
         Else a fresh vision's labels, a quarter turn from the old ones, would have the hand
         servoed to a pairing it was never meant to take, or held off the one it must."""
         hand_shift = target_shift = 0
@@ -231,7 +231,15 @@ class IbvsController:
         if self.acquisition is not None:
             goal_px = np.roll(self.acquisition.goal_px, -hand_shift, axis=0)
             self.acquisition = replace(self.acquisition, goal_px=goal_px)
-        self.reach_stale = self.reachable is not None
+        # Pairing k is pairing k + shift now: the verdicts, postures and goal orientations move
+        # with it at once (not at the next reach check, which waits while the hand is carried).
+        shift = hand_shift - target_shift
+        if self.reachable is not None:
+            self.reachable = [self.reachable[(k - shift) % 4] for k in range(4)]
+        for name in ("reach_postures", "reach_rotations"):
+            values = getattr(self, name)
+            if values is not None:
+                setattr(self, name, np.roll(values, shift, axis=0))
 
     def _check_reach(
         self, hand: Marker, goal: Marker, q_rad: FloatArray, t_base_ee: FloatArray

@@ -64,10 +64,9 @@ def label_shift(previous_px: FloatArray, current_px: FloatArray) -> int:
     the marker's move in between does not count; a turn past 45° in between would).
 
     Vision keeps a marker's labels from frame to frame, and labels its corners afresh when it
-    has lost the marker or restarted; anything indexed by corner or by pairing must follow."""
-    previous = previous_px - previous_px.mean(axis=0)
-    current = current_px - current_px.mean(axis=0)
-    return int(np.argmin(np.sum((current - previous[_CYCLIC_PAIRINGS]) ** 2, axis=(1, 2))))
+    has lost the marker or restarted; anything indexed by corner or by pairing must follow.
+    The shift is the pairing of the view now with the view then that needs the least turn."""
+    return int(np.argmin(pairing_costs_px2(current_px, previous_px)))
 
 
 def relabelled_pairing(pairing: int, hand_shift: int, target_shift: int) -> int:

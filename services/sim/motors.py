@@ -24,7 +24,9 @@ def bounded_at_angles(velocity_rad_s: FloatArray, q_rad: FloatArray) -> FloatArr
     (:func:`common.kinematics.position_bound_rad_s`), as a servo holds its own angle limits.
 
     Actuation bounds each command at the angles of its frame. In lockstep a command lasts one
-    camera period, too short to reach a limit from its bound; in realtime it stays in force
+    camera period, too short to reach a limit from its bound (``camera.rgb_hz`` is at least
+    9 Hz: a frame shorter than the slow-down zone over the speed limit); in realtime it stays
+    in force
     until the next one comes, or a deadman or watchdog stop, however late that is (a stalled
     vision, a frozen actuation), and at its speed the joint crossed its limit by degrees and
     met the joint's end stop. Bounded again before each stretch of physics, the joint slows

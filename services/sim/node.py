@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from common import kinematics as kin
-from common.config import ClockMode
+from common.config import ClockMode, substeps_per_frame
 from common.keys import SERVICES
 from common.messages import (
     AppliedCommand,
@@ -46,7 +46,7 @@ from common.runs import new_run
 from common.runtime import ServiceContext
 from common.session import ENV_SHM
 from services.sim.motors import bounded_at_angles, motor_velocities
-from services.sim.schedule import DepthSchedule, substeps_per_frame
+from services.sim.schedule import DepthSchedule
 from services.sim.status import SimStatus
 from services.sim.truth import truth_message
 from services.sim.world import World

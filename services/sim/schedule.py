@@ -1,5 +1,5 @@
-"""The sim's camera schedule as data: physics steps per camera frame, and which frames carry
-a depth image.
+"""The sim's camera schedule as data: which frames carry a depth image (physics steps per
+camera frame: :func:`common.config.substeps_per_frame`).
 
 The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the first colour
 frame at or after each tick of ``camera.depth_hz``. The ticks stay on their own grid (a late
@@ -13,11 +13,6 @@ from dataclasses import dataclass, replace
 
 from common.config import CameraConfig
 from services.sim.events import TIME_EPSILON_S
-
-
-def substeps_per_frame(rgb_hz: float, physics_dt_s: float) -> int:
-    """Physics steps in one camera period (at least one)."""
-    return max(1, round(1.0 / rgb_hz / physics_dt_s))
 
 
 @dataclass(frozen=True)

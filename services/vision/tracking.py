@@ -472,8 +472,8 @@ def observe(
             measured["target"] = not_visible(target.marker.reason, occluded=True)
     for name, m in measured.items():
         if m.marker.state == "lost" and not m.marker.occluded and expected[name] is None:
-            # Nothing seen of it, and no view of it to look in front of (not seen since this
-            # vision started): hidden or gone, it cannot tell.
+            # Nothing seen of it, and no view of it to look in front of (none measured with a
+            # depth image since this vision started): hidden or gone, it cannot tell.
             measured[name] = replace(m, marker=replace(m.marker, occluded=None))
     markers = {name: m.marker for name, m in measured.items()}
     return markers, _next_state(state, measured, fresh, t_s, orientation_cue)

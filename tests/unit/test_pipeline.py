@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from common import kinematics as kin
-from common.config import ActuationConfig, load_scenario
+from common.config import ActuationConfig, ScenarioError, load_scenario, substeps_per_frame
 from common.messages import EndEffectorTwist, Header
 from common.runtime import parse_overrides
 from deploy.launch.run_end import EndLimits, HoldState, judge_twist, timeout_detail
@@ -17,7 +17,7 @@ from deploy.launch.run_inprocess import run_scenario_inprocess
 from services.actuation.limiter import LimiterState, actuation_step
 from services.pipeline import STAGES, Pipeline
 from services.sim.motors import bounded_at_angles, motor_velocities
-from services.sim.schedule import DepthSchedule, substeps_per_frame
+from services.sim.schedule import DepthSchedule
 from services.vision.tracking import TrackerState
 
 
@@ -75,7 +75,8 @@ def test_the_motors_hold_the_joint_limits_whatever_the_command_s_age() -> None:
     upper = kin.JOINT_UPPER_RAD[0]
     command = np.zeros(kin.N_JOINTS)
     command[0] = kin.JOINT_VELOCITY_LIMIT_RAD_S[0]  # at full speed towards it, from 20° before
-    dt_s = 1.0 / 240.0  # a stretch of physics
+    # The longest stretch the sim follows one bound for: a frame of the slowest camera allowed.
+    dt_s = substeps_per_frame(9.0, 1.0 / 240.0) / 240.0
 
     def joint_after(seconds: float, bounded: bool) -> float:
         q = np.zeros(kin.N_JOINTS)
@@ -85,7 +86,9 @@ def test_the_motors_hold_the_joint_limits_whatever_the_command_s_age() -> None:
         return float(q[0])
 
     assert joint_after(0.3, bounded=False) > upper  # a watchdog's 0.3 s at speed: past it
-    assert upper - np.deg2rad(1.0) < joint_after(2.0, bounded=True) < upper
+    assert upper - np.deg2rad(1.0) < joint_after(3.0, bounded=True) <= upper  # never past
+    with pytest.raises(ScenarioError, match=r"camera\.rgb_hz: Input should be greater than or"):
+        short(None, "camera.rgb_hz=8.0", "camera.depth_hz=8.0")  # a frame would carry it past
     at = np.zeros(kin.N_JOINTS)
     at[0] = upper - np.deg2rad(1.0)  # a tenth of the zone left: a tenth of the speed
     assert bounded_at_angles(command, at)[0] == pytest.approx(0.1 * command[0])
@@ -131,6 +134,8 @@ def test_a_gap_between_commands_allows_no_larger_jump_than_one_camera_period() -
     assert np.max(np.abs(after_a_second.velocity_rad_s)) == pytest.approx(2.0 * period)
     uncapped = actuation_step(cfg, state, TWIST, True, Q, 2.0)
     assert np.max(np.abs(uncapped.velocity_rad_s)) > 3 * 2.0 * period  # a second's worth
+    at_25_hz = short(None, "camera.rgb_hz=25.0", "camera.depth_hz=25.0").frame_period_s
+    assert at_25_hz == pytest.approx(10 / 240)  # whole physics steps: not 1/25 s
     rounded = 1.0 + period * (1.0 + 1e-15)  # one period, as accumulated physics steps give it
     capped = actuation_step(cfg, state, TWIST, True, Q, rounded, max_dt_s=period)
     as_before = actuation_step(cfg, state, TWIST, True, Q, rounded)
@@ -242,8 +247,6 @@ def test_a_vision_restarted_mid_run_leaves_the_hand_converging(restart_at: int, 
 def test_a_deadman_no_shorter_than_the_watchdog_is_refused_by_name() -> None:
     """The deadman is the first stop and the sim's watchdog the second: a scenario that has
     them the other way round is bad input, named, before anything starts."""
-    from common.config import ScenarioError
-
     with pytest.raises(ScenarioError, match=r"actuation\.deadman_timeout_s \(0\.3\) not below"):
         short(None, "actuation.deadman_timeout_s=0.3")
     assert short(None, "actuation.deadman_timeout_s=0.29").actuation.deadman_timeout_s == 0.29

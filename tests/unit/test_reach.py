@@ -207,3 +207,29 @@ def test_the_current_pairing_s_goal_posture_follows_a_moving_goal_and_none_beyon
     assert ctrl.reachable is not None and ctrl.pairing is not None
     ctrl.reachable[ctrl.pairing] = False
     assert ctrl.goal_posture_rad() is None
+
+
+def test_a_relabelled_target_moves_the_verdicts_with_the_pairing_at_once() -> None:
+    """Relabelled corners shift the pairings' indices: the pairing in use, its verdicts, goal
+    postures and goal orientations move together, in the frame of the relabel (the reach
+    check, which would carry them over too, waits while the hand is carried by the encoders,
+    and meanwhile the stale verdicts steered the choice)."""
+    from common.config import ControllerConfig
+    from services.controller.ibvs import IbvsController
+
+    q = np.deg2rad([-20.0, 50.0, -70.0, -95.0, -120.0, -60.0])
+    t_base_cam = camera_in_front_of(q)
+    hand = seen(hand_corners_cam(q, t_base_cam))
+    target = seen(hand_corners_cam(q + np.deg2rad([-5.0, 4.0, 6.0, -4.0, 3.0, -9.0]), t_base_cam))
+    ctrl = IbvsController(ControllerConfig(), t_base_cam)
+    ctrl._follow_labels(hand, target)  # the first views: nothing to follow yet
+    postures, rotations = np.arange(24.0).reshape(4, 6), np.arange(36.0).reshape(4, 3, 3)
+    ctrl.pairing, ctrl.reachable = 0, [True, False, False, False]
+    ctrl.reach_postures, ctrl.reach_rotations = postures.copy(), rotations.copy()
+    ctrl._follow_labels(hand, rolled(target, 1))  # target corner i is its corner i + 1 then
+    assert ctrl.pairing == 3 and ctrl.reachable == [False, False, False, True]
+    assert np.array_equal(ctrl.reach_postures[3], postures[0])
+    assert np.array_equal(ctrl.reach_rotations[3], rotations[0])
+    ctrl._follow_labels(rolled(hand, 2), rolled(target, 1))  # and the hand's, by 2
+    assert ctrl.pairing == 1 and ctrl.reachable == [False, True, False, False]
+    assert np.array_equal(ctrl.reach_postures[1], postures[0])

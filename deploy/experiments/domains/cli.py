@@ -98,6 +98,7 @@ def parse_cells(text: str | None, n: int) -> range:
 # another (the runs are keyed by cell, draw and strategy only: another seed draws other starts
 # under the same keys).
 STUDY_OF_RUNS = "runs.study.json"
+REPORT_ONLY = frozenset({"success_goal"})  # fields of a study that change no run
 
 
 def resume_refusal(out_dir: Path, study: StudyDefinition, sets: list[str]) -> str:
@@ -107,19 +108,17 @@ def resume_refusal(out_dir: Path, study: StudyDefinition, sets: list[str]) -> st
 
     here = {"study": study.model_dump(mode="json"), "set": list(sets)}
     sidecar = out_dir / STUDY_OF_RUNS
-    if (out_dir / "runs.jsonl").is_file():
-        if not sidecar.is_file():
-            return ""  # written before studies were noted: taken as the same
+    if sidecar.is_file():
         there = json.loads(sidecar.read_text())
-    elif (out_dir / "domains.json").is_file():
+    elif (out_dir / "domains.json").is_file():  # published without its note: no --set to check
         kept = load_study_json(out_dir / "domains.json")
         there = {"study": kept.study.model_dump(mode="json"), "set": list(sets)}
     else:
-        return ""
+        return ""  # nothing kept, or runs written before studies were noted: taken as the same
     differ = [
         f"{name} {there['study'].get(name)!r} there, {here['study'].get(name)!r} here"
         for name in here["study"]
-        if there["study"].get(name) != here["study"].get(name)
+        if name not in REPORT_ONLY and there["study"].get(name) != here["study"].get(name)
     ]
     if there.get("set") != here["set"]:
         differ.append(f"--set {there.get('set')} there, {here['set']} here")
