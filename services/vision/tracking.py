@@ -131,6 +131,13 @@ def side_lengths_m(points_m: FloatArray) -> FloatArray:
     return np.linalg.norm(points_m - np.roll(points_m, -1, axis=0), axis=1)
 
 
+def marker_sized(points_m: FloatArray, marker_size_m: float) -> bool:
+    """Whether a quadrilateral's 3-D sides are all the marker's, to :data:`SIZE_TOLERANCE`:
+    the whole square, not a part of it cut off by something in front, nor another shape."""
+    sides = side_lengths_m(points_m)
+    return bool(np.max(np.abs(sides / marker_size_m - 1.0)) <= SIZE_TOLERANCE)
+
+
 def _region_mask(corners_px: FloatArray, shape: tuple[int, ...]) -> np.ndarray:
     mask = np.zeros(shape[:2], np.uint8)
     shift_bits = 4
@@ -330,8 +337,7 @@ def _held(
         if not np.all((depths > 0) & np.isfinite(depths)):
             return not_visible("no valid depth")
         points = back_project(corners, depths, k)
-        sides = side_lengths_m(points)
-        if np.max(np.abs(sides / marker_size_m - 1.0)) > SIZE_TOLERANCE:
+        if not marker_sized(points, marker_size_m):
             return not_visible("not the marker's size")
     else:
         depths, sigmas = memory.depth_m.copy(), memory.depth_sigma_m.copy()
@@ -417,6 +423,11 @@ def _measure_fresh(
             # Occluded whatever the blob's own depth says: its check (measure_quad) is skipped.
             return fit.measurement(quad.reason, occluded=True)
     m = measure_quad(quad, depth.depth_m, k, cfg, depth.intrinsics)
+    if m.marker.visible and not marker_sized(m.marker.points_m, marker_size_m):
+        # A quadrilateral of the marker's colour whose sides are not the marker's: part of it
+        # cut off by something the depth image does not show in front (no valid depth there:
+        # nearer than the Kinect's range, dark, or flush with it), or not the marker at all.
+        m = not_visible("not the marker's size")
     seen = m.marker
     if not (seen.visible or seen.occluded) and _hidden_in_depth(name, memory, rgb, k, depth, cfg):
         m = not_visible(seen.reason, occluded=True)

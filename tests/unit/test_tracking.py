@@ -80,6 +80,37 @@ def test_a_partly_hidden_target_is_fitted_from_its_visible_edges() -> None:
     np.testing.assert_allclose(np.sort(m.depth_m), np.sort(target.points_m[:, 2]), atol=1e-3)
 
 
+@pytest.mark.parametrize("occluder_depth_m", [0.0, float("nan")])
+@pytest.mark.parametrize("cut", [0.3, 0.5])
+def test_a_target_cut_by_something_the_depth_image_misses_is_not_called_visible(
+    cut: float, occluder_depth_m: float
+) -> None:
+    """Something in front with no valid depth (nearer than the Kinect's range, dark): no
+    closer surface shows round the blob, whose colour quadrilateral is the cut square. Its
+    sides are not the marker's, so it is not a whole square: fitted from its edges, or left
+    partial, never `visible` with corners tens of pixels off."""
+    state, hand, target = first_view()
+    rgb, depth = render([hand, target])
+    cover(rgb, depth, box_over(target.corners_px, cut), occluder_depth_m)
+    measured, _ = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, state, 1 / 30)
+    m = measured["target"]
+    assert not m.visible, (m.state, m.reason)
+    if m.usable:  # fitted: then on the true corners
+        err = np.abs(
+            match_order(m.corners_px, target.corners_px) - order_corners(target.corners_px)
+        )
+        assert err.max() < 0.5, f"fitted corners off by {err.max():.2f} px"
+
+
+def test_a_red_rectangle_of_another_size_is_not_the_target() -> None:
+    hand, _ = scene()
+    wide = Marker(square_3d(np.array([0.06, 0.04, 0.5]), SIZE_M, rotation(0.3, 0.8, 0.4)), RED)
+    wide.points_m[1:3] += (wide.points_m[1] - wide.points_m[0]) * 0.5  # 9 cm by 6 cm
+    rgb, depth = render([hand, wide])
+    measured, _ = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, TrackerState(), 0.0)
+    assert not measured["target"].visible, measured["target"].reason
+
+
 def test_a_partly_hidden_target_is_fitted_from_a_coarser_depth_image_with_dropout() -> None:
     """Depth at half the colour resolution, with no depth (a Kinect's dropout, widened by its
     lateral noise) for 3-4 depth pixels either side of the hand's edge: that band spans twice
