@@ -19,7 +19,7 @@ FloatArray = NDArray[np.float64]
 
 DEPTH_ERODE_FRACTION = 0.1  # erosion radius as a fraction of the blob side...
 DEPTH_ERODE_MIN_PX = 2  # ...but at least this many pixels
-DEPTH_MIN_PLANE_PIXELS = 20  # fewer valid pixels: use their median depth instead of a plane
+DEPTH_MIN_PLANE_PIXELS = 20  # fewer valid pixels: no plane, so no corner depths
 DEPTH_MIN_PIXELS = 3  # fewer: no depth at all
 DEPTH_MAX_PLANE_PIXELS = 400  # about this many samples on a grid: plenty for a plane, fast
 DEPTH_OUTLIER_SIGMAS = 3.0
@@ -232,28 +232,23 @@ def corner_depths(
     fitted (:func:`fit_inverse_depth_plane`) to the valid depth pixels well inside the marker,
     evaluated along each corner's viewing ray ``(x, y, 1)·Z``. ``mask`` and ``corners_px`` are
     at the colour resolution (intrinsics ``k``); ``depth_m`` is registered to it, at its own
-    resolution ``k_depth`` (default: the same). With fewer than 20 valid pixels (but at least
-    3) all corners get the median depth and the samples' spread as uncertainty; with fewer than
-    3, or a plane seen edge-on, the result is None.
+    resolution ``k_depth`` (default: the same). With fewer valid pixels than a plane needs
+    (:data:`DEPTH_MIN_PLANE_PIXELS`), or a plane seen edge-on, the result is None: giving every
+    corner the samples' median depth put a tilted marker's corners centimetres off with an
+    uncertainty of a millimetre.
     """
     corners = np.asarray(corners_px, dtype=float).reshape(4, 2)
     k_depth = k_depth or k
     depth_corners = corners if k_depth == k else to_depth_pixels(corners, k, k_depth)
     uv, z = _marker_depth_pixels(depth_m, mask, depth_corners)
-    if len(z) < DEPTH_MIN_PIXELS:
+    if len(z) < DEPTH_MIN_PLANE_PIXELS:
         return None
-    corner_xy = pixel_to_normalized(corners, k)
-    plane = None
-    if len(z) >= DEPTH_MIN_PLANE_PIXELS:
-        plane = fit_inverse_depth_plane(pixel_to_normalized(uv, k_depth), z)
+    plane = fit_inverse_depth_plane(pixel_to_normalized(uv, k_depth), z)
     if plane is None:
-        if len(z) >= DEPTH_MIN_PLANE_PIXELS:
-            return None  # enough samples, but no plane: seen edge-on
-        depths = np.full(4, median(z))
-        sigmas = np.full(4, MAD_TO_SIGMA * median(np.abs(z - median(z))) / math.sqrt(len(z)))
-    else:
-        depths = plane.depths_m(corner_xy)
-        sigmas = plane.depth_sigmas_m(corner_xy)
+        return None  # seen edge-on
+    corner_xy = pixel_to_normalized(corners, k)
+    depths = plane.depths_m(corner_xy)
+    sigmas = plane.depth_sigmas_m(corner_xy)
     if not np.all((depths > 0) & (depths < np.inf)):
         return None
     return CornerDepths(depths, sigmas, back_project(corners, depths, k), plane)

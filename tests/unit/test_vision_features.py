@@ -284,17 +284,21 @@ def test_corner_depths_robust_to_holes_and_edge_jumps():
     assert np.max(err_m) <= 2e-3, f"corner depth errors {err_m} m"
 
 
-def test_corner_depths_fallback_and_failure():
+def test_too_few_depth_pixels_for_a_plane_give_no_corner_depths():
+    """Fewer valid depth pixels than a plane needs: no depths at all. (The median of the few,
+    given to every corner, put a tilted marker's corners centimetres off with a millimetre's
+    uncertainty.)"""
     marker = tilted_target()
     rgb, depth = render([marker])
     mask = segment(rgb, "red", CFG)
     inside = polygon_mask(marker.corners_px) & (distance_to_outline_px(marker.corners_px) > 12)
     few = np.zeros_like(depth)
     rows, cols = np.nonzero(inside)
-    few[rows[:10], cols[:10]] = 0.7  # 10 valid pixels: median fallback
-    result = corner_depths(few, mask, marker.corners_px, K)
-    assert result is not None
-    np.testing.assert_allclose(result.depths_m, 0.7)
+    few[rows[:19], cols[:19]] = depth[rows[:19], cols[:19]]  # one short of a plane's 20
+    assert corner_depths(few, mask, marker.corners_px, K) is None
+    enough = few.copy()
+    enough[rows[::40], cols[::40]] = depth[rows[::40], cols[::40]]  # spread over the marker
+    assert corner_depths(enough, mask, marker.corners_px, K) is not None
     assert corner_depths(np.zeros_like(depth), mask, marker.corners_px, K) is None
     m = measure_markers(rgb, np.zeros_like(depth), K, CFG)["target"]
     assert m.state == "no_depth" and m.reason == "no valid depth"
