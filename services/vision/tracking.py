@@ -390,7 +390,12 @@ def _fit(
     frame, which for the hand must show most of its marker (:data:`HAND_MIN_SEEN_FRACTION`)."""
     cue_rgb = rgb if orientation_cue else None
     if name == "target" and memory is not None and memory.plane is not None:
-        return _fit_partial(quad, memory, k, depth, cfg, marker_size_m, cue_rgb)
+        fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m, cue_rgb)
+        if fit is not None and orientation_cue and previous_px is None:
+            # Its labels come from its last whole view, not from the frame before (it was
+            # lost since, and may have turned): with the cue, the cue must tell them.
+            return _labelled(fit, None, rgb, cfg, orientation_cue)
+        return fit
     fit = _fit_own(quad, k, depth, cfg, marker_size_m, cue_rgb)
     if fit is None:
         return None
@@ -502,7 +507,7 @@ def _next_state(
     motion = dict(state.motion)
     for name, m in measured.items():
         seen = m.marker
-        if seen.visible:
+        if seen.visible or (orientation_cue and seen.usable):  # fitted: labelled too
             previous[name] = seen.corners_px
         elif orientation_cue:  # a labelling is carried on from the frame before only
             previous.pop(name, None)

@@ -76,18 +76,22 @@ def plane_depth(points_m: np.ndarray) -> np.ndarray:
 
 
 def render(
-    hand_turn_rad: float, cue: bool = True, cue_z_offset_m: float = 0.0
+    hand_turn_rad: float,
+    cue: bool = True,
+    cue_z_offset_m: float = 0.0,
+    target_turn_rad: float = 0.4,
+    target_cue_hidden: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-    """Both markers (hand turned by ``hand_turn_rad``, target not), with their cues: RGB,
-    depth (the cue ``cue_z_offset_m`` nearer than its marker) and the true corners (px,
-    physical order)."""
+    """Both markers (each turned by its angle), with their cues: RGB, depth (the cue
+    ``cue_z_offset_m`` nearer than its marker) and the true corners (px, physical order);
+    ``target_cue_hidden``: a grey patch where the target's cue is."""
     rgb = np.empty((*SHAPE, 3), np.uint8)
     rgb[:] = BACKGROUND
     depth = np.full(SHAPE, BACKGROUND_Z_M, np.float32)
     truth = {}
     poses = {
         "hand": (marker_pose(np.array([-0.08, 0.0, 0.5]), hand_turn_rad), GREEN),
-        "target": (marker_pose(np.array([0.08, 0.02, 0.55]), 0.4), RED),
+        "target": (marker_pose(np.array([0.08, 0.02, 0.55]), target_turn_rad), RED),
     }
     for name, (pose, colour) in poses.items():
         corners_m = kin.marker_corners(pose, SIZE_M)
@@ -97,7 +101,7 @@ def render(
         depth[region] = plane_depth(corners_m)[region]
         if cue:
             patch = inside(project(cue_corners_m(pose), K))
-            rgb[patch] = BLUE
+            rgb[patch] = (90, 90, 95) if name == "target" and target_cue_hidden else BLUE
             depth[patch] -= cue_z_offset_m
     return rgb, depth, truth
 
@@ -231,6 +235,28 @@ def test_a_hidden_cue_makes_a_new_marker_unusable_and_a_tracked_one_keep_its_lab
     assert gone["hand"].state == "lost"
     back, _ = observe(covered, K, fresh(covered, depth), CFG, SIZE_M, state, 3 / 30, True)
     assert back["hand"].reason == CUE_HIDDEN
+
+
+@pytest.mark.parametrize("turn_while_lost_deg", [0, 90, 180])
+def test_a_target_back_from_lost_with_its_cue_hidden_is_not_labelled_from_memory(
+    turn_while_lost_deg: int,
+) -> None:
+    """Lost, then back whole with its cue hidden: its labels cannot come from the frame before
+    (it was not there) and must not come from its last whole view (it may have turned since):
+    unusable, as a marker first seen with its cue hidden is. It was fitted with the old labels,
+    a quarter or half turn off, and the controller paired corner i with the wrong corner."""
+    rgb, depth, _ = render(0.0)
+    seen, state = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, TrackerState(), 0.0, True)
+    assert seen["target"].visible
+    blank = np.empty_like(rgb)
+    blank[:] = BACKGROUND
+    empty = np.full(SHAPE, BACKGROUND_Z_M, np.float32)
+    gone, state = observe(blank, K, fresh(blank, empty), CFG, SIZE_M, state, 1 / 30, True)
+    assert gone["target"].state == "lost"
+    turn = 0.4 + math.radians(turn_while_lost_deg)
+    rgb, depth, _ = render(0.0, target_turn_rad=turn, target_cue_hidden=True)
+    back, _ = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, state, 2 / 30, True)
+    assert not back["target"].usable and back["target"].reason == CUE_HIDDEN, back["target"]
 
 
 def test_a_wrong_labelling_is_corrected_by_the_cue_while_tracking() -> None:
