@@ -111,8 +111,11 @@ class Keys:
         """``key`` without the prefix (``vision/features``)."""
         return key.removeprefix(f"{self.prefix}/")
 
-    def alive(self, service: str) -> str:
-        return f"{self.prefix}/alive/{service}"
+    def alive(self, service: str, pid: int) -> str:
+        """The liveliness token of one process of ``service``: one key per process, since
+        Zenoh reports a key alive once, however many tokens hold it, so a restarted service's
+        token on the same key as the one it replaced could go unnoticed."""
+        return f"{self.prefix}/alive/{service}/{pid}"
 
     @property
     def all_status(self) -> str:
@@ -120,4 +123,9 @@ class Keys:
 
     @property
     def all_alive(self) -> str:
-        return f"{self.prefix}/alive/*"
+        return f"{self.prefix}/alive/*/*"
+
+    @staticmethod
+    def alive_service(key: str) -> str:
+        """The service whose token ``key`` is (:meth:`alive`)."""
+        return key.split("/")[-2]

@@ -91,7 +91,8 @@ class Node:
     def ready(self) -> None:
         """Subscriptions are in place: announce liveliness and report ``running``."""
         self.state = "running"
-        self._token = self.session.liveliness().declare_token(self.keys.alive(self.service))
+        token_key = self.keys.alive(self.service, os.getpid())
+        self._token = self.session.liveliness().declare_token(token_key)
         log.info(
             "%s running under %s; in: %s; out: %s",
             self.service,

@@ -55,5 +55,5 @@ def alive_services(session: zenoh.Session, keys: Keys, timeout_s: float = 1.0) -
     names = set()
     for reply in session.liveliness().get(keys.all_alive, timeout=timeout_s):
         if reply.ok is not None:
-            names.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+            names.add(Keys.alive_service(str(reply.ok.key_expr)))
     return names

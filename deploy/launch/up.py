@@ -2,7 +2,7 @@
 
 The supervisor is itself a Zenoh node: it answers ``<prefix>/supervisor/status`` (children,
 pids, restarts, last exit codes, the CPU wake-up latency request it holds) and holds
-``<prefix>/alive/supervisor``, which is also how a second ``umay up`` on the same prefix sees
+``<prefix>/alive/supervisor/<pid>``, which is also how a second ``umay up`` on the same prefix sees
 that it must not start.
 """
 

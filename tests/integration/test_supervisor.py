@@ -205,7 +205,7 @@ def test_kill_each_service_it_comes_back_and_the_hand_still_converges(umay_up) -
 
     def on_token(sample) -> None:
         if sample.kind == SampleKind.PUT:
-            tokens_up[str(sample.key_expr).rsplit("/", 1)[-1]] = time.monotonic()
+            tokens_up[Keys.alive_service(str(sample.key_expr))] = time.monotonic()
 
     watcher = session.liveliness().declare_subscriber(keys.all_alive, on_token)
     latencies = {}

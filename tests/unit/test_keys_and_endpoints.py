@@ -67,3 +67,14 @@ def test_without_writable_dev_shm_the_session_opens_once_without_shared_memory(
     monkeypatch.setattr(session.os, "access", lambda path, mode: True)
     session.open_session(connect=[])
     assert opened == ["true"]  # writable: shared memory as configured
+
+
+def test_each_process_of_a_service_has_a_liveliness_key_of_its_own() -> None:
+    """Zenoh reports a key alive once however many tokens hold it: a restarted service that
+    declared its token on its predecessor's key before that one's end had reached a watcher
+    was never reported back. One key per process (its pid) is reported each time."""
+    keys = Keys("umay/a1")
+    old, new = keys.alive("vision", 101), keys.alive("vision", 102)
+    assert old != new and old.startswith("umay/a1/alive/vision/")
+    assert Keys.alive_service(old) == Keys.alive_service(new) == "vision"
+    assert keys.all_alive == "umay/a1/alive/*/*"
