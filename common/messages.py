@@ -287,6 +287,13 @@ class EndEffectorTwist(Message):
         "law asked to take the arm further towards it",
     )
 
+    @property
+    def servoing(self) -> bool:
+        """A twist of the control law, whose ``error_px_rms`` is the image error: not a hold,
+        and not an acquisition's move (valid, its ``hold_reason`` saying so, and no image
+        error to give: its 0 is no measurement)."""
+        return self.valid and not self.hold_reason
+
 
 class JointVelocityCommand(Message):
     """Joint velocity set-points for joint_1..joint_6 (rad/s)."""

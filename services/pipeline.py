@@ -79,13 +79,7 @@ class Pipeline:
         self.schedule = DepthSchedule.of(camera)
         self.depth: tuple[np.ndarray, float] | None = None  # newest depth image, its sim time
         self.tracker = TrackerState()
-        self.controller = IbvsController(
-            scenario.controller,
-            camera.assumed_pose(),  # the calibration, not the simulator's truth
-            scenario.target.approach_height_m,
-            oriented_markers=scenario.marker.orientation_cue,
-            object_side_m=scenario.object_side_m,
-        )
+        self.controller = IbvsController.of(scenario)
         self.limiter = LimiterState()
         self.frame_seq = 0
         self.motor_clamps = 0  # commands beyond the motors' own speed limit

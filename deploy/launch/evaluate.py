@@ -132,19 +132,12 @@ def tracking_metrics(
     if not seqs:
         return {}
     errors = np.array([marker_goal_error_m(truths[k], approach_height_m) for k in seqs])
-    pixels = [twists[k].error_px_rms for k in seqs if k in twists and servoed(twists[k])]
+    pixels = [twists[k].error_px_rms for k in seqs if k in twists and twists[k].servoing]
     return {
         "tracking_position_error_m": float(np.median(errors)),
         "tracking_max_position_error_m": float(np.max(errors)),
         "tracking_pixel_rms": float(np.median(pixels)) if pixels else None,
     }
-
-
-def servoed(twist: EndEffectorTwist) -> bool:
-    """A twist of the control law, whose ``error_px_rms`` is the image error: not a hold, and
-    not an acquisition's move (valid, with its ``hold_reason`` saying so, and no image error
-    to give: its 0 is no measurement)."""
-    return twist.valid and not twist.hold_reason
 
 
 def joint_margin_deg(q_rad: np.ndarray) -> float:
@@ -214,7 +207,7 @@ def summarize(
         frames=0 if last_frame is None else last_frame + 1,
         sim_time_s=truth.header.sim_time_s if truth else 0.0,
         wall_time_s=wall_time_s,
-        final_pixel_rms=twist.error_px_rms if twist and servoed(twist) else None,
+        final_pixel_rms=twist.error_px_rms if twist and twist.servoing else None,
         final_position_error_m=(
             float(np.linalg.norm(hand[:3, 3] - target[:3, 3])) if truth else None
         ),

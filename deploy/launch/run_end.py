@@ -93,7 +93,7 @@ def judge_twist(
     ends it."""
     t, seq = tw.header.sim_time_s, tw.header.frame_seq
     # Servoing: not holding, not acquiring, the scenario's events over.
-    servoing = tw.valid and not tw.hold_reason and t >= limits.not_before_s
+    servoing = tw.servoing and t >= limits.not_before_s
     progress = hold.progress.after(t, tw.error_px_rms, servoing)
     lifted_since = None
     if tw.valid and tw.lifted:

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
-from common.config import ControllerConfig, JacobianMode
+from common.config import ControllerConfig, JacobianMode, Scenario
 from common.kinematics import BASE_UP
 from common.marker import Marker
 from services.controller import acquisition as acq
@@ -162,6 +162,18 @@ class IbvsController:
     # The hand's last usable view, to carry along the encoders while vision cannot use it.
     hand_memory: HandMemory = field(default_factory=HandMemory)
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
+
+    @classmethod
+    def of(cls, scenario: Scenario) -> IbvsController:
+        """The controller a scenario describes, with the camera pose it assumes (the
+        calibration, never the simulator's truth)."""
+        return cls(
+            scenario.controller,
+            scenario.camera.assumed_pose(),
+            scenario.target.approach_height_m,
+            oriented_markers=scenario.marker.orientation_cue,
+            object_side_m=scenario.object_side_m,
+        )
 
     def step(
         self,

@@ -41,13 +41,7 @@ class ControllerService:
         start posture, so nothing the controller kept from the run before holds (its goal
         memories, pairing, frozen matrix, progress, the inputs waiting for a partner)."""
         scenario = self.ctx.scenario
-        self.controller = IbvsController(
-            scenario.controller,
-            scenario.camera.assumed_pose(),  # the calibration, not the simulator's truth
-            scenario.target.approach_height_m,
-            oriented_markers=scenario.marker.orientation_cue,
-            object_side_m=scenario.object_side_m,
-        )
+        self.controller = IbvsController.of(scenario)
         self.pairer: FramePairer[Features, JointState] = FramePairer()
         self.error_px = float("nan")
         self.converged = False

@@ -255,6 +255,8 @@ class SimService:
         """Realtime, before each stretch of physics: the motors' velocities bounded again at
         the joints' angles now (:func:`~services.sim.motors.bounded_at_angles`), since the
         command they follow may be far older than this stretch."""
+        if not np.any(self.last_command):
+            return  # at rest: nothing to bound, no joint state to read
         q_rad, _ = self.world.joint_state()
         following = bounded_at_angles(self.last_command, q_rad)
         if not np.array_equal(following, self.following):

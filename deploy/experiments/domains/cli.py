@@ -101,18 +101,23 @@ STUDY_OF_RUNS = "runs.study.json"
 REPORT_ONLY = frozenset({"success_goal"})  # fields of a study that change no run
 
 
+def study_note(study: StudyDefinition, sets: list[str]) -> dict:
+    """What :data:`STUDY_OF_RUNS` holds: the study's definition and the ``--set`` items."""
+    return {"study": study.model_dump(mode="json"), "set": list(sets)}
+
+
 def resume_refusal(out_dir: Path, study: StudyDefinition, sets: list[str]) -> str:
     """Why ``--resume`` cannot keep the runs in ``out_dir`` for ``study`` with ``--set``
     ``sets`` ("" when it can): they were made for another definition or other overrides."""
     from deploy.experiments.domains.report import load_study_json
 
-    here = {"study": study.model_dump(mode="json"), "set": list(sets)}
+    here = study_note(study, sets)
     sidecar = out_dir / STUDY_OF_RUNS
     if sidecar.is_file():
         there = json.loads(sidecar.read_text())
     elif (out_dir / "domains.json").is_file():  # published without its note: no --set to check
         kept = load_study_json(out_dir / "domains.json")
-        there = {"study": kept.study.model_dump(mode="json"), "set": list(sets)}
+        there = study_note(kept.study, sets)
     else:
         return ""  # nothing kept, or runs written before studies were noted: taken as the same
     differ = [
@@ -213,8 +218,8 @@ def cmd_domains(args: argparse.Namespace) -> int:
             jsonl.write_text("".join(rec.model_dump_json() + "\n" for rec in done.values()))
         else:
             jsonl.write_text("")
-        sidecar = {"study": study.model_dump(mode="json"), "set": list(args.set)}
-        (out_dir / STUDY_OF_RUNS).write_text(json.dumps(sidecar, indent=1) + "\n")
+        note = json.dumps(study_note(study, args.set), indent=1)
+        (out_dir / STUDY_OF_RUNS).write_text(note + "\n")
         todo = [t for t in tasks if t.key not in done]
         refused = sum(bool(s.refused) for s in starts)
         console.print(
