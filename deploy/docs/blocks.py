@@ -34,7 +34,12 @@ from deploy.docs.domains_tables import (
     domains_summary,
     domains_verdict,
 )
-from deploy.docs.results_tables import results_compact, results_strategies, suite_camera
+from deploy.docs.results_tables import (
+    results_compact,
+    results_strategies,
+    results_verdict,
+    suite_camera,
+)
 from deploy.docs.scenario_tables import scenario_fields
 from deploy.docs.sources import (
     ACCURACY_JSON,
@@ -70,6 +75,7 @@ class Block:
 BLOCKS: dict[str, Block] = {
     "results-compact": Block(results_compact, RESULTS_JSON),
     "results-strategies": Block(results_strategies, RESULTS_JSON),
+    "results-verdict": Block(results_verdict, RESULTS_JSON),
     "suite-camera": Block(suite_camera, f"{SUITE_CAMERA_DIR}/*/results.json"),
     "bench-headline": Block(bench_headline, f"{BENCH_DIR}/*.json, {WORKFLOWS_DIR}/*.json"),
     "bench-runs": Block(bench_runs, f"{BENCH_DIR}/*.json"),

@@ -64,6 +64,13 @@ def results_strategies(inputs: Inputs, here: str) -> str:
     )
 
 
+def results_verdict(inputs: Inputs, here: str) -> str:
+    """The thesis's claims judged on the comparison: the figures, then a sentence per claim."""
+    from deploy.experiments.compare.verdict import verdict_markdown
+
+    return f"{verdict_markdown(inputs.results)}\n\n{_results_source(here)}"
+
+
 # --- the suite's camera ----------------------------------------------------------------------
 # The comparison's metrics set side by side for the two cameras.
 SUITE_CAMERA_FIELDS = frozenset(
