@@ -81,7 +81,7 @@ def _marker_depth_pixels(
     """
     side_px = math.sqrt(max(quad_area_px2(corners_px), 1.0))
     radius_px = max(DEPTH_ERODE_MIN_PX, round(DEPTH_ERODE_FRACTION * side_px))
-    r0, r1, c0, c1 = bounding_box(corners_px, 1, mask.shape)
+    r0, r1, c0, c1 = bounding_box(corners_px, 1, depth_m.shape)  # depth pixels
     if r1 <= r0 or c1 <= c0:
         return np.zeros((0, 2)), np.zeros(0)
     quad = np.zeros((r1 - r0, c1 - c0), np.uint8)

@@ -284,6 +284,22 @@ def test_corner_depths_robust_to_holes_and_edge_jumps():
     assert np.max(err_m) <= 2e-3, f"corner depth errors {err_m} m"
 
 
+@pytest.mark.parametrize("right_px", [600.0, 636.0, 637.5])
+def test_corner_depths_of_a_marker_at_the_edge_of_a_coarser_depth_image(right_px) -> None:
+    """The marker's box is clipped to the depth image, not to the colour mask: a marker within
+    a pixel or two of the right and bottom edges of a half-resolution depth image still gets
+    its depths (the box clipped to the colour size once ran past the depth image)."""
+    k_half = CameraIntrinsics.from_fov(320, 240, 57.0)
+    corners = np.array(
+        [[right_px - 60, 416.0], [right_px, 416.0], [right_px, 476.0], [right_px - 60, 476.0]]
+    )
+    mask = polygon_mask(corners).astype(np.uint8) * 255  # as segment() gives it
+    depth = np.full((k_half.height_px, k_half.width_px), 0.7, np.float32)
+    result = corner_depths(depth, mask, corners, K, k_half)
+    assert result is not None
+    np.testing.assert_allclose(result.depths_m, 0.7, atol=1e-6)
+
+
 def test_too_few_depth_pixels_for_a_plane_give_no_corner_depths():
     """Fewer valid depth pixels than a plane needs: no depths at all. (The median of the few,
     given to every corner, put a tilted marker's corners centimetres off with a millimetre's
