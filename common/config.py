@@ -25,6 +25,7 @@ from pydantic import (
 
 from common.camera import CameraIntrinsics, look_at_rotation
 from common.kinematics import BASE_UP, homogeneous, rot_x, rot_y, rot_z
+from common.messages import MAX_ANGULAR_RAD_S, MAX_LINEAR_M_S
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "deploy" / "scenarios" / "default.toml"
 
@@ -368,8 +369,12 @@ class ControllerConfig(_Strict):
     clearance_rate_1_s: float = Field(
         3.0, gt=0.0, description="a corner's height may fall at most this times its margin (1/s)"
     )
-    max_linear_m_s: float = Field(0.15, gt=0.0, description="twist clamp, linear (m/s)")
-    max_angular_rad_s: float = Field(1.0, gt=0.0, description="twist clamp, angular (rad/s)")
+    max_linear_m_s: float = Field(
+        0.15, gt=0.0, le=MAX_LINEAR_M_S, description="twist clamp, linear (m/s)"
+    )
+    max_angular_rad_s: float = Field(
+        1.0, gt=0.0, le=MAX_ANGULAR_RAD_S, description="twist clamp, angular (rad/s)"
+    )
     track_target_motion: bool = Field(
         True,
         description="estimate the target's velocity from its recent views, feed it forward, "

@@ -23,8 +23,10 @@ Metres = Annotated[float, Field(ge=-50.0, le=50.0)]
 Depth = Annotated[float, Field(ge=0.0, le=50.0)]
 Angle = Annotated[float, Field(ge=-7.0, le=7.0)]  # rad, a little over ±2π
 JointRate = Annotated[float, Field(ge=-20.0, le=20.0)]  # rad/s
-LinearRate = Annotated[float, Field(ge=-5.0, le=5.0)]  # m/s
-AngularRate = Annotated[float, Field(ge=-20.0, le=20.0)]  # rad/s
+MAX_LINEAR_M_S = 5.0  # a twist's components on the wire (the controller's clamps stay within)
+MAX_ANGULAR_RAD_S = 20.0
+LinearRate = Annotated[float, Field(ge=-MAX_LINEAR_M_S, le=MAX_LINEAR_M_S)]  # m/s
+AngularRate = Annotated[float, Field(ge=-MAX_ANGULAR_RAD_S, le=MAX_ANGULAR_RAD_S)]  # rad/s
 
 Vec2 = Annotated[list[Pixel], Field(min_length=2, max_length=2)]
 Vec3 = Annotated[list[Metres], Field(min_length=3, max_length=3)]
@@ -209,6 +211,12 @@ class JointState(Message):
 MarkerState = Literal["visible", "partial", "lost", "no_depth"]
 
 
+# A usable marker (corners and depths acted on) lies at least this far in front of the camera
+# and covers at least this much of the image: less is a fault, not a measurement.
+MIN_USABLE_DEPTH_M = 0.01
+MIN_USABLE_AREA_PX2 = 1.0
+
+
 def is_usable(state: str, fitted: bool) -> bool:
     """A marker's corners and depths can be acted on: seen whole, or partly hidden and fitted
     from what is seen (one rule for vision, the wire format and the controller)."""
@@ -244,6 +252,26 @@ class MarkerFeatures(Message):
     fitted: bool = False
     reason: str = Field("", max_length=200, description="why not visible")
 
+    @model_validator(mode="after")
+    def _usable_can_be_acted_on(self) -> MarkerFeatures:
+        # The controller divides by these depths and fits planes to these points: a usable
+        # marker at zero depth or collapsed to a point would end it with a NaN twist.
+        if not self.usable:
+            return self
+        if min(self.depth_m) < MIN_USABLE_DEPTH_M or min(p[2] for p in self.points_m) < (
+            MIN_USABLE_DEPTH_M
+        ):
+            raise ValueError(
+                f"a {self.state} marker needs every corner at least {MIN_USABLE_DEPTH_M} m in "
+                "front of the camera (depth_m, points_m)"
+            )
+        if _quad_area(self.corners_px) < MIN_USABLE_AREA_PX2:
+            raise ValueError(f"a {self.state} marker's corners_px enclose no area")
+        p = np.asarray(self.points_m)
+        if np.linalg.norm(np.cross(p[2] - p[0], p[3] - p[1])) <= 0.0:  # twice the area
+            raise ValueError(f"a {self.state} marker's points_m enclose no area")
+        return self
+
     @property
     def visible(self) -> bool:
         return self.state == "visible"
@@ -251,6 +279,12 @@ class MarkerFeatures(Message):
     @property
     def usable(self) -> bool:
         return is_usable(self.state, self.fitted)
+
+
+def _quad_area(corners: list[list[float]]) -> float:
+    """Area of a quadrilateral (shoelace, either winding), in the corners' units squared."""
+    xs, ys = [c[0] for c in corners], [c[1] for c in corners]
+    return 0.5 * abs(sum(xs[i] * ys[i - 1] - xs[i - 1] * ys[i] for i in range(4)))
 
 
 class Features(Message):

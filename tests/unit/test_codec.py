@@ -36,6 +36,7 @@ from common.messages import (
     ImageDtype,
     ImageSpec,
     JointVelocityCommand,
+    MarkerFeatures,
     RgbFrame,
 )
 
@@ -93,6 +94,45 @@ def test_frame_round_trip_keeps_images_as_raw_bytes() -> None:
 def test_bad_payloads_raise_message_error(payload: bytes, fragment: str) -> None:
     with pytest.raises(MessageError, match=fragment):
         decode(payload, JointVelocityCommand, DEFAULT_MAX_BYTES)
+
+
+def marker(**kw) -> dict:
+    """A visible 40 px marker 0.8 m away (500 px focal length), as a dict to spoil."""
+    corners = [[300.0, 200.0], [340.0, 200.0], [340.0, 240.0], [300.0, 240.0]]
+    base = {
+        "state": "visible",
+        "corners_px": corners,
+        "depth_m": [0.8] * 4,
+        "depth_sigma_m": [0.001] * 4,
+        "points_m": [[(u - 320) * 0.0016, (v - 240) * 0.0016, 0.8] for u, v in corners],
+    }
+    return base | kw
+
+
+@pytest.mark.parametrize(
+    ("change", "fragment"),
+    [
+        ({"depth_m": [0.8, 0.8, 0.0, 0.8]}, "at least 0.01 m in front"),
+        ({"points_m": [[0.0, 0.0, 0.0]] * 4}, "at least 0.01 m in front"),
+        ({"corners_px": [[300.0, 200.0]] * 4}, "corners_px enclose no area"),
+        ({"points_m": [[0.1, 0.0, 0.8]] * 4}, "points_m enclose no area"),
+        ({"state": "partial", "fitted": True, "depth_m": [0.0] * 4}, "partial marker needs"),
+    ],
+)
+def test_a_usable_marker_the_controller_could_not_act_on_is_refused(change, fragment) -> None:
+    """The controller divides by a usable marker's depths and fits its points: zero depth or a
+    collapsed square would end it with a NaN twist, so the wire format refuses them."""
+    payload = msgpack.packb(marker(**change))
+    with pytest.raises(MessageError, match=fragment):
+        decode(payload, MarkerFeatures, DEFAULT_MAX_BYTES)
+
+
+def test_a_marker_not_usable_may_carry_zeros() -> None:
+    assert decode(msgpack.packb(marker()), MarkerFeatures, DEFAULT_MAX_BYTES).usable
+    zeros = {"depth_m": [0.0] * 4, "points_m": [[0.0] * 3] * 4, "corners_px": [[0.0] * 2] * 4}
+    for state in ("lost", "no_depth", "partial"):
+        m = decode(msgpack.packb(marker(state=state, **zeros)), MarkerFeatures, DEFAULT_MAX_BYTES)
+        assert not m.usable
 
 
 def test_truncated_frame_is_rejected() -> None:

@@ -250,3 +250,15 @@ def test_a_deadman_no_shorter_than_the_watchdog_is_refused_by_name() -> None:
     with pytest.raises(ScenarioError, match=r"actuation\.deadman_timeout_s \(0\.3\) not below"):
         short(None, "actuation.deadman_timeout_s=0.3")
     assert short(None, "actuation.deadman_timeout_s=0.29").actuation.deadman_timeout_s == 0.29
+
+
+@pytest.mark.parametrize(
+    ("field", "too_large", "largest"),
+    [("max_linear_m_s", 5.01, 5.0), ("max_angular_rad_s", 20.5, 20.0)],
+)
+def test_a_twist_clamp_the_wire_cannot_carry_is_refused_by_name(field, too_large, largest):
+    """The controller's clamp bounds what it publishes: above the wire's range, its own twist
+    message would fail validation and end it."""
+    with pytest.raises(ScenarioError, match=rf"controller\.{field}: Input should be less than"):
+        short(None, f"controller.{field}={too_large}")
+    assert getattr(short(None, f"controller.{field}={largest}").controller, field) == largest

@@ -64,7 +64,8 @@ def marker(corners: np.ndarray | None) -> MarkerFeatures:
         corners_px=corners.tolist(),
         depth_m=[0.8] * 4,
         depth_sigma_m=[0.001] * 4,
-        points_m=[[0.0, 0.0, 0.8]] * 4,
+        # Back-projected at 0.8 m through a 500 px focal length.
+        points_m=[[(u - 320.0) * 0.8 / 500.0, (v - 240.0) * 0.8 / 500.0, 0.8] for u, v in corners],
     )
 
 
