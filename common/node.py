@@ -129,6 +129,12 @@ class Node:
         return h
 
     # --- subscribing ------------------------------------------------------------------
+    def count_dropped(self, key: str, n: int = 1) -> None:
+        """``n`` messages on ``key`` dropped by the service itself (stale, superseded); under
+        the lock the subscriber callbacks count theirs with, so no count is lost."""
+        with self._cond:
+            self.received[key].dropped += n
+
     def subscribe(
         self,
         key: str,

@@ -145,7 +145,7 @@ class ActuationService:
 
     def on_event(self, key: str, msg: EndEffectorTwist | JointState) -> None:
         if not self.runs.admit(msg.header.run, self.new_run):
-            self.node.received[key].dropped += 1  # sent before the sim restarted
+            self.node.count_dropped(key)  # sent before the sim restarted
             return
         if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:
             self.pub.put(self.last_output)  # a re-published frame: same answer again

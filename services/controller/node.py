@@ -155,7 +155,7 @@ class ControllerService:
 
     def on_event(self, key: str, msg: Features | JointState) -> None:
         if not self.runs.admit(msg.header.run, self.new_run):
-            self.node.received[key].dropped += 1  # sent before the sim restarted
+            self.node.count_dropped(key)  # sent before the sim restarted
             return
         if msg.header.frame_seq == self.pairer.last_paired and self.last_output is not None:
             # A re-published frame (lockstep resend after a restart downstream): answer it

@@ -4,8 +4,9 @@ The measurement itself is :func:`services.vision.step.vision_step` (pure); this 
 the transport. One event loop: depth images are kept (the last few, by the colour frame they
 were taken with); each colour frame is measured with the depth image it names
 (``depth_frame_seq``). If that image has not arrived yet the frame waits for it, at most
-``DEPTH_WAIT_S``, then makes do with the newest one, so a lost depth image delays one frame
-instead of stalling the stream.
+``DEPTH_WAIT_S``, then makes do with the newest one, and so do the frames after it until a depth
+image comes again (:mod:`services.vision.depth_wait`): a lost depth image delays one frame, a
+stopped depth stream does not stop vision.
 
 Frames sent by reference (:mod:`common.frame_ring`) are read in place, as views of the sim's
 shared-memory ring, which holds each stream's last 16 frames: the frames vision keeps (one
@@ -29,6 +30,7 @@ from common.messages import DepthFrame, Features, RgbFrame
 from common.node import Node
 from common.runs import RunWatch
 from common.runtime import ServiceContext
+from services.vision.depth_wait import DepthWait
 from services.vision.status import VisionStatus
 from services.vision.step import depth_for, depth_image, vision_step
 from services.vision.tracking import TrackerState
@@ -52,9 +54,9 @@ class VisionService:
         self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=True)
         self.node.subscribe(ctx.keys.depth, DepthFrame, FRAME_MAX_BYTES)
         self.runs = RunWatch()  # the sim's run the frames come from (common.runs)
+        # Colour frames waiting for their depth image (counts: status's depth_waits/_missed).
+        self.depth_wait: DepthWait[RgbFrame] = DepthWait(DEPTH_WAIT_S)
         self.new_run()
-        self.depth_waits = 0  # colour frames that had to wait for their depth image
-        self.depth_missed = 0  # ... and went on without it
         self.frames_overwritten = 0  # measurements dropped: a ring slot changed while read
         self.depth_age_s: float | None = None
         self.states: dict[str, str] = {"hand": "lost", "target": "lost"}
@@ -65,8 +67,7 @@ class VisionService:
         frame 0): the tracking, the depth images kept, a frame waiting, the last answer."""
         self.tracker = TrackerState()
         self.depths: OrderedDict[int, DepthFrame] = OrderedDict()
-        self.waiting: RgbFrame | None = None  # a colour frame whose depth image is on its way
-        self.waiting_since_s = 0.0
+        self.depth_wait.forget()
         # The last frame measured and what vision answered: a lockstep resend of that frame
         # gets the same answer, the tracker not stepped twice on it.
         self.answered: tuple[int, Features] | None = None
@@ -95,8 +96,8 @@ class VisionService:
             markers=dict(self.states),
             lost_reasons=dict(self.reasons),
             depth_age_s=self.depth_age_s,
-            depth_waits=self.depth_waits,
-            depth_missed=self.depth_missed,
+            depth_waits=self.depth_wait.waits,
+            depth_missed=self.depth_wait.missed,
             frames_by_ref=sum(m.by_ref for m in frames),
             frames_by_copy=sum(m.by_copy for m in frames),
             frames_fetched=sum(m.fetched for m in frames),
@@ -152,33 +153,29 @@ class VisionService:
 
     def on_event(self, key: str, msg: RgbFrame | DepthFrame) -> None:
         if not self.runs.admit(msg.header.run, self.new_run):
-            self.node.received[key].dropped += 1  # sent before the sim restarted
+            self.node.count_dropped(key)  # sent before the sim restarted
             return
         if isinstance(msg, DepthFrame):
             self.depths[msg.header.frame_seq] = msg
             while len(self.depths) > DEPTH_CACHE:
                 self.depths.popitem(last=False)
-            if self.waiting is not None and msg.header.frame_seq >= self.waiting.depth_frame_seq:
-                frame, self.waiting = self.waiting, None
+            frame = self.depth_wait.depth(msg.header.frame_seq)
+            if frame is not None:
                 self.on_frame(frame)
             return
         if self.answered is not None and self.answered[0] == msg.header.frame_seq:
             self.pub.put(self.answered[1])  # a lockstep resend of the frame measured last
             return
+        replaced = self.depth_wait.replaced
         newest_depth = max(self.depths, default=-1)
-        if msg.depth_frame_seq > newest_depth:
-            if self.waiting is not None:  # a newer frame replaces the one that waited
-                self.node.received[key].dropped += 1
-            else:
-                self.depth_waits += 1
-            self.waiting, self.waiting_since_s = msg, time.monotonic()
-            return
-        self.on_frame(msg)
+        frame = self.depth_wait.colour(msg, msg.depth_frame_seq, newest_depth, time.monotonic())
+        self.node.count_dropped(key, self.depth_wait.replaced - replaced)
+        if frame is not None:
+            self.on_frame(frame)
 
     def on_idle(self) -> None:
-        if self.waiting is not None and time.monotonic() - self.waiting_since_s > DEPTH_WAIT_S:
-            frame, self.waiting = self.waiting, None
-            self.depth_missed += 1
+        frame = self.depth_wait.idle(time.monotonic())
+        if frame is not None:
             self.on_frame(frame)
 
     def run(self) -> None:
