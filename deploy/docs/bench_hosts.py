@@ -5,28 +5,37 @@ latency goals are met on some hosts and in some runs and not in others."""
 
 from __future__ import annotations
 
-import shlex
+from collections.abc import Mapping
+from typing import Any
 
 from deploy.docs.bench_tables import (
+    ADDS_GOAL,
+    HANDOFF_GOAL,
+    LATENCY_P50_GOAL,
+    LATENCY_P99_GOAL,
+    REAL_TIME_GOAL,
     code_cell,
     frame_handoff_ms,
     latency,
     link,
     load_cell,
+    measured,
     num,
 )
 from deploy.docs.sources import BENCH_DIR, LOCKSTEP_RUN, BenchRun, DocsError, Inputs
 from deploy.experiments.compare.summary import markdown_table
+
+__all__ = ["HEADERS", "bench_hosts", "measured", "within_goals"]
 
 HEADERS = [
     "run",
     "CPU",
     "code",
     "load",
-    "real-time factor (≥ 2.5)",
-    "frame publish + transport p50 (≤ 0.5)",
-    "latency p50 / p99 (≤ 6 / ≤ 9)",
-    "distribution adds (≤ 2.0)",
+    f"real-time factor ({REAL_TIME_GOAL})",
+    f"frame publish + transport p50 ({HANDOFF_GOAL})",
+    f"latency p50 / p99 ({LATENCY_P50_GOAL} / {LATENCY_P99_GOAL})",
+    f"distribution adds ({ADDS_GOAL})",
 ]
 
 
@@ -46,18 +55,27 @@ def _row(here: str, run: BenchRun) -> list[str]:
     ]
 
 
-def measured(command: str) -> list[str]:
-    """A bench command's words but where it wrote its JSON (``--json PATH``): what was run."""
-    words = shlex.split(command)
-    if "--json" in words:
-        at = words.index("--json")
-        del words[at : at + 2]
-    return words
+def within_goals(reports: list[Mapping[str, Any]]) -> str:
+    """How many of the runs have each figure within its goal (as the table shows it)."""
+
+    def count(goal: Any, figure: Any) -> int:
+        return sum(goal.met(figure(d)) for d in reports)
+
+    counts = [
+        ("real-time factor", count(REAL_TIME_GOAL, lambda d: d["distributed"]["real_time_factor"])),
+        ("frame publish + transport", count(HANDOFF_GOAL, frame_handoff_ms)),
+        ("latency p50", count(LATENCY_P50_GOAL, lambda d: latency(d)[0]["p50"])),
+        ("latency p99", count(LATENCY_P99_GOAL, lambda d: latency(d)[0]["p99"])),
+        ("what distribution adds", count(ADDS_GOAL, lambda d: d["distribution_adds_ms"]["p50"])),
+    ]
+    said = ", ".join(f"{words} {n}" for words, n in counts)
+    return f"Runs within each goal, of {len(reports)}: {said}."
 
 
 def bench_hosts(inputs: Inputs, here: str) -> str:
     """The headline run (``docs/bench/lockstep_640x480.json``) and the same command's other
-    runs, one row each: CPU, code, load and the figures whose goals depend on the host."""
+    runs, one row each: CPU, code, load and the figures whose goals depend on the host; then
+    how many runs are within each goal."""
     runs = [inputs.run(LOCKSTEP_RUN), *inputs.hosts]
     for r in runs[1:]:
         if measured(r.data["command"]) != measured(runs[0].data["command"]):
@@ -67,7 +85,9 @@ def bench_hosts(inputs: Inputs, here: str) -> str:
             )
     return (
         markdown_table(HEADERS, [_row(here, r) for r in runs], right_from=3)
-        + "\n\nTimes in ms; each row is `"
+        + "\n\n"
+        + within_goals([r.data for r in runs])
+        + " Times in ms; each row is `"
         + runs[0].data["command"]
         + "` (a row under `hosts/` was made by it in another run, on this host or another, its "
         "JSON written there or moved there)."

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import posixpath
-from collections.abc import Mapping, Sequence
+import shlex
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from statistics import median
 from typing import Any
 
 from deploy.docs.sources import (
@@ -13,7 +16,9 @@ from deploy.docs.sources import (
     KINECT_REALTIME_RUN,
     LOCKSTEP_RUN,
     STARTUP_FRAMES,
+    VIEW_DIR,
     BenchRun,
+    DocsError,
     Inputs,
 )
 from deploy.experiments.compare.summary import markdown_table
@@ -96,6 +101,49 @@ def dropped(data: Mapping[str, Any], part: str) -> Mapping[str, int] | None:
 def _runs_note(data: Mapping[str, Any]) -> str:
     n = data.get("runs", 1)
     return f"{n} × {data['config']['frames']}" if n > 1 else str(data["config"]["frames"])
+
+
+def measured(command: str) -> list[str]:
+    """A bench command's words but where it wrote its JSON (``--json PATH``): what was run."""
+    words = shlex.split(command)
+    if "--json" in words:
+        at = words.index("--json")
+        del words[at : at + 2]
+    return words
+
+
+def realtime_command(command: str) -> bool:
+    """Whether a bench command ran the realtime clock (``--mode realtime``)."""
+    words = shlex.split(command)
+    return "--mode" in words[:-1] and words[words.index("--mode") + 1] == "realtime"
+
+
+# --- the goals -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Goal:
+    """One of issue 26's goals on a figure: its limit and which side of it is within."""
+
+    limit: float
+    at_least: bool = False  # a rate (≥), else a time (≤)
+    written: str = ""  # the limit as the tables write it, where not ``format(limit, "g")``
+
+    def __str__(self) -> str:
+        return f"{'≥' if self.at_least else '≤'} {self.written or format(self.limit, 'g')}"
+
+    def met(self, value: float | None) -> bool:
+        """Whether ``value``, as the tables show it (two decimals), is within the goal (a figure
+        not measured is not)."""
+        if value is None:
+            return False
+        shown = float(num(value))
+        return shown >= self.limit if self.at_least else shown <= self.limit
+
+
+REAL_TIME_GOAL = Goal(2.5, at_least=True)  # lockstep, the four-process loop
+HANDOFF_GOAL = Goal(0.5)  # frame publish + transport p50 (ms)
+LATENCY_P50_GOAL = Goal(6.0)  # frame captured → command applied (ms)
+LATENCY_P99_GOAL = Goal(9.0)
+ADDS_GOAL = Goal(2.0, written="2.0")  # what distribution adds, p50 (ms)
 
 
 # --- the benchmark ---------------------------------------------------------------------------
@@ -417,8 +465,46 @@ def bench_alternations(inputs: Inputs, here: str) -> str:
                 comparison_rows(report),
                 right_from=1,
             )
+            + "\n\n"
+            + alternation_summary(report)
         )
     return "\n\n".join(parts) or "*No alternation has been run.*"
+
+
+# (field of the alternation's figures, words, goal, unit) of the line under each alternation.
+ALTERNATION_GOALS: tuple[tuple[str, str, Goal, str], ...] = (
+    ("latency_p50", "latency p50", LATENCY_P50_GOAL, " ms"),
+    ("latency_p99", "p99", LATENCY_P99_GOAL, " ms"),
+    ("distribution_adds_p50", "what distribution adds", ADDS_GOAL, " ms"),
+    ("frame_handoff_p50", "frame publish + transport", HANDOFF_GOAL, " ms"),
+    ("real_time_factor", "real-time factor", REAL_TIME_GOAL, ""),
+)
+
+
+def _median(vs: Sequence[float]) -> float | None:
+    return median(vs) if vs else None
+
+
+def alternation_summary(report: Any) -> str:
+    """Under an alternation's table: how many pairs had each figure within its goal, without
+    and with the change (the real-time factor's goal only in lockstep), and the median of the
+    pairs on each side."""
+    from deploy.bench.alternate import values
+
+    n = len(report.pairs)
+    realtime = realtime_command(report.command)
+    within, medians = [], []
+    for field, words, goal, unit in ALTERNATION_GOALS:
+        sides = [values(report, field, side) for side in ("without", "with_change")]
+        if not (realtime and goal is REAL_TIME_GOAL):
+            counts = [sum(goal.met(v) for v in vs) for vs in sides]
+            within.append(f"{words} {goal}{unit} {counts[0]} → {counts[1]}")
+        mids = [_median([v for v in vs if v is not None]) for vs in sides]
+        medians.append(f"{words} {num(mids[0])} → {num(mids[1])}{unit}")
+    return (
+        f"Pairs within each goal, of {n}, without → with: {', '.join(within)}. "
+        f"Medians of the pairs, without → with: {', '.join(medians)}."
+    )
 
 
 def _cpu(machine: Mapping[str, Any]) -> str:
@@ -482,3 +568,177 @@ def _startup_cell(frame: Mapping[str, float]) -> str:
     latency_ms, transport_ms, vision_ms = (frame[key] for key, _ in STARTUP_STAGES)
     inprocess_ms = frame["inprocess_ms"]
     return f"{num(latency_ms)} ({num(inprocess_ms)}) / {num(transport_ms)} / {num(vision_ms)}"
+
+
+# --- what distribution adds, stage by stage --------------------------------------------------
+def bench_stages(inputs: Inputs, here: str) -> str:
+    """The headline run stage by stage: each stage's p50 in the four processes, the same
+    function's in one process (none for a hop: one process has no transport), and what
+    distribution adds to it; then the codec's share of the hops and vision's cost warm."""
+    run = inputs.run(LOCKSTEP_RUN)
+    d = run.data
+    dist, inproc = d["distributed"]["stages_ms"], d["inprocess"]["stages_ms"]
+    parts = d["distribution_adds_ms"]["parts_p50"]
+    body = [
+        [
+            s.replace("_", " "),
+            num(dist[s]["p50"]),
+            num(inproc[s]["p50"]) if s in inproc else "–",
+            num(parts.get(s)),
+        ]
+        for s in parts
+    ]
+    body.append(
+        [
+            "latency, frame captured → command applied",
+            num(d["distributed"]["latency_ms"]["p50"]),
+            num(d["inprocess"]["per_frame_ms"]["p50"]),
+            num(d["distribution_adds_ms"]["p50"]),
+        ]
+    )
+    headers = ["stage", "four processes p50", "one process p50", "distribution adds p50"]
+    codec = ", ".join(
+        f"{words} {num(inproc[key]['p50'])}"
+        for key, words in (
+            ("frame_codec", "the frame's (the joint state, the depth image, the colour frame)"),
+            ("features_codec", "the features'"),
+            ("twist_codec", "the twist's"),
+            ("command_codec", "the command's"),
+        )
+        if key in inproc
+    )
+    lines = [
+        "The messages' codec (built, encoded, decoded), timed apart in one process, p50: "
+        f"{codec} ms.",
+    ]
+    if "vision_warm" in inproc:
+        lines.append(
+            "In one process, vision called a second time at once on the same frame (its code "
+            f"and data warm): p50 {num(inproc['vision_warm']['p50'])} ms, against "
+            f"{num(inproc['vision']['p50'])} ms right after the render."
+        )
+    return (
+        markdown_table(headers, body, right_from=1)
+        + "\n\n"
+        + " ".join(lines)
+        + "\n\nTimes in ms, medians of the runs' p50 (they do not add or subtract exactly). "
+        + _sources(here, [run])
+    )
+
+
+# --- the loop watched: umay bench --view ------------------------------------------------------
+VIEW_NOT_RUN = (
+    "*Not run yet: `umay bench --frames 60 --repeat 3 --no-reference --synthetic-frames 0 "
+    "--json docs/bench/view/without.json`, then the same with `--view` and "
+    "`--json docs/bench/view/with.json`.*"
+)
+
+
+def view_pairs(runs: Sequence[BenchRun]) -> list[tuple[BenchRun, BenchRun]]:
+    """The runs of ``docs/bench/view/`` in pairs, in name order: ``without<suffix>`` (no view)
+    and ``with<suffix>``, the same command with ``--view``; :class:`DocsError` for a run out of
+    a pair or a pair that is not that."""
+    by_name = {r.name: r for r in runs}
+    pairs = []
+    for r in runs:
+        if not r.name.startswith("without"):
+            continue
+        suffix = r.name.removeprefix("without")
+        partner = by_name.get(f"with{suffix}")
+        if partner is None:
+            raise DocsError(f"{r.path} has no {VIEW_DIR}/with{suffix}.json beside it")
+        for run, view in ((r, False), (partner, True)):
+            if bool(run.data["config"].get("view")) is not view:
+                said = "with" if view else "without"
+                raise DocsError(f"{run.path} was not run {said} --view (its config.view)")
+        words = measured(partner.data["command"])
+        if [w for w in words if w != "--view"] != measured(r.data["command"]):
+            raise DocsError(
+                f"{partner.path} was made by `{partner.data['command']}`, not by "
+                f"`{r.data['command']}` with --view"
+            )
+        pairs.append((r, partner))
+    paired = {run.name for pair in pairs for run in pair}
+    lone = [r.path for r in runs if r.name not in paired]
+    if lone:
+        raise DocsError(f"{', '.join(lone)}: not in a pair of without<suffix> and with<suffix>")
+    return pairs
+
+
+def _client_messages(data: Mapping[str, Any]) -> float | None:
+    """Messages the bench's Foxglove client read in a run (the median run's), when watched."""
+    observer = data["distributed"].get("observer") or {}
+    got = observer.get("client_messages")
+    return None if got is None else float(sum(got.values()))
+
+
+# (words, figure of a run, format) of the view block's rows.
+VIEW_FIGURES: tuple[tuple[str, Callable[[Mapping[str, Any]], float | None], str], ...] = (
+    ("latency p50, all frames (ms)", lambda d: latency(d)[0]["p50"], ".2f"),
+    ("latency p99, all frames (ms)", lambda d: latency(d)[0]["p99"], ".2f"),
+    (
+        "frame transport p50 (ms)",
+        lambda d: d["distributed"]["stages_ms"]["frame_transport"]["p50"],
+        ".2f",
+    ),
+    ("frame publish + transport p50 (ms)", frame_handoff_ms, ".2f"),
+    ("what distribution adds, p50 (ms)", lambda d: d["distribution_adds_ms"]["p50"], ".2f"),
+    ("real-time factor", lambda d: d["distributed"]["real_time_factor"], ".2f"),
+    ("messages the Foxglove client read, per run", _client_messages, ".0f"),
+)
+
+
+def moved(pairs: Sequence[tuple[float | None, float | None]], fmt: str) -> str:
+    """How many pairs moved a figure the way most did: "3 of 3 up" (as ``umay bench
+    --alternate`` counts them: values compared as shown, a pair missing one side not
+    counted)."""
+    moves = [
+        float(format(w, fmt)) - float(format(o, fmt))
+        for o, w in pairs
+        if o is not None and w is not None
+    ]
+    down, up = sum(m < 0 for m in moves), sum(m > 0 for m in moves)
+    if not down and not up:
+        return f"none of {len(moves)} moved" if moves else "–"
+    return f"{max(down, up)} of {len(moves)} " + ("down" if down >= up else "up")
+
+
+def bench_view(inputs: Inputs, here: str) -> str:
+    """The loop without and with a live view and a Foxglove client (``umay bench --view``), in
+    pairs run one right after the other: per figure its value in every pair on each side and
+    how many pairs moved it the same way; then the runs and their commands."""
+    pairs = view_pairs(inputs.view)
+    if not pairs:
+        return VIEW_NOT_RUN
+    body = []
+    for words, figure, fmt in VIEW_FIGURES:
+        sides = [[figure(run.data) for run in side] for side in zip(*pairs, strict=True)]
+        body.append(
+            [
+                words,
+                " / ".join(num(v, fmt) for v in sides[0]),
+                " / ".join(num(v, fmt) for v in sides[1]),
+                moved(list(zip(*sides, strict=True)), fmt),
+            ]
+        )
+    runs = [run for pair in pairs for run in pair]
+    listed = ", ".join(
+        f"[`{a.name}`]({link(here, a.path)}) → [`{b.name}`]({link(here, b.path)})" for a, b in pairs
+    )
+    loads = [(r.data["machine"].get("load_start") or [None])[0] for r in runs]
+    known = [v for v in loads if v is not None]
+    load = f"{num(min(known))}–{num(max(known))}" if known else "not recorded"
+    codes = list(dict.fromkeys(code_cell(r.data["machine"]) for r in runs))
+    machines = list(
+        dict.fromkeys(f"{r.data['machine']['cpus']} × {_cpu(r.data['machine'])}" for r in runs)
+    )
+    caption = (
+        f"{len(pairs)} pair{'s' if len(pairs) != 1 else ''}, each without then with the view, one "
+        f"right after the other: {listed}; {', '.join(machines)}, load "
+        f"{load}, code {', '.join(codes)}."
+    )
+    commands = "\n".join(r.data["command"] for r in runs)
+    table = markdown_table(
+        ["figure", "without a view", "with `umay view` and a client", "pairs"], body, right_from=1
+    )
+    return f"{caption}\n\n{table}\n\n```sh\n{commands}\numay docs\n```"

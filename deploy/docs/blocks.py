@@ -17,7 +17,9 @@ from deploy.docs.bench_tables import (
     bench_render,
     bench_runs,
     bench_services,
+    bench_stages,
     bench_startup,
+    bench_view,
     bench_workflows,
 )
 from deploy.docs.calibration_tables import campaign_calibration
@@ -57,6 +59,7 @@ from deploy.docs.sources import (
     RESULTS_JSON,
     STARTUP_DIR,
     SUITE_CAMERA_DIR,
+    VIEW_DIR,
     WORKFLOWS_DIR,
     Inputs,
 )
@@ -84,12 +87,14 @@ BLOCKS: dict[str, Block] = {
     "bench-kinect": Block(bench_kinect, f"{BENCH_DIR}/*.json"),
     "bench-latency": Block(bench_latency, f"{BENCH_DIR}/*.json"),
     "bench-distribution": Block(bench_distribution, f"{BENCH_DIR}/*.json"),
+    "bench-stages": Block(bench_stages, f"{BENCH_DIR}/{LOCKSTEP_RUN}.json"),
     "bench-services": Block(bench_services, f"{BENCH_DIR}/*.json"),
     "bench-dropped": Block(bench_dropped, f"{BENCH_DIR}/*.json"),
     "bench-alternations": Block(bench_alternations, f"{ALTERNATIONS_DIR}/*.json"),
     "bench-startup": Block(bench_startup, f"{STARTUP_DIR}/*.json"),
     "bench-workflows": Block(bench_workflows, f"{WORKFLOWS_DIR}/*.json"),
     "bench-hosts": Block(bench_hosts, f"{BENCH_DIR}/{LOCKSTEP_RUN}.json, {HOSTS_DIR}/*.json"),
+    "bench-view": Block(bench_view, f"{VIEW_DIR}/*.json"),
     "campaign-summary": Block(campaign_summary, CAMPAIGN_SOURCES),
     "campaign-taxonomy": Block(campaign_taxonomy, CAMPAIGN_SOURCES),
     "campaign-contacts": Block(campaign_contacts, CAMPAIGN_RESULTS_JSON),

@@ -22,6 +22,9 @@ STARTUP_DIR = "docs/bench/startup"
 HOSTS_DIR = "docs/bench/hosts"
 # umay bench --workflows: make run, umay compare and make test timed on fresh clones.
 WORKFLOWS_DIR = "docs/bench/workflows"
+# umay bench --view: the loop with a live view and a Foxglove client, in pairs of runs without
+# and with it (``without<suffix>.json``, then ``with<suffix>.json``).
+VIEW_DIR = "docs/bench/view"
 # Frames shown one by one from a run's start; the rest are summed up by their median.
 STARTUP_FRAMES = 10
 DOMAINS_JSON = "docs/domains/domains.json"  # the published convergence-domain study
@@ -135,6 +138,7 @@ class Inputs:
     startup: Sequence[BenchRun] = ()  # runs without warm-up frames (STARTUP_DIR), by name
     hosts: Sequence[BenchRun] = ()  # the headline lockstep run on other hosts (HOSTS_DIR)
     workflows: Sequence[BenchRun] = ()  # the user's commands timed (WORKFLOWS_DIR), by name
+    view: Sequence[BenchRun] = ()  # the loop without and with a live view (VIEW_DIR), by name
     domains: Any = None  # the domain study (deploy.experiments.domains.report.Study), if run
     executors: Sequence[tuple[str, Any]] = ()  # (folder, Study) of the executor comparison
     campaign: Sequence[Mapping[str, Any]] = ()  # the campaign's runs, each with its cause
@@ -186,6 +190,7 @@ def load_inputs(root: Path) -> Inputs:
         startup = _bench_runs(root, STARTUP_DIR)
         hosts = _bench_runs(root, HOSTS_DIR)
         workflows = _bench_runs(root, WORKFLOWS_DIR)
+        view = _bench_runs(root, VIEW_DIR)
         domains = None
         if (root / DOMAINS_JSON).is_file():
             domains = load_study_json(root / DOMAINS_JSON)
@@ -218,6 +223,7 @@ def load_inputs(root: Path) -> Inputs:
         startup=startup,
         hosts=hosts,
         workflows=workflows,
+        view=view,
         domains=domains,
         executors=executors,
         campaign=campaign,
