@@ -693,6 +693,10 @@ def load_scenario(path: str | Path | None = None, overrides: dict | None = None)
         raise ScenarioError(f"{p}: no such scenario file") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{p}: not valid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{p}: not a text file (not UTF-8 at byte {exc.start})") from exc
+    except OSError as exc:  # a directory, no permission, ...
+        raise ScenarioError(f"{p}: cannot read it: {exc.strerror or exc}") from exc
     merge_overrides(data, overrides or {})
     try:
         return Scenario.model_validate(data)

@@ -18,6 +18,17 @@ def positive_seconds(value: str) -> float:
     return seconds
 
 
+def tcp_port(value: str) -> int:
+    """argparse type of a TCP port a user names: 1-65535."""
+    try:
+        port = int(value)
+    except ValueError:
+        port = 0
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{value!r}: a TCP port, 1-65535")
+    return port
+
+
 # What a tool that hears nothing says after where it looked (status, record, view).
 NOTHING_RUNNING_THERE = (
     "nothing running there? (`umay up` starts the services; --prefix and --connect look elsewhere)"

@@ -26,7 +26,7 @@ from common.session import (
     where_connecting,
     zenoh_reason,
 )
-from deploy.arguments import positive_seconds
+from deploy.arguments import positive_seconds, tcp_port
 from deploy.exit_codes import (
     EXIT_BAD_INPUT,
     EXIT_CONVERGED,
@@ -110,7 +110,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         check_output_file("--result", args.result)
     if args.plot:
         check_output_dir("--plot", args.plot)
-        record = record or Path(args.plot) / "run.mcap"  # plotting needs a recording
+        if record is None:  # plotting needs a recording: one beside the figures
+            record = check_output_file("--plot", Path(args.plot) / "run.mcap")
     if args.record:
         check_output_file("--record", args.record)
     check_output_dir("--log-dir", args.log_dir)
@@ -210,7 +211,7 @@ def _view_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--view", action="store_true", help="serve a live Foxglove view beside it (umay view)"
     )
-    p.add_argument("--view-port", type=int, default=8765, help="its WebSocket port (8765)")
+    p.add_argument("--view-port", type=tcp_port, default=8765, help="its WebSocket port (8765)")
 
 
 def cmd_router(args: argparse.Namespace) -> int:

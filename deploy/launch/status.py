@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -56,14 +57,27 @@ def verdict(views: list[ServiceView], keys: Keys, looked_on: str) -> tuple[int, 
 
 
 def as_json(views: list[ServiceView]) -> dict:
+    """Every service's status as JSON data; a figure not measured yet (NaN, say the
+    manipulability before actuation's first command) is null, as strict JSON has it."""
     return {
         v.name: {
             "alive": v.alive,
             "condition": v.condition,
-            "status": v.status.model_dump() if v.status else None,
+            "status": _finite(v.status.model_dump()) if v.status else None,
         }
         for v in views
     }
+
+
+def _finite(data: Any) -> Any:
+    """``data`` with every NaN or infinite float replaced by None."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: _finite(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [_finite(v) for v in data]
+    return data
 
 
 def _short_key(key: str, prefix: str) -> str:
@@ -106,9 +120,10 @@ def status_display(views: list[ServiceView], keys: Keys) -> RenderableType:
             v.condition,
             str(s.pid),
             f"{s.uptime_s:.1f}",
-            received,
-            published,
-            rejected,
+            # As plain text: a rejection's reason repeats what a payload said, "[/x]" included.
+            Text(received),
+            Text(published),
+            Text(rejected),
             f"{_fmt(s.processing_ms_p50, '.2f')}/{_fmt(s.processing_ms_p99, '.2f')}",
         )
         fields = dict(s.fields)

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import zenoh
 
-from common.config import ScenarioError
+from common.config import ScenarioError, load_scenario
 from common.keys import Keys, default_prefix
-from common.runtime import endpoints_argument, prefix_argument
+from common.runtime import endpoints_argument, parse_overrides, prefix_argument
 from common.session import open_session, where_connecting, zenoh_reason
 from deploy.arguments import NOTHING_RUNNING_THERE, positive_seconds
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_NOT_CONVERGED
@@ -35,10 +35,11 @@ def cmd_record(args: argparse.Namespace) -> int:
     keys = Keys(args.prefix or default_prefix())
     metadata = {"prefix": keys.prefix, "recorded_by": "umay record"}
     if args.scenario or args.set:
-        try:
+        try:  # the scenario a replay will start services with: valid, or refused by name
+            load_scenario(args.scenario, parse_overrides(args.set))
             metadata = run_metadata(args.scenario, args.set, keys.prefix)
-        except OSError as exc:
-            print(f"umay record: {args.scenario}: {exc.strerror}", file=sys.stderr)
+        except ScenarioError as exc:
+            print(f"umay record: {exc}", file=sys.stderr)
             return EXIT_BAD_INPUT
     with stop_requested() as stop:
         session = open_session(connect=args.connect)

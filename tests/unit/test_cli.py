@@ -42,6 +42,8 @@ REFUSED = [
     case(*RUN, "--set", "target.position=[2.0, -0.3, 0.0]", says="target.position"),
     case(*RUN, "--set", "robot.q0=[0.0, 0.0]", says="robot.q0"),
     case(*RUN, "--scenario", "/nonexistent.toml", says="no such scenario"),
+    case(*RUN, "--scenario", ".", says=".: cannot read it: Is a directory"),
+    case(*RUN, "--scenario", CUT, says="cut.mcap: not a text file (not UTF-8 at byte 0)"),
     case(*RUN, "--result", "/proc/no-such-dir/result.json", says="--result"),
     case(*RUN, "--plot", "/proc/no-such-dir/plots", says="--plot"),
     case(*RUN, "--log-dir", "/proc/no-such-dir/logs", says="--log-dir"),
@@ -49,6 +51,8 @@ REFUSED = [
     case(*RUN, "--timeout", "-5", says="run.timeout_s: Input should be greater than 0"),
     case("up", "--scenario", "nope.toml", says="umay up: nope.toml: no such scenario file"),
     case("up", "--set", "controller.gain=-1", "--log-dir", "logs", says="controller.gain"),
+    case("up", "--scenario", ".", "--log-dir", "logs", says="umay up: .: cannot read it"),
+    case("up", "--view", "--view-port", "70000", says="--view-port: '70000': a TCP port, 1-65535"),
     case("service", "nosuch", says="invalid choice: 'nosuch'"),
     case("router", "--config", "nope.json5", says="nope.json5: No such file or directory"),
     case("view", "--port", "99999", says="--port 99999: 0-65535"),
@@ -78,6 +82,8 @@ REFUSED = [
     case("record", "x.mcap", "--duration", "inf", says="argument --duration: 'inf': seconds"),
     case("record", f"{FILE}/r.mcap", "--duration", "1", says="umay record: OUT.mcap"),
     case("record", "k.mcap", "--keys", "a//b", says="umay record: --keys 'a//b': "),
+    case("record", "k.mcap", "--scenario", CUT, says="umay record: cut.mcap: not a text file"),
+    case("record", "k.mcap", "--set", "controller.gain=-1", says="controller.gain: Input"),
     case("accuracy", "--frames", "0", says="--frames must be at least 1"),
     case("accuracy", "--seed", "-1", says="--seed 0 or more"),
     case("accuracy", "--scenario", "none.toml", says="none.toml: no such scenario file"),
@@ -147,3 +153,15 @@ def test_umay_logs_shows_the_last_lines_of_a_service_log(tmp_path: Path, umay_cl
     assert none.returncode == 0 and none.stdout == ""
     negative = logs("-n", "-5")
     assert negative.returncode == 2 and "-n -5" in negative.stderr and negative.stdout == ""
+
+
+def test_run_refuses_a_plot_folder_whose_recording_would_be_a_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, umay_cli: Cli
+) -> None:
+    """``--plot DIR`` records the run to DIR/run.mcap to plot it: a folder there is named
+    before anything starts."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "plots" / "run.mcap").mkdir(parents=True)
+    refused = umay_cli(*RUN, "--plot", "plots")
+    assert refused.returncode == 2, refused.stderr
+    assert "--plot plots/run.mcap: is a folder, expected a file" in refused.stderr

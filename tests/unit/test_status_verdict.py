@@ -115,3 +115,30 @@ def test_the_supervisors_children_read_as_a_clause_each() -> None:
     out = io.StringIO()
     Console(file=out, width=200, color_system=None).print(status_display([sup], KEYS))
     assert "supervisor: cpu_wakeup_latency=held: 0 µs  sim pid 12, running" in out.getvalue()
+
+
+def test_status_json_is_strict_json_before_a_figure_is_measured() -> None:
+    """A figure not measured yet (actuation's manipulability before its first command is NaN)
+    is null: `umay status --json | jq` must parse."""
+    import json
+
+    from deploy.launch.status import as_json
+
+    v = view("actuation")
+    v.status.fields.update(manipulability=float("nan"), margins=[1.0, float("inf")])
+    text = json.dumps(as_json([v]), allow_nan=False)  # raises on NaN or inf
+    fields = json.loads(text)["actuation"]["status"]["fields"]
+    assert fields["manipulability"] is None and fields["margins"] == [1.0, None]
+
+
+def test_a_rejection_reason_from_a_payload_is_shown_as_it_is() -> None:
+    """The last rejection repeats what a payload said; square brackets in it are not markup."""
+    import io
+
+    from rich.console import Console
+
+    v = view("vision")
+    v.status.rejected, v.status.last_rejection = 1, "segment '[/x]' is not a frame ring's"
+    out = io.StringIO()
+    Console(file=out, width=200, color_system=None).print(status_display([v], KEYS))
+    assert "segment '[/x]' is not a frame ring's" in out.getvalue()
