@@ -60,10 +60,10 @@ H = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
 K = CameraIntrinsics.from_fov(32, 24, 57.0)
 M = MarkerFeatures(
     state="visible",
-    corners_px=[[1.0, 2.0]] * 4,
+    corners_px=[[10.0, 8.0], [20.0, 8.0], [20.0, 18.0], [10.0, 18.0]],
     depth_m=[0.5] * 4,
     depth_sigma_m=[0.001] * 4,
-    points_m=[[0.0, 0.0, 0.5]] * 4,
+    points_m=[[-0.01, -0.01, 0.5], [0.01, -0.01, 0.5], [0.01, 0.01, 0.5], [-0.01, 0.01, 0.5]],
 )
 FRAMES = ("rgb", "depth")
 TEMPLATES = {
