@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from common.kinematics import JOINT_VELOCITY_LIMIT_RAD_S
 from deploy.experiments.compare.rows import CompareRow
-from deploy.experiments.compare.summary import markdown_table
+from deploy.experiments.compare.summary import format_cell, markdown_table
 
 IMAGE_MODES = ("constant", "dynamic", "pmj", "mpj")  # the thesis's four
 LARGE_ROTATION = "large_rotation"  # the suite's scenario with the largest turn of the hand
@@ -81,7 +81,7 @@ def verdict_figures(rows: Sequence[CompareRow], mode: str) -> VerdictFigures:
 
 
 def _f(value: float | None, fmt: str = ".3f", scale: float = 1.0) -> str:
-    return "–" if value is None else format(value * scale, fmt)
+    return format_cell(value, scale, fmt)
 
 
 def figures_table(figures: Sequence[VerdictFigures]) -> str:
