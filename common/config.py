@@ -24,7 +24,15 @@ from pydantic import (
 )
 
 from common.camera import CameraIntrinsics, look_at_rotation
-from common.kinematics import BASE_UP, homogeneous, rot_x, rot_y, rot_z
+from common.kinematics import (
+    BASE_UP,
+    JOINT_VELOCITY_LIMIT_RAD_S,
+    POSITION_LIMIT_ZONE_RAD,
+    homogeneous,
+    rot_x,
+    rot_y,
+    rot_z,
+)
 from common.messages import MAX_ANGULAR_RAD_S, MAX_LINEAR_M_S
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "deploy" / "scenarios" / "default.toml"
@@ -161,8 +169,9 @@ class CameraConfig(_Strict):
         30.0,
         ge=9.0,
         le=120.0,
-        description="colour frames per second; at least 9: a joint command is followed for a "
-        "frame, and a longer frame could carry a joint from its slow-down bound past its limit",
+        description="colour frames per second; at least 9, and a frame (in whole physics "
+        "steps) shorter than a joint takes to cross its slow-down zone at full speed: a joint "
+        "command is followed for a frame, and a longer one could carry a joint past its limit",
     )
     depth_hz: float | None = Field(
         None,
@@ -632,6 +641,21 @@ class Scenario(_Strict):
                 f"actuation.deadman_timeout_s ({deadman}) not below sim.command_watchdog_s "
                 f"({watchdog}): the deadman is the first stop, the sim's watchdog the second, "
                 "and the stop must have time to reach the motors before the watchdog acts"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _a_frame_shorter_than_the_slow_down_zone(self) -> Scenario:
+        # A joint command is followed for one camera frame (lockstep: whole physics steps), and
+        # actuation bounds the speed towards a limit by the angle at the frame's start: a frame
+        # crossing the whole slow-down zone at full speed could carry a joint past its limit.
+        crossing_s = POSITION_LIMIT_ZONE_RAD / float(np.max(JOINT_VELOCITY_LIMIT_RAD_S))
+        if self.frame_period_s >= crossing_s:
+            raise ValueError(
+                f"camera.rgb_hz ({self.camera.rgb_hz}) at sim.physics_hz "
+                f"({self.sim.physics_hz}) makes a camera frame of {self.frame_period_s:.4f} s "
+                f"(whole physics steps), not below the {crossing_s:.4f} s a joint takes to cross "
+                "its slow-down zone at full speed: a joint could pass its limit within a frame"
             )
         return self
 

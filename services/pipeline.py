@@ -76,7 +76,7 @@ class Pipeline:
         self.world = World(scenario)
         self.substeps = substeps_per_frame(camera.rgb_hz, self.world.physics_dt_s)
         self.camera_period_s = scenario.frame_period_s  # the acceleration limit's longest gap
-        self.schedule = DepthSchedule.of(camera)
+        self.schedule = DepthSchedule.of(camera, scenario.frame_period_s)
         self.depth: tuple[np.ndarray, float] | None = None  # newest depth image, its sim time
         self.tracker = TrackerState()
         self.controller = IbvsController.of(scenario)

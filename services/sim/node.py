@@ -63,7 +63,7 @@ class SimService:
         self.substeps = substeps_per_frame(ctx.scenario.camera.rgb_hz, self.world.physics_dt_s)
         self.frame_seq = 0
         self.run_id = new_run()  # on every message: a restarted sim is a new run (common.runs)
-        self.depth_schedule = DepthSchedule.of(ctx.scenario.camera)
+        self.depth_schedule = DepthSchedule.of(ctx.scenario.camera, ctx.scenario.frame_period_s)
         self._last_frame: list[tuple[TypedPublisher, object]] = []  # for a lockstep resend
         self.dropped_frames = 0
         self.render_ms = 0.0

@@ -25,8 +25,11 @@ class DepthSchedule:
     depth_images: int = 0  # taken so far
 
     @classmethod
-    def of(cls, camera: CameraConfig) -> DepthSchedule:
-        return cls(period_s=1.0 / camera.depth_rate_hz)
+    def of(cls, camera: CameraConfig, frame_period_s: float) -> DepthSchedule:
+        """Ticks on the sim's own frame grid: ``frame_period_s`` is the colour period in whole
+        physics steps (:attr:`Scenario.frame_period_s`), so that depth at the colour rate comes
+        with every frame even where physics steps do not divide the camera period."""
+        return cls(period_s=frame_period_s * camera.rgb_hz / camera.depth_rate_hz)
 
     def due(self, t_s: float) -> bool:
         """Does the frame taken at sim time ``t_s`` carry a depth image?"""

@@ -303,11 +303,15 @@ class World:
         return state
 
     def _place_occluder(self, active: bool) -> None:
-        """A paper panel between the camera and the hand's marker, where the marker is now (the
-        arm holds still while it cannot see its hand, so the panel need not follow it)."""
+        """A paper panel between the camera and the hand's marker, where the marker is when the
+        panel is placed (it does not follow the hand: the controller carries a hidden hand
+        along the encoders for a moment, the panel stays where it was put)."""
         if self.occluder_body is not None:
             self.client.removeBody(self.occluder_body)
             self.occluder_body = None
+        # pybullet gives a new body the id just freed, so the set of ids does not show the
+        # change: OpenGL re-reads the meshes (another panel's size) at its next draw.
+        self._gl_bodies = ()
         if not active:
             return
         eye = self.camera_pose[:3, 3]

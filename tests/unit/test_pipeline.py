@@ -22,9 +22,14 @@ from services.vision.tracking import TrackerState
 
 
 # --- the sim's schedule and motors --------------------------------------------------------
-def depth_frames(rgb_hz: float, depth_hz: float, frames: int) -> list[int]:
-    camera = load_scenario().camera.model_copy(update={"rgb_hz": rgb_hz, "depth_hz": depth_hz})
-    schedule = DepthSchedule.of(camera)
+def depth_frames(rgb_hz: float, depth_hz: float, frames: int, physics_hz: int = 240) -> list[int]:
+    scenario = short(
+        None,
+        f"camera.rgb_hz={rgb_hz}",
+        f"camera.depth_hz={depth_hz}",
+        f"sim.physics_hz={physics_hz}",
+    )
+    schedule = DepthSchedule.of(scenario.camera, scenario.frame_period_s)
     taken = []
     t = 0.0
     for seq in range(frames):
@@ -32,7 +37,7 @@ def depth_frames(rgb_hz: float, depth_hz: float, frames: int) -> list[int]:
             schedule = schedule.taken(t, seq)
             taken.append(seq)
             assert schedule.depth_frame_seq == seq
-        t += 1.0 / rgb_hz  # accumulated, as the world's clock is
+        t += scenario.frame_period_s  # accumulated in whole physics steps, as the world's clock
     assert schedule.depth_images == len(taken)
     return taken
 
@@ -41,6 +46,14 @@ def test_depth_comes_with_every_frame_at_equal_rates_and_every_third_at_a_third(
     assert depth_frames(30.0, 30.0, 12) == list(range(12))
     assert depth_frames(30.0, 10.0, 30) == list(range(0, 30, 3))
     assert depth_frames(15.0, 1.0, 46) == [0, 15, 30, 45]
+
+
+@pytest.mark.parametrize("physics_hz", [100, 70])
+def test_the_depth_ticks_follow_the_frames_whole_physics_steps(physics_hz: int) -> None:
+    """At 100 Hz physics a 30 Hz frame is 3 steps, 0.030 s: ticks every 1/30 s fell behind
+    the frames and every tenth frame went without its depth image."""
+    assert depth_frames(30.0, 30.0, 60, physics_hz) == list(range(60))
+    assert depth_frames(30.0, 10.0, 60, physics_hz) == list(range(0, 60, 3))
 
 
 def test_a_late_frame_does_not_shift_the_depth_grid() -> None:
@@ -89,6 +102,10 @@ def test_the_motors_hold_the_joint_limits_whatever_the_command_s_age() -> None:
     assert upper - np.deg2rad(1.0) < joint_after(3.0, bounded=True) <= upper  # never past
     with pytest.raises(ScenarioError, match=r"camera\.rgb_hz: Input should be greater than or"):
         short(None, "camera.rgb_hz=8.0", "camera.depth_hz=8.0")  # a frame would carry it past
+    # 9 Hz in whole steps of 50 Hz physics is a 0.12 s frame: longer than the zone's crossing.
+    with pytest.raises(ScenarioError, match=r"a joint could pass its limit within a frame"):
+        short(None, "camera.rgb_hz=9.0", "camera.depth_hz=9.0", "sim.physics_hz=50")
+    assert short(None, "camera.rgb_hz=9.0", "camera.depth_hz=9.0").frame_period_s < 0.1164
     at = np.zeros(kin.N_JOINTS)
     at[0] = upper - np.deg2rad(1.0)  # a tenth of the zone left: a tenth of the speed
     assert bounded_at_angles(command, at)[0] == pytest.approx(0.1 * command[0])

@@ -204,3 +204,30 @@ def test_no_opengl_falls_back_to_tinyrenderer_and_says_why(
         assert rgb.shape == (240, 320, 3) and depth is not None and depth.max() > 0
     finally:
         w.close()
+
+
+def test_a_second_occluding_panel_is_drawn_at_its_own_size() -> None:
+    """Two overlapping hand occlusions: the second panel is made where the hand is then, its
+    size from its distance to the camera. pybullet gives it the id the first one freed, and
+    OpenGL still draws it from what the scene is now, not from the first panel's mesh."""
+    events = (
+        'events=[{at_s = 0.0, action = "occlude_hand", duration_s = 1.0}, '
+        '{at_s = 0.5, action = "occlude_hand", duration_s = 1.0}]'
+    )
+    scenario = load_scenario(None, parse_overrides([*SIZE, events]))
+    w = World(scenario)
+    try:
+        if w.renderer != "gl":
+            pytest.fail(f"no OpenGL renderer on this machine: {w.renderer_detail}")
+        w.update_scene()
+        w.render_perfect(w.intrinsics)
+        first = w.occluder_body
+        w.reset(np.asarray(scenario.robot.q0) + np.array([0.3, 0.2, 0.0, 0.0, 0.0, 0.0]))
+        w.sim_time_s = 0.5
+        w.update_scene()
+        assert w.occluder_body == first  # the freed id, reused
+        w.render_perfect(w.intrinsics)
+        drawn = [s.size_m for s in w._gl_shapes if s.body == w.occluder_body]
+        assert drawn == [tuple(w.client.getVisualShapeData(w.occluder_body)[0][3])]
+    finally:
+        w.close()
