@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from deploy.experiments.compare.rows import CompareRow
 from deploy.experiments.compare.verdict import (
+    _lower,
     dynamic_vs_constant,
     mpj_the_winner,
     points3d_paths,
@@ -90,3 +91,8 @@ def test_verdict_leaves_out_claims_whose_strategies_did_not_run() -> None:
     assert "| dynamic |" in text and "| points3d |" in text and "| constant |" not in text
     assert "Dynamic beats constant" not in text and "MPJ" not in text
     assert "points3d's path ratio" in text
+
+
+def test_lower_compares_the_shown_numbers_not_their_text() -> None:
+    assert not _lower(10.2, 9.5) and _lower(9.5, 10.2)
+    assert not _lower(1.0061, 1.0058)  # both shown as 1.006: a tie

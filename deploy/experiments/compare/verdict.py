@@ -117,7 +117,8 @@ def figures_table(figures: Sequence[VerdictFigures]) -> str:
 
 def _lower(a: float | None, b: float | None, fmt: str = ".3f") -> bool:
     """``a`` below ``b`` as shown (a tie at display precision is not lower)."""
-    return a is not None and b is not None and format(a, fmt) < format(b, fmt)
+    # As numbers: "10.200" < "9.500" as text.
+    return a is not None and b is not None and float(format(a, fmt)) < float(format(b, fmt))
 
 
 def _tied(a: float | None, b: float | None, fmt: str = ".3f") -> bool:
