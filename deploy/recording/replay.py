@@ -289,6 +289,16 @@ def replay_service(
             "before are not in it; `umay run --record` records a run whole). Replay it "
             "without --check to see what the service makes of it"
         )
+    triggers = [r.frame_seq for r in recorded_inputs if r.suffix == io.trigger]
+    if check and len(set(triggers)) < len(triggers):
+        # Outputs are matched by frame: a second run (a restarted sim, two runs recorded) would
+        # be matched against the first one's, or not compared at all.
+        repeated = next(seq for seq in triggers if triggers.count(seq) > 1)
+        raise ReplayError(
+            f"{path}: frame {repeated} comes {triggers.count(repeated)} times: the recording "
+            "holds more than one run, and --check compares one run frame by frame. Replay it "
+            "without --check, or record each run on its own (`umay run --record`)"
+        )
     if check:
         answered = recorded_outputs.keys()
         kept = [r for r in recorded_inputs if r.frame_seq in answered]

@@ -164,7 +164,11 @@ def check_outputs(
     report.max_abs_diff = max_diff
     report.other_diffs = other
     report.ok = (
-        report.compared > 0 and report.differing == 0 and report.missing == 0 and not report.extra
+        report.compared > 0
+        and report.differing == 0
+        and report.missing == 0
+        and not report.extra
+        and report.no_answer == 0  # a frame the service did not answer is not a match
     )
 
 

@@ -3,15 +3,22 @@ fields it ignores and how it names the ones that differ; lockstep replay's steps
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import msgpack
+import pytest
+from mcap.writer import Writer
 
 from common.codec import encode
 from common.messages import EndEffectorTwist, Header
+from deploy.recording.read import RecordingReader
 from deploy.recording.replay import (
     JOINT_STATE,
     SERVICE_IO,
     Recorded,
+    ReplayError,
     lockstep_steps,
+    replay_service,
     source_prefix,
 )
 from deploy.recording.replay_check import (
@@ -20,6 +27,7 @@ from deploy.recording.replay_check import (
     compare_messages,
     field_defaults,
 )
+from tests.unit.test_cli import REFERENCE
 
 
 def test_compare_ignores_seq_and_send_time_and_names_field_paths() -> None:
@@ -96,3 +104,56 @@ def test_the_prefix_is_the_metadata_s_unless_no_recorded_key_has_it() -> None:
     # `umay record --keys 'run/a1/**'` without --prefix noted the default prefix.
     assert source_prefix(recorded, {"prefix": "umay/umay1"}) == "run/a1"  # type: ignore[arg-type]
     assert source_prefix(recorded, {}) == "run/a1"  # type: ignore[arg-type]
+
+
+def _report(no_answer: int) -> ReplayReport:
+    return ReplayReport(
+        recording="r.mcap", service="controller", speed="max", prefix="p", log_path="l",
+        inputs_published=4, frames=2, outputs=1, no_answer=no_answer, skipped_inputs=0,
+        wall_time_s=0.1, check=True, tolerance=1e-12, ok=True,
+    )  # fmt: skip
+
+
+def test_a_frame_the_service_did_not_answer_fails_the_check() -> None:
+    header = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
+    twist = EndEffectorTwist(
+        header=header, linear_m_s=[0.0] * 3, angular_rad_s=[0.0] * 3, valid=True,
+        mode="dynamic", error_px_rms=1.0, converged=False,
+    )  # fmt: skip
+    for no_answer, ok in ((0, True), (1, False)):
+        report = _report(no_answer)
+        check_outputs(report, {0: encode(twist)}, {0: encode(twist)})
+        assert report.matched == 1 and report.ok is ok
+
+
+def test_check_refuses_a_recording_of_two_runs_before_starting_anything(tmp_path: Path) -> None:
+    """Outputs are matched frame by frame: the second of two runs recorded one after the
+    other (or a restarted sim's) would never be compared, and the check said OK."""
+
+    source = RecordingReader(REFERENCE)
+    messages = list(source.messages())
+    doubled = tmp_path / "two_runs.mcap"
+    with doubled.open("wb") as f:
+        w = Writer(f)
+        w.start(profile="umay", library="test")
+        for name, data in source.metadata().items():
+            w.add_metadata(name, data)
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        span = messages[-1][2].log_time - messages[0][2].log_time + 1
+        for run in range(2):
+            for schema, channel, message in messages:
+                if schema.id not in schemas:
+                    schemas[schema.id] = w.register_schema(
+                        schema.name, schema.encoding, schema.data
+                    )
+                if channel.id not in channels:
+                    channels[channel.id] = w.register_channel(
+                        channel.topic, channel.message_encoding, schemas[schema.id]
+                    )
+                t = message.log_time + run * span
+                w.add_message(channels[channel.id], t, message.data, t)
+        w.finish()
+    with pytest.raises(ReplayError, match=r"comes 2 times: the recording holds more than one"):
+        replay_service(doubled, "controller", None, True, tmp_path / "logs")
+    assert not (tmp_path / "logs").exists()  # refused before anything started
