@@ -1,6 +1,5 @@
-"""Imported by the services' forkserver alone (:data:`deploy.service_process.PRELOAD`), never
-by the supervisor or a service: the forkserver blocks SIGTERM, as multiprocessing has it ignore
-SIGINT.
+"""Imported by the services' forkserver alone (:data:`deploy.service_process.PRELOAD`, first),
+never by the supervisor or a service: the forkserver blocks SIGTERM and SIGINT.
 
 A SIGTERM sent to a whole process group (``timeout``, ``kill -- -PGID``, a CI job cancelled)
 reaches the services, which stop cleanly, and their supervisor, which waits for them. Their
@@ -8,10 +7,14 @@ exit codes come from the forkserver, whose children they are: killed with them, 
 report any (every one read 255, as if they had crashed). It still ends with the supervisor,
 when the pipe that keeps it alive closes.
 
-Blocked, not ignored: a forked service inherits the mask, and unblocks SIGTERM first thing
+Multiprocessing has the forkserver ignore SIGINT only once its preload is done: a Ctrl-C in
+the half-second of imports before that ended it, and with it the run (the mask comes first in
+the preload, so it covers the rest).
+
+Blocked, not ignored: a forked service inherits the mask, and unblocks both first thing
 (:func:`deploy.service_process.serve`), so one sent to it before then is held, then delivered,
 not lost (ignored, it was dropped, and the service had to be killed)."""
 
 import signal
 
-signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM, signal.SIGINT})

@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import multiprocessing
+import multiprocessing.resource_tracker
 import os
 import signal
 import subprocess
@@ -37,10 +38,10 @@ from common.processes import ProcessEnd
 # which multiprocessing imports in every process it starts, is then imported once, here.
 # Last, what only the forkserver imports: it blocks SIGTERM (deploy/forkserver_guard.py).
 PRELOAD = [
+    "deploy.forkserver_guard",  # first: its signal mask covers the imports after it
     "__main__",
     *(f"services.{name}.node" for name in SERVICES),
     __name__,
-    "deploy.forkserver_guard",
 ]
 
 
@@ -138,20 +139,30 @@ def fork_service(name: str, argv: list[str], env: dict[str, str], log_path: Path
     process = _forkserver().Process(
         target=serve, args=(name, argv, env, str(log_path)), name=f"umay-{name}"
     )
+    # Blocked in this thread while it starts: a forkserver started now (the first call)
+    # inherits the mask through its exec, so a Ctrl-C or SIGTERM to the process group during
+    # its interpreter's start and imports is held, not fatal (deploy/forkserver_guard.py keeps
+    # it so); here it is delivered when the mask is put back.
+    # The resource tracker first: starting it unblocks both signals again in this thread.
+    multiprocessing.resource_tracker.ensure_running()
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
     try:
         process.start()
     except ChildProcessError as exc:  # multiprocessing looks for its parent's forkserver
         raise ForkUnavailable("forked from a process whose forkserver it cannot use") from exc
     except OSError as exc:  # no forkserver here (a sandbox without Unix sockets...)
         raise ForkUnavailable(f"{type(exc).__name__}: {exc}") from exc
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
     return ForkedService(process, name)
 
 
 def serve(name: str, argv: list[str], env: dict[str, str], log_path: str) -> None:
     """In the forked child: take the service's environment, output and name, then run it as
     ``python -m services.NAME`` would."""
-    # The forkserver blocks SIGTERM (deploy/forkserver_guard.py): one already sent comes now.
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
+    # The forkserver blocks SIGTERM and SIGINT (deploy/forkserver_guard.py): one already sent
+    # comes now.
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM, signal.SIGINT})
     # ps, top and /proc show the command line an exec'd service would have, not the
     # forkserver's. Before the environment is replaced: the title takes the room of the
     # original environment's strings, and finds none to take once they were moved.

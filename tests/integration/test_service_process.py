@@ -224,3 +224,46 @@ def test_a_killed_forkserver_neither_ends_nor_doubles_its_services(tmp_path: Pat
     finally:
         sup.stop()
         session.close()
+
+
+FORKSERVER_SIGNALLED_AT_BIRTH = """
+import os, signal, sys, time
+from multiprocessing import util
+from pathlib import Path
+
+from deploy.service_process import fork_service
+
+spawn = util.spawnv_passfds
+
+
+def spawn_then_signal(path, args, passfds):
+    pid = spawn(path, args, passfds)
+    if any("forkserver" in str(a) for a in args):  # a Ctrl-C to the group as it starts
+        os.kill(pid, signal.SIGINT)
+        os.kill(pid, signal.SIGTERM)
+    return pid
+
+
+if __name__ == "__main__":
+    util.spawnv_passfds = spawn_then_signal
+    service = fork_service("controller", sys.argv[2:], dict(os.environ), Path(sys.argv[1]))
+    while service.returncode is None:
+        time.sleep(0.02)
+    print("exit", service.returncode)
+"""
+
+
+def test_a_forkserver_signalled_as_it_starts_still_forks_the_service(tmp_path: Path) -> None:
+    """Ctrl-C or SIGTERM to the process group in the moment the first service is forked (the
+    forkserver's interpreter starting, then its half-second of imports) ended the forkserver,
+    and the run with an EOFError: it starts with both signals blocked and keeps them so."""
+    script = tmp_path / "signalled.py"
+    script.write_text(FORKSERVER_SIGNALLED_AT_BIRTH)
+    log = tmp_path / "controller.log"
+    done = subprocess.run(
+        [sys.executable, str(script), str(log), "--set", "controller.gain=-1"],
+        capture_output=True, text=True, timeout=120, cwd=Path(__file__).resolve().parents[2],
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "exit 2", done.stderr  # the service ran: its bad override
+    assert "controller.gain" in log.read_text()
