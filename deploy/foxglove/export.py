@@ -10,19 +10,16 @@ The recording itself is left as it is: replay needs it.
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import foxglove
 
 from common.codec import FRAME_MAX_BYTES, MessageError, decode
-from common.config import DEFAULT_SCENARIO, Scenario, load_scenario
-from common.runtime import parse_overrides
 from deploy.foxglove import convert
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.recording.channels import METADATA_NAME, split_data_key
-from deploy.recording.read import RecordingReader
+from deploy.recording.read import RecordingReader, recorded_scenario
 
 
 @dataclass
@@ -31,24 +28,7 @@ class ExportReport:
     skipped: int = 0  # recorded messages the view does not show (timing)
     rejected: int = 0  # recorded payloads that do not decode
     notes: list[str] = field(default_factory=list)
-
-
-def recorded_scenario(reader: RecordingReader) -> tuple[Scenario, list[str]]:
-    """The scenario the recording ran (its metadata), with its overrides; the default one
-    (with a note) when it holds none."""
-    import json
-
-    meta = reader.metadata().get(METADATA_NAME, {})
-    overrides = json.loads(meta.get("overrides_json", "[]"))
-    notes = []
-    text = meta.get("scenario_toml")
-    if not text:
-        notes.append("the recording holds no scenario: the default one was used")
-        return load_scenario(DEFAULT_SCENARIO, parse_overrides(overrides)), notes
-    with tempfile.TemporaryDirectory(prefix="umay-export-") as tmp:
-        path = Path(tmp) / "scenario.toml"
-        path.write_text(text)
-        return load_scenario(path, parse_overrides(overrides)), notes
+    runs: int = 1  # the sim's runs in the recording, told apart by simulated time going back
 
 
 def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 85) -> ExportReport:
@@ -77,10 +57,20 @@ def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 
             except MessageError:
                 report.rejected += 1
                 continue
+            header = getattr(msg, "header", None)
+            # A recording can span runs (the sim restarted): each gets its own view, as live.
+            if header is not None and state.restarted(header.sim_time_s):
+                report.runs += 1
+                state = convert.ViewState(scenario)
             for o in state.on_message(suffix, msg, jpeg_quality):
                 channels.log(o)
                 report.written[o.topic] = report.written.get(o.topic, 0) + 1
     channels.close()
+    if report.runs > 1:
+        report.notes.append(
+            f"the recording holds {report.runs} runs (simulated time went back): "
+            "each exported from its own start"
+        )
     if reader.damage:
         report.notes.append(f"recording {reader.damage}")
     return report

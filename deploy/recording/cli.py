@@ -132,7 +132,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from deploy.recording.plots import plot_recording
+    from deploy.recording.plots import plot_recording, recorded_converged_px
     from deploy.recording.read import NotARecordingError, RecordingReader
 
     path = Path(args.file)
@@ -140,12 +140,16 @@ def cmd_plot(args: argparse.Namespace) -> int:
         print(f"umay plot: {path}: no such file", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
-        RecordingReader(path)  # a file that is not one is refused before --out is made
+        reader = RecordingReader(path)  # a file that is not one is refused before --out is made
     except NotARecordingError as exc:
         print(f"umay plot: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     check_output_dir("--out", args.out)
-    written = plot_recording(path, Path(args.out))
+    # The threshold the run converged by, as `umay run --plot` draws it, not the default.
+    converged_px, notes = recorded_converged_px(reader)
+    for note in notes:
+        print(f"umay plot: note: {note}", file=sys.stderr)
+    written = plot_recording(path, Path(args.out), converged_px)
     for p in written:
         print(p)
     if not written:

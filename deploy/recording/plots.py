@@ -36,12 +36,13 @@ from pydantic import BaseModel
 
 from common import keys as data_keys
 from common.codec import DEFAULT_MAX_BYTES, MessageError, decode
+from common.config import load_scenario
 from common.messages import (
     EndEffectorTwist,
     Features,
 )
 from deploy.recording.channels import DATA_SUFFIXES
-from deploy.recording.read import RecordingReader
+from deploy.recording.read import RecordingReader, recorded_scenario
 
 log = logging.getLogger(__name__)
 
@@ -411,6 +412,18 @@ def joint_velocities_figure(series: RunSeries) -> Figure | None:
     style_axes(ax)
     ax.legend(loc="upper right", fontsize=8, ncols=3, framealpha=0.9)
     return fig
+
+
+def recorded_converged_px(reader: RecordingReader) -> tuple[float, list[str]]:
+    """The convergence threshold of the recorded run (its scenario, overrides applied), and
+    notes; the default scenario's, with a note, when the recording holds no scenario or one
+    that no longer loads (the line is a guide: no reason to refuse the figures)."""
+    try:
+        scenario, notes = recorded_scenario(reader)
+    except ValueError as exc:  # ScenarioError, or overrides_json that is not JSON
+        notes = [f"the recorded scenario does not load, the default one was used: {exc}"]
+        scenario = load_scenario()
+    return scenario.controller.converged_px, notes
 
 
 def plot_recording(

@@ -5,6 +5,8 @@
 from __future__ import annotations
 
 import contextlib
+import json
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -18,6 +20,9 @@ from mcap.writer import MCAP0_MAGIC
 from pydantic import BaseModel
 
 from common import codec
+from common.config import DEFAULT_SCENARIO, Scenario, load_scenario
+from common.runtime import parse_overrides
+from deploy.recording.channels import METADATA_NAME
 
 
 class ChannelInfo(BaseModel):
@@ -240,3 +245,19 @@ def unpack(payload: bytes) -> dict[str, Any]:
     if data is None:
         raise ValueError("not a message payload")
     return data
+
+
+def recorded_scenario(reader: RecordingReader) -> tuple[Scenario, list[str]]:
+    """The scenario the recording ran (its metadata), with its overrides; the default one
+    (with a note) when it holds none."""
+    meta = reader.metadata().get(METADATA_NAME, {})
+    overrides = json.loads(meta.get("overrides_json", "[]"))
+    notes = []
+    text = meta.get("scenario_toml")
+    if not text:
+        notes.append("the recording holds no scenario: the default one was used")
+        return load_scenario(DEFAULT_SCENARIO, parse_overrides(overrides)), notes
+    with tempfile.TemporaryDirectory(prefix="umay-export-") as tmp:
+        path = Path(tmp) / "scenario.toml"
+        path.write_text(text)
+        return load_scenario(path, parse_overrides(overrides)), notes

@@ -20,6 +20,7 @@ from common.messages import (
     MarkerFeatures,
     SimTruth,
 )
+from deploy.recording.channels import METADATA_NAME
 from deploy.recording.plots import RunSeries, load_series, plot_recording
 from deploy.recording.read import NotARecordingError
 
@@ -132,13 +133,24 @@ def fake_run(k: int) -> dict[str, bytes]:
     }
 
 
-def write_recording(path: Path, skip: tuple[str, ...] = (), junk_twist: bool = False) -> Path:
+def write_recording(
+    path: Path,
+    skip: tuple[str, ...] = (),
+    junk_twist: bool = False,
+    runs: int = 1,
+    metadata: dict[str, str] | None = None,
+) -> Path:
+    """``runs`` copies of the run one after the other, as a sim restarted within one
+    recording (simulated time back to 0, log time going on); ``metadata``: the recorder's."""
     with path.open("wb") as f:
         writer = Writer(f)
         writer.start(profile="", library="test_plots")
+        if metadata is not None:
+            writer.add_metadata(METADATA_NAME, metadata)
         schema = writer.register_schema(name="", encoding="", data=b"")
         channels: dict[str, int] = {}
-        for k in range(N_FRAMES):
+        for n in range(runs * N_FRAMES):
+            k = n % N_FRAMES
             payloads = fake_run(k)
             if k == N_FRAMES // 2:  # the deadman fired once: must not be plotted
                 payloads["actuation/joint_command"] = encode(
@@ -154,7 +166,7 @@ def write_recording(path: Path, skip: tuple[str, ...] = (), junk_twist: bool = F
                 topic = f"{PREFIX}/{suffix}"
                 if topic not in channels:
                     channels[topic] = writer.register_channel(topic, "msgpack", schema)
-                ns = int((1.7e9 + k * PERIOD_S) * 1e9)
+                ns = int((1.7e9 + n * PERIOD_S) * 1e9)
                 writer.add_message(channels[topic], log_time=ns, data=data, publish_time=ns)
         writer.finish()
     return path
