@@ -17,7 +17,12 @@ import time
 
 from common.config import ClockMode, Scenario
 from common.messages import EndEffectorTwist, SimTruth
-from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_CONVERGED, EXIT_NOT_CONVERGED
+from deploy.exit_codes import (
+    EXIT_BAD_INPUT,
+    EXIT_CONVERGED,
+    EXIT_INTERRUPTED,
+    EXIT_NOT_CONVERGED,
+)
 from deploy.launch.evaluate import RunResult
 from deploy.launch.run_end import EndLimits, HoldState, RunEnd, judge_twist, run_result
 from services.pipeline import Pipeline
@@ -63,6 +68,7 @@ def cmd_run_inprocess(args: argparse.Namespace, scenario: Scenario) -> int:
     and exit codes as ``umay run``. Options that need the services are refused."""
     from rich.console import Console
 
+    from deploy.interrupts import stop_requested
     from deploy.launch.run import format_result, result_table, write_result
     from deploy.paths import check_output_file
 
@@ -85,11 +91,17 @@ def cmd_run_inprocess(args: argparse.Namespace, scenario: Scenario) -> int:
         return EXIT_BAD_INPUT
     if args.result:
         check_output_file("--result", args.result)
-    result = run_scenario_inprocess(scenario)  # Ctrl-C: the world is closed on the way out
+    # Ctrl-C or SIGTERM ends the run at the next frame, reported as far as it went (as
+    # `umay run` does); a second Ctrl-C does not wait for that.
+    with stop_requested(second_interrupts=True) as stop:
+        result = run_scenario_inprocess(scenario, stop)
     if args.quiet:
         print(format_result(result))
     else:
         Console().print(result_table(result))
     if args.result:
         write_result(result, args.result)
+    if stop.is_set() and result.detail == "interrupted":  # not a run that had ended already
+        print("umay run: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return EXIT_CONVERGED if result.converged else EXIT_NOT_CONVERGED

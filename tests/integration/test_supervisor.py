@@ -455,3 +455,23 @@ def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path:
     )
     ends_with_error(code, "NotADirectoryError")
     assert not processes_mentioning(f"test/{tmp_path.name}")
+
+
+def test_ctrl_c_ends_an_in_process_run_reported_so_far(tmp_path: Path) -> None:
+    """`umay run --inprocess` as `umay run`: Ctrl-C ends it at the next frame with exit 130,
+    the run so far reported and kept (it used to end with a KeyboardInterrupt, no result)."""
+    result = tmp_path / "result.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "deploy", "run", "--inprocess", "--quiet", "--timeout", "600",
+         "--set", "controller.gain=0.05", "--result", str(result)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    time.sleep(4.0)  # past its imports and first frames
+    assert proc.poll() is None
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert stderr.endswith("umay run: interrupted\n"), stderr
+    kept = json.loads(result.read_text())
+    assert kept["detail"] == "interrupted" and kept["frames"] > 0 and not kept["converged"]
+    assert "error (interrupted)" in stdout
