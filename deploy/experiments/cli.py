@@ -340,9 +340,13 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     if args.frames < 1 or args.seed < 0:
         print("umay accuracy: --frames must be at least 1, --seed 0 or more", file=sys.stderr)
         return EXIT_BAD_INPUT
+    from deploy.launch.reachability import check_scenario
+
     try:
         overrides = parse_overrides(args.set)
         scenarios = [load_scenario(p, overrides) for p in (args.scenario or [None])]
+        for scenario in scenarios:  # what `umay run` refuses (a target out of view, ...)
+            check_scenario(scenario)
     except ScenarioError as exc:
         print(f"umay accuracy: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

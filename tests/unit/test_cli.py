@@ -88,6 +88,7 @@ REFUSED = [
     case("accuracy", "--seed", "-1", says="--seed 0 or more"),
     case("accuracy", "--scenario", "none.toml", says="none.toml: no such scenario file"),
     case("accuracy", "--set", "camera.width_px=1", says="camera.width_px: Input should be greater"),
+    case("accuracy", "--set", "target.position=[0.9, -0.1, 0.5]", says="umay accuracy: target"),
     case("accuracy", "--json", f"{FILE}/in.json", says=f"--json {FILE}/in.json: file exists"),
     case("bench", "--size", "640by480", "--log-dir", "logs", says="umay bench"),
     case("bench", "--mode", "fast", "--log-dir", "logs", says="umay bench"),
