@@ -177,8 +177,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     wall_s = time.monotonic() - started
     if interrupted:
         console.print(
-            f"[red]interrupted[/]: every pipeline stopped; {out_dir} left as it was "
-            "(results of an interrupted comparison are not written)"
+            f"[red]interrupted[/]: every pipeline stopped; the results, summary, figures and "
+            f"their recordings in {out_dir} left as they were (an interrupted comparison writes "
+            "none; logs/ has its runs' logs)"
         )
         return EXIT_INTERRUPTED
     figures = draw_figures(the_plan, out_dir, console)

@@ -22,8 +22,13 @@ RUN_TIMEOUT_S = 1200
 
 
 def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:
+    """Nothing left running, and the folder of an earlier comparison as it was: its figures'
+    recordings too (the interrupted runs record aside, and their recordings are dropped)."""
     folder = _suite_copy(tmp_path, ("01_baseline.toml",))
     out = tmp_path / "out"
+    earlier = out / "figures" / "dynamic" / "run.mcap"
+    earlier.parent.mkdir(parents=True)
+    earlier.write_bytes(b"an earlier comparison's recording")
     args = ["--scenarios", str(folder), "--modes", "dynamic", "mpj", "--jobs", "2"]
     # Runs that cannot end before the interrupt: a threshold they never reach, no plateau or
     # stall to end them either, a long timeout (a converging run took 8.6 s, less than the
@@ -53,6 +58,8 @@ def test_ctrl_c_stops_every_pipeline(tmp_path: Path) -> None:
     assert "interrupted" in stderr
     assert processes_mentioning(str(folder)) == []
     assert not (out / "results.csv").exists()
+    assert earlier.read_bytes() == b"an earlier comparison's recording"
+    assert sorted(p.name for p in (out / "figures").rglob("*.mcap")) == ["run.mcap"]
 
 
 # --- a small real comparison ----------------------------------------------------------------

@@ -60,7 +60,7 @@ def run_job(
 
     from deploy.launch.run import run_once
 
-    record = figure_recording(out_dir, job.mode) if job.record else None
+    record = recording_in_progress(figure_recording(out_dir, job.mode)) if job.record else None
     log_dir = out_dir / "logs" / job.scenario.name / job.mode
     shutil.rmtree(log_dir, ignore_errors=True)  # the services append: keep this run's only
     result = run_once(
@@ -79,6 +79,26 @@ def run_job(
 
 def figure_recording(out_dir: Path, mode: str) -> Path:
     return out_dir / "figures" / mode / "run.mcap"
+
+
+def recording_in_progress(final: Path) -> Path:
+    """Where a figures run records until the comparison is complete: an interrupted one
+    leaves the recording a finished comparison's figures were drawn from."""
+    return final.with_name(f"{final.stem}.partial{final.suffix}")
+
+
+def _settle_recordings(jobs: Sequence[Job], out_dir: Path, keep: bool) -> None:
+    """The recordings made in progress moved into place (``keep``), or removed."""
+    for job in jobs:
+        if not job.record:
+            continue
+        final = figure_recording(out_dir, job.mode)
+        partial = recording_in_progress(final)
+        if partial.exists():
+            if keep:
+                partial.replace(final)
+            else:
+                partial.unlink()
 
 
 PIPELINES = ("distributed", "inprocess")
@@ -100,6 +120,24 @@ def run_all(
     the four processes, whose messages the recording is made of."""
     if pipeline not in PIPELINES:
         raise ValueError(f"pipeline: {pipeline!r} is not one of {PIPELINES}")
+    try:
+        rows = _run_all(jobs, n_jobs, out_dir, stop, on_start, on_done, pipeline)
+    except BaseException:
+        _settle_recordings(jobs, out_dir, keep=False)
+        raise
+    _settle_recordings(jobs, out_dir, keep=not stop.is_set())
+    return rows
+
+
+def _run_all(
+    jobs: Sequence[Job],
+    n_jobs: int,
+    out_dir: Path,
+    stop: threading.Event,
+    on_start: Callable[[Job], None],
+    on_done: Callable[[Job, CompareRow], None],
+    pipeline: str,
+) -> list[CompareRow]:
     indexed = list(enumerate(jobs))
     local = [(i, j) for i, j in indexed if pipeline == "inprocess" and not j.record]
     services = [(i, j) for i, j in indexed if not (pipeline == "inprocess" and not j.record)]
