@@ -17,7 +17,7 @@ import zenoh
 from common.node import setup_logging
 from common.session import zenoh_reason
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED
-from deploy.paths import OutputPathError
+from deploy.paths import OutputPathError, forget_created_folders, remove_created_folders
 
 # `umay --help`: what the command is, where to start.
 DESCRIPTION = (
@@ -87,10 +87,15 @@ def main(argv: list[str] | None = None) -> int:
     # services it launched are stopped on the way out. Commands that run until told to stop
     # (up, router, record, compare) install their own handlers.
     signal.signal(signal.SIGTERM, signal.default_int_handler)
+    forget_created_folders()
     try:
-        return int(args.func(args))
+        code = int(args.func(args))
+        if code == EXIT_BAD_INPUT:  # nothing started: nor is a folder left by the checks
+            remove_created_folders()
+        return code
     except OutputPathError as exc:  # raised by the commands' checks, before any work starts
         print(f"umay {args.command}: {exc}", file=sys.stderr)
+        remove_created_folders()
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"umay {args.command}: interrupted; what it started is stopped", file=sys.stderr)

@@ -47,6 +47,8 @@ REFUSED = [
     case(*RUN, "--result", "/proc/no-such-dir/result.json", says="--result"),
     case(*RUN, "--plot", "/proc/no-such-dir/plots", says="--plot"),
     case(*RUN, "--log-dir", "/proc/no-such-dir/logs", says="--log-dir"),
+    # The folders the checks before it made (--plot's, --result's) removed again.
+    case(*RUN, "--plot", "p/q", "--result", "r/s.json", "--log-dir", FILE, says="--log-dir file"),
     case("run", "--listen", "tcp/a:1,tcp/b:2", says="one endpoint, not a list"),
     case(*RUN, "--timeout", "-5", says="run.timeout_s: Input should be greater than 0"),
     case("up", "--scenario", "nope.toml", says="umay up: nope.toml: no such scenario file"),
@@ -84,6 +86,7 @@ REFUSED = [
     case("record", "k.mcap", "--keys", "a//b", says="umay record: --keys 'a//b': "),
     case("record", "k.mcap", "--scenario", CUT, says="umay record: cut.mcap: not a text file"),
     case("record", "k.mcap", "--set", "controller.gain=-1", says="controller.gain: Input"),
+    case("record", "d/k.mcap", "--set", "foo.bar=1", says="foo: Extra inputs are not permitted"),
     case("accuracy", "--frames", "0", says="--frames must be at least 1"),
     case("accuracy", "--seed", "-1", says="--seed 0 or more"),
     case("accuracy", "--scenario", "none.toml", says="none.toml: no such scenario file"),
