@@ -35,11 +35,15 @@ def whole_frame_key(key: str) -> str:
     return f"{key}/{WHOLE_FRAME}"
 
 
+ENV_PREFIX = "UMAY_PREFIX"  # the key prefix of every command without --prefix
+ENV_ROBOT_ID = "UMAY_ROBOT_ID"  # else umay/<robot id>
+
+
 def default_prefix() -> str:
-    explicit = os.environ.get("UMAY_PREFIX")
+    explicit = os.environ.get(ENV_PREFIX)
     if explicit:
         return explicit
-    return f"umay/{os.environ.get('UMAY_ROBOT_ID', 'umay1')}"
+    return f"umay/{os.environ.get(ENV_ROBOT_ID, 'umay1')}"
 
 
 def check_prefix(prefix: str) -> str:

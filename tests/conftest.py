@@ -13,6 +13,24 @@ from pathlib import Path
 import pytest
 
 from common.config import Scenario, load_scenario
+from common.keys import ENV_PREFIX, ENV_ROBOT_ID
+from common.session import ENV_CONFIG, ENV_CONNECT, ENV_SHM
+
+# The suite makes its own sessions: loopback, no multicast scouting, its own prefixes. A Zenoh
+# config, endpoints, shared-memory switch or prefix from the shell that runs it would reach
+# every test and every process it starts (a config file is used as is: scouting, endpoints).
+for _name in (ENV_CONFIG, ENV_CONNECT, ENV_SHM, ENV_PREFIX, ENV_ROBOT_ID):
+    os.environ.pop(_name, None)
+
+
+@pytest.fixture(autouse=True)
+def _signal_handlers_and_log_level_restored():
+    """What ``deploy.cli.main`` sets for a command (SIGTERM as Ctrl-C, the root log level),
+    put back after every test that calls it: the next test in this worker starts as the first."""
+    term, level = signal.getsignal(signal.SIGTERM), logging.getLogger().level
+    yield
+    signal.signal(signal.SIGTERM, term)
+    logging.getLogger().setLevel(level)
 
 
 @pytest.fixture(scope="session")

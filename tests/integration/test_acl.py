@@ -48,7 +48,9 @@ def push_commands_as(user: str, endpoint: str, keys: Keys, states: list[JointSta
             publisher.put(command(seq))
             time.sleep(0.05)
         time.sleep(0.2)
-        return max((abs(s.velocity_rad_s[0]) for s in states[start:]), default=0.0)
+        seen = states[start:]
+        assert seen, f"no joint state while {user!r} sent commands: nothing to judge them by"
+        return max(abs(s.velocity_rad_s[0]) for s in seen)
     finally:
         session.close()
 

@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 from common import kinematics as kin
 from common.codec import DEFAULT_MAX_BYTES, decode
 from common.messages import EndEffectorTwist, Features, JointState
-from common.session import open_session
+from common.session import free_tcp_endpoint, open_session
 from deploy.foxglove import topics
 from deploy.foxglove.client import FoxgloveClient, decoder, protobuf_class
 from deploy.foxglove.transforms import rotation_from_quaternion, time_ns
@@ -248,8 +248,8 @@ def test_export_writes_the_view_channels_from_a_recording(tmp_path: Path) -> Non
     out = tmp_path / "foxglove.mcap"
     proc = subprocess.run(
         [sys.executable, "-m", "deploy", "run", "--timeout", "1.0", "--quiet", "--record",
-         str(run), "--prefix", f"test/export{time.monotonic_ns()}", "--log-dir",
-         str(tmp_path / "logs")],
+         str(run), "--prefix", f"test/export{time.monotonic_ns()}", "--listen",
+         free_tcp_endpoint(), "--log-dir", str(tmp_path / "logs")],
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert run.is_file(), proc.stderr

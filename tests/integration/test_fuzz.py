@@ -295,6 +295,3 @@ def test_fuzzing_every_input_while_servoing(tmp_path: Path) -> None:
     assert result.converged, result
     assert result.final_position_error_m < 0.005
     assert "service exited" not in result.detail
-    # Nothing that reached the sim was applied: every joint_command it saw from us was rejected,
-    # and its own commands are range-checked and clamped.
-    assert sent["joint_command"] == expected["sim"]

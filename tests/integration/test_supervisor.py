@@ -11,6 +11,7 @@ import sys
 import textwrap
 import threading
 import time
+import uuid
 from pathlib import Path
 
 import pytest
@@ -428,7 +429,7 @@ def test_umay_up_that_fails_before_supervising_ends_and_closes_its_session(
         "def refuse(*args, **kwargs):\n"
         "    raise RuntimeError('no signal relay')\n"
         "up.SignalRelay = refuse\n"
-        f"up.run_up(None, load_scenario(), [], 'test/{tmp_path.name}up', "
+        f"up.run_up(None, load_scenario(), [], 'test/{uuid.uuid4().hex[:12]}', "
         f"'{free_tcp_endpoint()}', [], Path({str(tmp_path)!r}))\n"
     )
     ends_with_error(code, "RuntimeError: no signal relay")
@@ -446,15 +447,16 @@ def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path:
     the error comes out and the process ends. It used to hang at exit, its Zenoh session
     left open because the supervisor failed before the try that closes it."""
     (tmp_path / "file").write_text("x")
+    prefix = f"test/{uuid.uuid4().hex[:12]}"  # another suite's run of this test: not this one
     code = (
         "from pathlib import Path\n"
         "from common.config import load_scenario\n"
         "from deploy.launch.run import run_once\n"
-        f"run_once(None, load_scenario(), [], 'test/{tmp_path.name}', "
+        f"run_once(None, load_scenario(), [], '{prefix}', "
         f"Path({str(tmp_path / 'file' / 'logs')!r}), listen='{free_tcp_endpoint()}', quiet=True)\n"
     )
     ends_with_error(code, "NotADirectoryError")
-    assert not processes_mentioning(f"test/{tmp_path.name}")
+    assert not processes_mentioning(prefix)
 
 
 def test_ctrl_c_ends_an_in_process_run_reported_so_far(tmp_path: Path) -> None:

@@ -112,9 +112,8 @@ def test_the_report_round_trips_and_the_docs_block_renders_it(tmp_path: Path) ->
     ],
 )
 def test_a_bad_alternation_is_refused_before_anything_runs(
-    argv: list[str], says: str, capsys: pytest.CaptureFixture[str]
+    argv: list[str], says: str, umay_cli
 ) -> None:
-    from deploy.cli import main
-
-    assert main(["bench", *argv]) == 2
-    assert says in capsys.readouterr().err
+    refused = umay_cli("bench", *argv)  # a process started or a session opened fails it
+    assert refused.returncode == 2
+    assert says in refused.stderr

@@ -37,6 +37,7 @@ def test_each_start_comes_from_its_own_seed_and_lies_in_the_distribution() -> No
     assert draw_start(DIST, BASE, 4) == starts[4]  # the same whatever came before
     other = DIST.model_copy(update={"seed": DIST.seed + 1})
     assert draw_start(other, BASE, 4) != starts[4]
+    runnable = 0
     for s in starts:
         assert DIST.target_x_m[0] <= s.target_position_m[0] <= DIST.target_x_m[1]
         assert DIST.target_z_m[0] <= s.target_position_m[2] <= DIST.target_z_m[1]
@@ -46,6 +47,7 @@ def test_each_start_comes_from_its_own_seed_and_lies_in_the_distribution() -> No
         if s.refused:
             assert s.q0_rad is None or s.refused.startswith(("robot.", "target."))
             continue
+        runnable += 1
         scenario = BASE.model_copy(
             update={
                 "robot": BASE.robot.model_copy(update={"q0": list(s.q0_rad)}),
@@ -60,6 +62,7 @@ def test_each_start_comes_from_its_own_seed_and_lies_in_the_distribution() -> No
         assert view_angle_deg(hand, scenario) <= 70.0
         # Where IK put it: the offset from the goal (up to the square's 90° turns).
         assert np.allclose(hand[:3, 3] - goal_pose(scenario)[:3, 3], s.offset_m, atol=1e-4)
+    assert runnable >= 2, "too few runnable starts to check what a runnable start is"
 
 
 def row(**fields) -> CompareRow:

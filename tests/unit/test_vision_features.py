@@ -8,7 +8,6 @@ of a plane along each pixel centre's ray.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -522,18 +521,6 @@ def test_mismatched_depth_is_an_error():
     rgb, depth = render([])
     with pytest.raises(ValueError):
         measure_markers(rgb, depth[:-1], K, CFG)
-
-
-def test_a_frame_is_processed_quickly():
-    """Loose bound (the target is well under 5 ms); catches per-pixel Python loops."""
-    rgb, depth = render(list(two_markers()))
-    measure_markers(rgb, depth, K, CFG)
-    times = []
-    for _ in range(15):
-        t0 = time.perf_counter()
-        measure_markers(rgb, depth, K, CFG)
-        times.append(time.perf_counter() - t0)
-    assert np.median(times) < 0.025, f"median {1e3 * np.median(times):.1f} ms per frame"
 
 
 def test_the_occlusion_reach_is_scaled_to_a_coarser_depth_image() -> None:
