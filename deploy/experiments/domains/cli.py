@@ -17,7 +17,7 @@ from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OK
 from deploy.interrupts import stop_requested
 
 if TYPE_CHECKING:
-    from deploy.experiments.domains.study import StudyDefinition
+    from deploy.experiments.domains.study import DomainRecord, StudyDefinition
 
 
 def add_domains_parser(sub: argparse._SubParsersAction) -> None:
@@ -135,6 +135,32 @@ def resume_refusal(out_dir: Path, study: StudyDefinition, sets: list[str]) -> st
     )
 
 
+def kept_runs(data: bytes, name: str) -> tuple[list[DomainRecord], str]:
+    """The runs of a ``runs.jsonl`` (``data``, the file ``name``) for ``--resume``, and a
+    warning ("" when none). Its last line may have been cut off (a study killed while writing
+    it): it is dropped with the warning, and its run is done again. A bad line before it is not
+    that: a :class:`ValueError` naming the file and the line."""
+    from pydantic import ValidationError
+
+    from deploy.experiments.domains.study import DomainRecord
+
+    # Bytes: a cut may split a character, and a line break is b"\n" only (str.splitlines
+    # would also break at U+2028, which JSON leaves as it is inside a string).
+    lines = data.splitlines()
+    runs: list[DomainRecord] = []
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            runs.append(DomainRecord.model_validate_json(line))
+        except ValidationError as exc:
+            reason = exc.errors()[0]["msg"]
+            if number < len(lines):
+                raise ValueError(f"--resume: {name} line {number}: not a run ({reason})") from exc
+            return runs, f"{name} line {number}: cut off ({reason}); that run is done again"
+    return runs, ""
+
+
 def cmd_domains(args: argparse.Namespace) -> int:
     """Exit 0 when the study completed (whatever its runs' outcomes), 2 on bad input, 130
     when interrupted (the finished runs are written)."""
@@ -169,14 +195,20 @@ def cmd_domains(args: argparse.Namespace) -> int:
         if args.pipeline not in ("inprocess", "distributed"):
             resolve_runner(args.pipeline)
         check_cluster(args.cluster)  # before --out is made
+        dom.check_overrides(study, base_path, modes, args.set)  # else a worker raises it
         out_dir = check_output_dir("--out", args.out)
         refusal = resume_refusal(out_dir, study, args.set) if args.resume else ""
         if refusal:
             raise ValueError(refusal)
+        jsonl = out_dir / "runs.jsonl"
+        logged = jsonl.read_bytes() if args.resume and jsonl.is_file() else None
+        kept, warning = kept_runs(logged, str(jsonl)) if logged is not None else ([], "")
         executor = make_executor(args.jobs, args.cluster)
     except (CompareError, OutputPathError, ExecutorError, ValueError) as exc:
         print(f"umay domains: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if warning:
+        print(f"umay domains: warning: {warning}", file=sys.stderr)
 
     columns = (
         TextColumn("[bold]{task.description}"),
@@ -187,7 +219,6 @@ def cmd_domains(args: argparse.Namespace) -> int:
         TimeRemainingColumn(),
     )
     started = time.monotonic()
-    jsonl = out_dir / "runs.jsonl"
     # Ctrl-C and SIGTERM: the runs stop; those finished are kept in runs.jsonl.
     with stop_requested() as stop, contextlib.closing(executor):
         cells = [c for c in dom.cells(study) if c.index in chosen]
@@ -200,14 +231,19 @@ def cmd_domains(args: argparse.Namespace) -> int:
             task = bar.add_task("drawing starts", total=len(items))
             drawn = gather(executor, draw_one, items, stop, lambda _i, _v: bar.advance(task))
         starts = [drawn[i] for i in sorted(drawn)]
-        tasks = dom.plan_tasks(study, base_path, starts, modes, args.set)
+        try:
+            tasks = dom.plan_tasks(study, base_path, starts, modes, args.set)
+        except CompareError as exc:  # what check_overrides could not see: a start's own
+            print(f"umay domains: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
         done: dict[str, dom.DomainRecord] = {}
         earlier_wall_s = 0.0
         published = out_dir / "domains.json"
-        if args.resume and jsonl.is_file():
-            for line in jsonl.read_text().splitlines():
-                rec = dom.DomainRecord.model_validate_json(line)
-                done[rec.key] = rec
+        if logged is not None:
+            done = {rec.key: rec for rec in kept}
+            if warning or not logged.endswith(b"\n"):
+                # What is appended next must start a line of its own, not end the cut one.
+                jsonl.write_text("".join(rec.model_dump_json() + "\n" for rec in kept))
         elif args.resume and published.is_file():
             # A published study keeps domains.json, not the log it was built from.
             from deploy.experiments.domains.report import load_study_json

@@ -13,6 +13,9 @@ our own:
   that raised) and hands results back as they finish. Dask is the optional extra ``cluster``
   of the package.
 
+Ctrl-C reaches every process of the terminal's group: the local workers (either executor's)
+ignore SIGINT, and the main process stops the study (``stop``), keeping what finished.
+
 The pipeline (``--pipeline``): ``inprocess`` (the lockstep loop in one process,
 :mod:`deploy.launch.run_inprocess`), ``distributed`` (the four service processes of ``umay
 run``, each run under its own Zenoh key prefix and port), or ``module:function`` (a callable
@@ -23,6 +26,7 @@ use it). Drawing the starts is spread over the same executor (:func:`draw_one`).
 from __future__ import annotations
 
 import importlib
+import signal
 import tempfile
 import threading
 import uuid
@@ -44,6 +48,11 @@ from deploy.experiments.domains.study import (
 from deploy.launch.evaluate import RunResult
 
 PIPELINES = ("inprocess", "distributed")
+# A task that failed while no stop was set yet is given this long for one to come: a
+# SIGTERM sent to the process group kills the workers, and their tasks can fail before the
+# main process's own handler has set the stop (a thread sets it, common/stop_signals.py).
+STOP_GRACE_S = 1.0
+POLL_S = 0.5  # how often an executor waiting for results looks at ``stop``
 # A task that raised (not one whose worker died: Dask reschedules those) is tried this many
 # more times before the study reports it as an error.
 DASK_RETRIES = 2
@@ -54,6 +63,18 @@ class ExecutorError(RuntimeError):
 
 
 # --- what runs in a worker -----------------------------------------------------------------
+def ignore_interrupts() -> None:
+    """A local worker's start: Ctrl-C, sent to the whole process group, must not end its run
+    (the main process decides what stops, and when)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def dask_setup(_worker: object) -> None:
+    """Dask's preload hook (this module is the preload of a ``local:N`` cluster's workers,
+    restarted ones included): as :func:`ignore_interrupts`."""
+    ignore_interrupts()
+
+
 def run_inprocess(task: RunTask) -> RunResult:
     """The lockstep run in this worker's process (:mod:`services.pipeline`), equal to the
     distributed one frame for frame (tests/integration/test_pipeline_vs_distributed.py)."""
@@ -120,6 +141,20 @@ def draw_one(
 
 
 # --- executors -----------------------------------------------------------------------------
+def settle(
+    result: Callable[[], Any], stop: threading.Event, grace_s: float = STOP_GRACE_S
+) -> tuple[bool, Any]:
+    """``(True, value)`` of a finished task (``result``: its future's ``result``); ``(False,
+    None)`` if it failed because the study is stopping (its worker ended by the same signal:
+    the run is not done, and is run again by ``--resume``). Any other failure is raised."""
+    try:
+        return True, result()
+    except BaseException:
+        if stop.wait(grace_s):
+            return False, None
+        raise
+
+
 class Executor(Protocol):
     name: str
 
@@ -132,7 +167,8 @@ class Executor(Protocol):
     ) -> None:
         """Call ``fn(*item)`` for every item somewhere, ``on_done(index, value)`` in this
         thread as each finishes (any order); stop submitting and cancel what has not started
-        when ``stop`` is set."""
+        when ``stop`` is set, and keep nothing that finishes after (a run the signal reached,
+        e.g. a distributed pipeline's services, may have been cut short)."""
 
     def close(self) -> None: ...
 
@@ -152,7 +188,9 @@ class LocalExecutor:
         import multiprocessing
 
         context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=self.jobs, mp_context=context) as pool:
+        with ProcessPoolExecutor(
+            max_workers=self.jobs, mp_context=context, initializer=ignore_interrupts
+        ) as pool:
             pending = list(enumerate(items))
             running: dict[Future, int] = {}
             try:
@@ -161,9 +199,13 @@ class LocalExecutor:
                     while pending and len(running) < 2 * self.jobs:
                         i, item = pending.pop(0)
                         running[pool.submit(fn, *item)] = i
-                    done, _ = wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
+                    done, _ = wait(running, timeout=POLL_S, return_when=FIRST_COMPLETED)
                     for future in done:
-                        on_done(running.pop(future), future.result())
+                        i = running.pop(future)
+                        kept, value = settle(future.result, stop)
+                        if not kept or stop.is_set():
+                            break
+                        on_done(i, value)
             finally:
                 for future in running:
                     future.cancel()
@@ -191,6 +233,7 @@ class DaskExecutor:
                 threads_per_worker=1,
                 processes=True,
                 dashboard_address=None,
+                preload=[__name__],  # dask_setup: its workers are in our process group
             )
             self.client = Client(self.cluster)
             self.name = f"--cluster local:{local_workers or 2}"
@@ -210,10 +253,17 @@ class DaskExecutor:
         index = {f.key: i for i, f in enumerate(futures)}
         completed = as_completed(futures, with_results=False)
         try:
-            for future in completed:
-                if stop.is_set():
-                    break
-                on_done(index[future.key], future.result())
+            # Not a plain iteration: it waits for the next result without looking at ``stop``,
+            # for ever if the workers are gone.
+            while not completed.is_empty() and not stop.is_set():
+                batch = completed.next_batch(block=False)
+                if not batch:
+                    stop.wait(POLL_S)
+                for future in batch:
+                    kept, value = settle(future.result, stop)
+                    if not kept or stop.is_set():
+                        break
+                    on_done(index[future.key], value)
         finally:
             self.client.cancel([f for f in futures if not f.done()])
 

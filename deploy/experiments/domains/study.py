@@ -268,6 +268,26 @@ def run_key(start: str, mode: str) -> str:
     return f"{start}_{mode}"
 
 
+def check_overrides(
+    study: StudyDefinition, base_path: Path, modes: Sequence[str], overrides: Sequence[str] = ()
+) -> None:
+    """The base scenario with what every run adds (the study's overrides, ``overrides``: the
+    command line's ``--set``, the strategy) validated: raises :class:`CompareError` naming the
+    option and the field. Cheap, so a study checks its input with it before anything is drawn
+    or written (a worker would only find it drawing)."""
+    timeout = f"run.timeout_s={study.timeout_s!r}"
+    checks = [("--study overrides", [timeout, *study.overrides])]
+    checks += [("--set", [timeout, *study.overrides, *overrides])] if overrides else []
+    checks += [
+        (f"--modes {m}", job_overrides([timeout, *study.overrides, *overrides], m)) for m in modes
+    ]
+    for option, items in checks:
+        try:
+            load_scenario(base_path, parse_overrides(list(items)))
+        except ScenarioError as exc:
+            raise CompareError(f"{option}: {exc}") from exc
+
+
 def plan_tasks(
     study: StudyDefinition,
     base_path: Path,
