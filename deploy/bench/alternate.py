@@ -55,10 +55,11 @@ def side_figures(report: BenchReport) -> SideFigures:
     """The headline figures of one bench report (pooled over its runs where it has several)."""
     d = report.distributed
     latency = d.pooled.latency_ms if d.pooled is not None else d.latency_ms
+    handoff = d.pooled.frame_handoff_ms if d.pooled is not None else d.frame_handoff_ms
     return SideFigures(
         latency_p50=latency.p50,
         latency_p99=latency.p99,
-        frame_handoff_p50=d.frame_handoff_ms.p50,
+        frame_handoff_p50=handoff.p50,
         distribution_adds_p50=report.distribution_adds_ms.p50,
         real_time_factor=d.real_time_factor,
         load_start=report.machine.load_start,
@@ -94,7 +95,9 @@ def same_way(report: AlternationReport, field: str, fmt: str = ".2f") -> str:
     up = sum(m > 0 for m in moves)
     if not down and not up:
         return f"none of {len(moves)} moved"
-    return f"{max(down, up)} of {len(moves)} " + ("down" if down >= up else "up")
+    if down == up:
+        return f"{down} of {len(moves)} down, {up} up"
+    return f"{max(down, up)} of {len(moves)} " + ("down" if down > up else "up")
 
 
 def shown(value: float | None, fmt: str) -> str:

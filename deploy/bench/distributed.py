@@ -27,7 +27,7 @@ from common.keys import SERVICES, Keys
 from common.session import ENV_SHM, free_tcp_endpoint, open_session
 from deploy.bench import BenchError
 from deploy.bench.processes import (
-    STAMPS_POLL_S,
+    STAMPS_POLL_FRAMES,
     collect_stamps,
     machine_load,
     process_cpu_s,
@@ -104,11 +104,13 @@ def run_distributed(
         per_frame_limit_s = 10.0 + (2.0 if realtime else 5.0)
         end = start + frames
         last_seen, last_progress = -1, time.monotonic()
-        last_collected = time.monotonic()
+        last_collected = start
         while not trace.wait_for_frame(end, 0.5):
-            if time.monotonic() - last_collected > STAMPS_POLL_S:
+            with trace.lock:
+                newest = max(trace.timings, default=start)
+            if newest - last_collected > STAMPS_POLL_FRAMES:
                 collect_stamps(session, keys, trace)
-                last_collected = time.monotonic()
+                last_collected = newest
             dead = sup.exited()
             if dead:
                 c = dead[0]

@@ -58,7 +58,7 @@ def run_inprocess(
 ) -> tuple[InprocessRun, list[SourceFrame]]:
     """The in-process pipeline (:class:`services.pipeline.Pipeline`, the services' pure steps)
     on the lockstep frames, timed stage by stage (see the module doc); returns the statistics
-    and the first ``keep`` frames (for the synthetic source)."""
+    and the first ``keep`` measured frames (for the synthetic source)."""
     from common.marker import Marker
     from services.pipeline import Pipeline
 
@@ -84,7 +84,7 @@ def run_inprocess(
         world = pipeline.world
         for seq in range(warmup + frames):
             f = pipeline.step(after_vision=vision_again)
-            if len(kept) < keep:
+            if seq >= warmup and len(kept) < keep:  # the measured frames
                 kept.append(SourceFrame(f.rgb, f.depth_m, f.q_rad, f.qdot_rad_s, f.sim_time_s))
             # The codec work the distributed path does for this frame, timed apart: the sim's
             # messages built and encoded, and each message decoded where it is received.

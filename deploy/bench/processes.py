@@ -11,6 +11,7 @@ from pathlib import Path
 import zenoh
 
 from common.keys import Keys
+from common.publishers import STAMPS_KEPT
 from common.queries import alive_services, query_stamps, query_status
 from deploy.bench import BenchError
 from deploy.bench.report import KeyCounts, Machine, ServiceCounters, ServiceUsage
@@ -18,9 +19,10 @@ from deploy.bench.stages import PIPELINE
 from deploy.bench.trace import Trace
 from deploy.supervisor import Supervisor
 
-# How often a long run collects the services' stamps while it runs: well within the
-# ``common.publishers.STAMPS_KEPT`` messages per key they keep (2 min at 30 Hz).
-STAMPS_POLL_S = 30.0
+# How often a long run collects the services' stamps while it runs, in frames (a stamp a frame
+# per key): a quarter of the ``common.publishers.STAMPS_KEPT`` each key keeps, whatever the
+# loop's rate (by the clock, 30 s was more than a fast lockstep loop's 4096 frames).
+STAMPS_POLL_FRAMES = STAMPS_KEPT // 4
 CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
 REPO_ROOT = Path(__file__).resolve().parents[2]  # the checkout whose code a report measured
 

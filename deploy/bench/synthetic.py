@@ -19,7 +19,7 @@ from common.session import ENV_SHM, free_tcp_endpoint, open_session
 from deploy.bench import BenchError
 from deploy.bench.inprocess import SourceFrame
 from deploy.bench.processes import (
-    STAMPS_POLL_S,
+    STAMPS_POLL_FRAMES,
     collect_stamps,
     machine_load,
     process_cpu_s,
@@ -121,12 +121,11 @@ def run_synthetic(
         pids = sup.pids()
         cpu_start = {n: process_cpu_s(p) for n, p in pids.items() if p is not None}
         period = 1.0 / rate_hz
-        started = last_collected = time.monotonic()
+        started = time.monotonic()
         depth_seq = -1
         for seq in range(frames):
-            if time.monotonic() - last_collected > STAMPS_POLL_S:
+            if seq and seq % STAMPS_POLL_FRAMES == 0:
                 collect_stamps(session, keys, trace)
-                last_collected = time.monotonic()
             due = started + seq * period
             delay = due - time.monotonic()
             if delay > 0:

@@ -155,3 +155,36 @@ def test_bench_keeps_every_frame_and_draws_them(bench: dict) -> None:
     )
     figure = bench["_figure"]
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and figure.stat().st_size > 20_000
+
+
+def test_a_view_started_late_leaves_the_baseline_on_the_measured_frames(
+    monkeypatch: pytest.MonkeyPatch, tmp_path
+) -> None:
+    """With --view the view and its client start once the services are up, and the lockstep
+    sim runs on meanwhile: the window starts later, and the in-process baseline must time
+    those same frames (it timed the first ones, cheaper or dearer, and compared commands on
+    frames the two runs hardly shared)."""
+    import contextlib
+    import time
+
+    import deploy.bench.view
+    from common.config import load_scenario
+    from common.runtime import parse_overrides
+    from deploy.bench.run import run_bench
+
+    @contextlib.contextmanager
+    def slow_view(*_args, **_kwargs):
+        time.sleep(1.5)  # the sim runs on while a view would start
+        yield {}
+
+    monkeypatch.setattr(deploy.bench.view, "watched_by_a_view", slow_view)
+    overrides = ["camera.width_px=160", "camera.height_px=120"]
+    scenario = load_scenario(None, parse_overrides(overrides))
+    report = run_bench(
+        None, scenario, overrides, 10, 2, tmp_path, synthetic_frames=0,
+        reference_renderer=False, view=True,
+    )  # fmt: skip
+    first = report.distributed.window[0]
+    assert first > 2 + 10  # it did run on
+    assert [r["frame_seq"] for r in report.inprocess.frames_ms] == list(range(first, first + 10))
+    assert report.inprocess.same_commands_max_abs_diff_rad_s == 0.0

@@ -54,7 +54,7 @@ def test_a_sides_figures_are_the_reports_pooled_headline() -> None:
     assert bench.distributed.pooled is not None
     assert figures.latency_p50 == bench.distributed.pooled.latency_ms.p50
     assert figures.latency_p99 == bench.distributed.pooled.latency_ms.p99
-    assert figures.frame_handoff_p50 == bench.distributed.frame_handoff_ms.p50
+    assert figures.frame_handoff_p50 == bench.distributed.pooled.frame_handoff_ms.p50
     assert figures.distribution_adds_p50 == bench.distribution_adds_ms.p50
     assert figures.real_time_factor == bench.distributed.real_time_factor
     one = bench.each_run[0]  # a single run: its own latency
@@ -73,6 +73,8 @@ def test_pairs_are_counted_by_the_way_each_moved() -> None:
     steady = report((side(6.5, 3.3), side(6.5001, 3.2999)))  # moves too small to show
     assert same_way(steady, "latency_p50") == "none of 1 moved"
     assert same_way(steady, "latency_p50", ".4f") == "1 of 1 up"
+    split = report((side(6.5, 3.3), side(6.2, 3.3)), (side(6.5, 3.3), side(6.8, 3.3)))
+    assert same_way(split, "latency_p50") == "1 of 2 down, 1 up"  # no majority either way
     rows = {row[0]: row for row in comparison_rows(r)}
     latency = rows["latency p50, all frames (ms)"]
     assert latency[1:] == ["6.50 / 7.00 / 6.60", "6.20 / 6.30 / 6.70", "2 of 3 down"]
