@@ -160,18 +160,27 @@ class ViewState:
     last_phase: tuple[str, str] | None = None
     static_sent_s: float | None = None
     sim_time_s: float = 0.0
+    run: int = 0  # the sim's run of the messages seen (Header.run; 0: none stamped)
 
     @property
     def oriented(self) -> bool:
         """Corners paired i with i, as the controller does with ``marker.orientation_cue``."""
         return self.scenario.marker.orientation_cue
 
-    def restarted(self, t_s: float) -> bool:
-        """Whether a message at ``t_s`` belongs to a new run: simulated time went back by more
-        than :data:`RESTART_BACK_S` (another run, or the sim restarted by its supervisor).
-        Kept, this state would hold the old run's trail and clock, and send no fixed scene
-        or calibration until the new run passed the old one's time."""
+    def restarted(self, run: int, t_s: float) -> bool:
+        """Whether a message of the sim's run ``run`` (its header's, 0: not stamped) at ``t_s``
+        belongs to a new run: another run than the one seen (another run, or the sim restarted
+        by its supervisor, however early), or, for messages without one, simulated time gone
+        back by more than :data:`RESTART_BACK_S`. Kept, this state would hold the old run's
+        trail and clock, and send no fixed scene or calibration until the new run passed the
+        old one's time."""
+        if run and self.run and run != self.run:
+            return True
         return t_s < self.sim_time_s - RESTART_BACK_S
+
+    def phase_changes(self, twist: EndEffectorTwist) -> bool:
+        """Whether ``twist`` changes the controller's phase or hold reason (logged, always)."""
+        return (phase_of(twist), twist.hold_reason) != self.last_phase
 
     def _advance(self, t_s: float) -> None:
         self.sim_time_s = max(self.sim_time_s, t_s)
@@ -304,6 +313,9 @@ class ViewState:
     def on_message(self, suffix: str, message: Any, jpeg_quality: int = 85) -> list[Out]:
         """Route a message by its key relative to the prefix (``sim/rgb``, ...); keys the
         view does not show (``sim/timing``) give nothing."""
+        header = getattr(message, "header", None)
+        if header is not None and header.run:
+            self.run = header.run
         if suffix == keys.RGB:
             return self.on_rgb(message, jpeg_quality)
         handler = self._handlers().get(suffix)

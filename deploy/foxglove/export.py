@@ -59,7 +59,7 @@ def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 
                 continue
             header = getattr(msg, "header", None)
             # A recording can span runs (the sim restarted): each gets its own view, as live.
-            if header is not None and state.restarted(header.sim_time_s):
+            if header is not None and state.restarted(header.run, header.sim_time_s):
                 report.runs += 1
                 state = convert.ViewState(scenario)
             for o in state.on_message(suffix, msg, jpeg_quality):

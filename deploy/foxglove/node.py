@@ -40,7 +40,7 @@ from common.codec import (
     FRAME_MAX_BYTES,
 )
 from common.config import Scenario
-from common.keys import DEPTH, JOINT_STATE, RGB, Keys
+from common.keys import DEPTH, JOINT_STATE, RGB, TWIST, Keys
 from common.node import Node
 from common.publishers import decode_or_fetch
 from common.queries import query_status
@@ -49,6 +49,7 @@ from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from deploy.foxglove import convert, topics, transforms
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_arguments
+from deploy.foxglove.rate import RateGate
 from deploy.foxglove.status import ViewStatus
 from deploy.interrupts import stop_requested
 
@@ -135,16 +136,15 @@ class ViewNode:
         self.shown = 0
         self.rejected = 0
         self.dropped: dict[str, int] = dict.fromkeys(convert.VIEWED_KEYS, 0)
-        self._accepted_s: dict[str, float] = dict.fromkeys(convert.VIEWED_KEYS, -1e9)
+        periods = {RGB: 1.0 / image_hz, DEPTH: 1.0 / depth_hz}
+        self._gates = {  # each key's rate limit (the twists': in the event loop, below)
+            suffix: RateGate(periods.get(suffix, 1.0 / rate_hz)) for suffix in convert.VIEWED_KEYS
+        }
         self._latest: dict[str, Any] = {}
         self._cond = threading.Condition()
         self.node = Node("view", keys, session, self.status_fields)  # status and liveliness
-        periods = {RGB: 1.0 / image_hz, DEPTH: 1.0 / depth_hz}
         self._subscribers = [
-            session.declare_subscriber(
-                f"{keys.prefix}/{suffix}",
-                self._on_sample(suffix, model, periods.get(suffix, 1.0 / rate_hz)),
-            )
+            session.declare_subscriber(f"{keys.prefix}/{suffix}", self._on_sample(suffix, model))
             for suffix, model in convert.VIEWED_KEYS.items()
         ]
 
@@ -163,16 +163,18 @@ class ViewNode:
             return self.channels.wanted(topics.DEPTH_IMAGE)
         return self.channels.any_wanted()
 
-    def _on_sample(self, suffix: str, model: type, period_s: float) -> Any:
+    def _on_sample(self, suffix: str, model: type) -> Any:
         max_bytes = FRAME_MAX_BYTES if suffix in FRAME_KEYS else DEFAULT_MAX_BYTES
+        gate = self._gates[suffix]
 
         def on_sample(sample: Any) -> None:
             self.heard += 1
-            now = time.monotonic()
-            if now - self._accepted_s[suffix] < period_s or not self._wanted(suffix):
+            # Twists are small: every one is decoded, so that a change of phase is never missed
+            # (their rate is limited in on_event).
+            over = suffix != TWIST and not gate.admit(time.monotonic())
+            if over or not self._wanted(suffix):
                 self.dropped[suffix] += 1  # before the copy and the decode: costs nothing
                 return
-            self._accepted_s[suffix] = now
             # A frame in a ring this process cannot map is asked whole from its publisher.
             decode_or_fetch(
                 self.session,
@@ -198,9 +200,14 @@ class ViewNode:
 
     def on_event(self, suffix: str, message: Any) -> None:
         header = getattr(message, "header", None)
-        if header is not None and self.state.restarted(header.sim_time_s):
-            log.info("simulated time went back to %.2f s: a new run", header.sim_time_s)
+        if header is not None and self.state.restarted(header.run, header.sim_time_s):
+            log.info("a new run of the sim (at %.2f s simulated)", header.sim_time_s)
             self.state = convert.ViewState(self.scenario)
+        if suffix == TWIST and not (
+            self.state.phase_changes(message) or self._gates[TWIST].admit(time.monotonic())
+        ):
+            self.dropped[suffix] += 1  # over the rate, and the phase the same
+            return
         outs = self.state.on_message(suffix, message, self.jpeg_quality)
         image = getattr(message, "rgb", None) or getattr(message, "depth_m", None)
         if suffix in FRAME_KEYS and image is not None and not image.intact():

@@ -12,6 +12,7 @@ import pytest
 from common import kinematics as kin
 from common.camera import project
 from common.config import Scenario
+from common.keys import FEATURES
 from common.marker import Marker
 from common.messages import (
     DepthFrame,
@@ -185,6 +186,8 @@ def test_phase_changes_are_logged_once(scenario: Scenario) -> None:
             hold_reason=reason, mode="dynamic", error_px_rms=3.0, converged=converged,
         )  # fmt: skip
 
+    # What the view's rate limit asks before it drops a twist: a change is never dropped.
+    assert state.phase_changes(twist(0.0, True))
     runs = [
         state.on_twist(twist(0.0, True)),
         state.on_twist(twist(0.1, True)),
@@ -193,6 +196,8 @@ def test_phase_changes_are_logged_once(scenario: Scenario) -> None:
     ]
     logs = [[o.message for o in outs if o.topic == topics.LOG] for outs in runs]
     assert [len(x) for x in logs] == [1, 0, 1, 1]
+    assert not state.phase_changes(twist(0.35, True, converged=True))
+    assert state.phase_changes(twist(0.35, False, reason="hand lost"))
     assert "holding: target lost" in decoded(logs[2][0]).message
     phases = [next(o.message for o in outs if o.topic == topics.PHASE) for outs in runs]
     assert [p["phase_code"] for p in phases] == [0, 0, 1, 2]
@@ -210,13 +215,25 @@ def test_a_new_run_is_told_by_time_going_back_and_a_fresh_state_sends_the_fixed_
     for k in range(3):
         old.on_features(features(scenario, 284.0 + k, shift_m=0.01 * k, seq=k))
     assert old.sim_time_s == 286.0 and len(old.trail_px) == 3
-    assert not old.restarted(285.5)  # a message a little behind the newest: the same run
+    assert not old.restarted(0, 285.5)  # a message a little behind the newest: the same run
     assert old.fixed(286.0) != [] and old.fixed(286.5) == []  # not again within a second
-    assert old.restarted(47.0)  # the sim restarted
+    assert old.restarted(0, 47.0)  # the sim restarted
     # Kept, the old state would send no fixed scene at 47 s; a fresh one does at once.
     assert old.fixed(47.0) == []
     new = convert.ViewState(scenario)
     assert {o.topic for o in new.fixed(47.0)} == {topics.SCENE, topics.CALIBRATION}
+
+
+def test_a_sim_restarted_early_is_told_by_its_run_not_its_time(scenario: Scenario) -> None:
+    """Killed at 0.8 s and restarted, the sim's time goes back less than a second: the run
+    stamped on every message says it is another run all the same."""
+    state = convert.ViewState(scenario)
+    first = features(scenario, 0.8, seq=24)
+    first = first.model_copy(update={"header": first.header.model_copy(update={"run": 11})})
+    state.on_message(FEATURES, first)
+    assert state.run == 11
+    assert not state.restarted(11, 0.7) and not state.restarted(0, 0.2)
+    assert state.restarted(12, 0.03)  # a new run, 0.77 s back in time
 
 
 def test_status_logs_warn_of_a_silent_service() -> None:
