@@ -78,8 +78,10 @@ def cue_fractions(rgb: np.ndarray, corners_px: FloatArray, cfg: VisionConfig) ->
     h, w = rgb.shape[:2]
     lo = np.clip(np.floor(points.min(axis=0)).astype(int) - half, 0, [w, h])
     hi = np.clip(np.ceil(points.max(axis=0)).astype(int) + half + 1, 0, [w, h])
-    crop = cue_mask(rgb[lo[1] : hi[1], lo[0] : hi[0]], cfg)
     fractions = np.zeros(4)
+    if np.any(hi <= lo):  # every cue point beyond the image (a fitted marker's): none seen
+        return fractions
+    crop = cue_mask(rgb[lo[1] : hi[1], lo[0] : hi[0]], cfg)
     for i, (u, v) in enumerate(np.rint(points).astype(int) - lo):
         rows = slice(max(v - half, 0), max(v + half + 1, 0))
         window = crop[rows, max(u - half, 0) : max(u + half + 1, 0)]

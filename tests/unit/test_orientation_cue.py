@@ -21,8 +21,10 @@ from services.controller.ibvs import IbvsController
 from services.vision.cue import (
     CUE_HIDDEN,
     closest_roll,
+    cue_fractions,
     cue_points_px,
     cued_corner,
+    label_corners,
     physical_order,
 )
 from services.vision.measurement import measure_markers
@@ -329,3 +331,20 @@ def test_with_oriented_markers_the_controller_pairs_corner_i_with_corner_i() -> 
     half_turn_px = project(hand, K) - project(target, K)  # corner i to corner i
     assert turns[True][1].error_px_rms == pytest.approx(np.sqrt(np.mean(half_turn_px**2)))
     assert turns[False][1].error_px_rms < 0.5 * turns[True][1].error_px_rms
+
+
+@pytest.mark.parametrize(
+    "corners",
+    [
+        [[-50.0, 200.0], [10.0, 200.0], [10.0, 260.0], [-50.0, 260.0]],  # 10 px in, left
+        [[630.0, 200.0], [690.0, 200.0], [690.0, 260.0], [630.0, 260.0]],  # right
+        [[300.0, 470.0], [360.0, 470.0], [360.0, 530.0], [300.0, 530.0]],  # bottom
+    ],
+)
+def test_a_fitted_square_whose_cue_points_are_all_outside_the_image_shows_no_cue(corners) -> None:
+    """A target fitted from a strip at the border has every cue point beyond the image: no
+    cue seen, and no empty crop handed to OpenCV (it raised, and ended vision)."""
+    rgb = np.full((480, 640, 3), 128, np.uint8)
+    square = np.array(corners)
+    assert np.array_equal(cue_fractions(rgb, square, VisionConfig()), np.zeros(4))
+    label_corners(rgb, square, None, VisionConfig())  # labels it without the cue, no error
