@@ -64,6 +64,7 @@ REASON_STATES: dict[str, MarkerState] = {
     "no valid depth": "no_depth",
     "no depth image": "no_depth",
     "depth image too old": "no_depth",
+    "depth of it too old": "no_depth",  # its last view with depth (held between images)
     CUE_HIDDEN: "partial",  # its orientation cue is not seen: corner 0 cannot be told
 }
 

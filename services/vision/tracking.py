@@ -22,6 +22,7 @@ when most of its marker shows (its own forearm bordering it), since it is what i
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -30,6 +31,7 @@ import numpy as np
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized, project
 from common.config import VisionConfig
 from common.marker import Marker
+from common.messages import MIN_USABLE_DEPTH_M
 from common.motion import MarkerMotion
 from services.vision.cue import cue_mask, label_corners
 from services.vision.depth import (
@@ -90,6 +92,7 @@ class MarkerMemory:
     depth_m: FloatArray
     depth_sigma_m: FloatArray
     plane: PlaneFit | None
+    t_s: float = 0.0  # sim time of the view
 
     def carried(self, shift_m: FloatArray, k: CameraIntrinsics) -> MarkerMemory:
         """Where this view is by now if the marker slid by ``shift_m`` (camera frame)."""
@@ -97,7 +100,9 @@ class MarkerMemory:
             return self
         points = back_project(self.corners_px, self.depth_m, k) + shift_m
         plane = None if self.plane is None else self.plane.shifted(shift_m)
-        return MarkerMemory(project(points, k), points[:, 2].copy(), self.depth_sigma_m, plane)
+        return MarkerMemory(
+            project(points, k), points[:, 2].copy(), self.depth_sigma_m, plane, self.t_s
+        )
 
 
 @dataclass(frozen=True)
@@ -325,22 +330,30 @@ def _held(
     memory: MarkerMemory | None,
     k: CameraIntrinsics,
     marker_size_m: float,
+    oldest_s: float = -math.inf,
 ) -> MarkerMeasurement:
-    """A marker found in colour, measured with the depth remembered from its last full view."""
+    """A marker found in colour, measured with the depth remembered from its last full view,
+    if that view is no older than ``oldest_s`` (sim s): as a depth image, a view older than
+    ``max_depth_age_s`` is no measurement (carried along the marker's motion for longer, a
+    hand that stopped went on drifting towards the camera)."""
     assert quad.corners_px is not None
     if memory is None:
         return not_visible("no valid depth")
+    if memory.t_s < oldest_s:
+        return not_visible("depth of it too old")
     corners = quad.corners_px
     if HELD_DEPTH[name] == "plane" and memory.plane is not None:
         xy = pixel_to_normalized(corners, k)
         depths, sigmas = memory.plane.depths_m(xy), memory.plane.depth_sigmas_m(xy)
-        if not np.all((depths > 0) & np.isfinite(depths)):
+        if not np.all((depths >= MIN_USABLE_DEPTH_M) & np.isfinite(depths)):
             return not_visible("no valid depth")
         points = back_project(corners, depths, k)
         if not marker_sized(points, marker_size_m):
             return not_visible("not the marker's size")
     else:
         depths, sigmas = memory.depth_m.copy(), memory.depth_sigma_m.copy()
+        if not np.all((depths >= MIN_USABLE_DEPTH_M) & np.isfinite(depths)):
+            return not_visible("no valid depth")
         points = back_project(corners, depths, k)
     marker = Marker(
         state="visible", corners_px=corners, depth_m=depths, depth_sigma_m=sigmas, points_m=points
@@ -476,7 +489,7 @@ def observe(
         elif not usable:
             m = not_visible("no depth image" if depth is None else "depth image too old")
         else:
-            m = _held(name, quad, memory, k, marker_size_m)
+            m = _held(name, quad, memory, k, marker_size_m, t_s - cfg.max_depth_age_s)
         measured[name] = m
     if not fresh:  # no depth to tell: the hand over the target's last place is what hides it
         target, last = measured["target"], expected["target"]
@@ -512,6 +525,8 @@ def _next_state(
         elif orientation_cue:  # a labelling is carried on from the frame before only
             previous.pop(name, None)
         if seen.usable and fresh:  # measured with depth (a fitted view keeps its plane)
-            memory[name] = MarkerMemory(seen.corners_px, seen.depth_m, seen.depth_sigma_m, m.plane)
+            memory[name] = MarkerMemory(
+                seen.corners_px, seen.depth_m, seen.depth_sigma_m, m.plane, t_s
+            )
             motion[name] = motion.get(name, MarkerMotion()).seen(t_s, seen.points_m)
     return TrackerState(previous, memory, motion)

@@ -386,3 +386,34 @@ def test_corner_depth_uncertainty_is_calibrated_on_noisy_planes() -> None:
     coverage = within / total
     print(f"corner depths within 2 reported sigma: {coverage:.1%} of {total}")
     assert 0.88 <= coverage <= 0.995
+
+
+def test_a_hand_view_older_than_a_depth_image_may_be_is_not_held() -> None:
+    """The hand approaches, stops, and from then on its depth is invalid in every depth image
+    (nearer than the sensor's range): between the images its last view with depth, carried
+    along its motion, went on drifting towards the camera, below zero within seconds (and
+    ended vision). No older than ``max_depth_age_s``, as a depth image, then no depth."""
+    hand, target = scene()
+
+    def frame(t: float) -> tuple[np.ndarray, np.ndarray, Marker]:
+        moved = Marker(hand.points_m + np.array([0.0, 0.0, -0.1 * min(t, 0.5)]), hand.colour)
+        rgb, depth = render([moved, target])
+        return rgb, depth, moved
+
+    state = TrackerState()
+    for t in np.arange(0.0, 0.5001, 0.1):  # seen with depth while it moves: its velocity
+        rgb, depth, _ = frame(t)
+        _, state = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, state, t)
+    held = []
+    for t in np.arange(1.0, 5.01, 0.5):  # depth at 1 Hz from now on, none valid on the hand
+        rgb, depth, moved = frame(t)
+        depth[polygon_mask(moved.corners_px)] = 0.0
+        age = 0.0 if t == round(t) else 0.5
+        markers, state = observe(rgb, K, DepthImage(depth, K, age), CFG, SIZE_M, state, t)
+        hand_now = markers["hand"]
+        if hand_now.usable:
+            assert np.all(hand_now.depth_m > 0.2), (t, hand_now.depth_m)
+            hand_now.to_wire()  # a message the controller can act on
+        held.append((t, hand_now.state, hand_now.reason))
+    assert held[1] == (1.5, "visible", "")  # within a depth image's age of its view: held
+    assert all(r[1:] == ("no_depth", "depth of it too old") for r in held[3::2])  # 2.5 s on
