@@ -168,9 +168,12 @@ def find_marker_quads(
     cfg: VisionConfig,
     previous: dict[str, np.ndarray] | None = None,
     orientation_cue: bool = False,
+    windows: dict[str, np.ndarray] | None = None,
 ) -> dict[str, MarkerQuad]:
     """Both markers in a colour image, keyed ``"hand"`` (green) and ``"target"`` (red);
-    ``previous`` maps the same keys to last frame's corners (to keep their order).
+    ``previous`` maps the same keys to last frame's corners (to keep their order), and
+    ``windows`` (default: ``previous``) to the corners of those seen whole in the last frame,
+    whose blobs are looked for around them first.
 
     ``orientation_cue`` (``marker.orientation_cue``): the corners are labelled by each
     marker's cue (:mod:`services.vision.cue`, physical order), by continuity with
@@ -178,7 +181,7 @@ def find_marker_quads(
     cannot be told, and the marker is :data:`~services.vision.cue.CUE_HIDDEN` otherwise."""
     check_rgb(rgb)
     previous = previous or {}
-    masks = marker_masks(rgb, cfg, previous)
+    masks = marker_masks(rgb, cfg, previous if windows is None else windows)
     quads = find_quads(masks, cfg.min_area_px)  # both markers' sides refined in one batch
     out = {}
     for name, quad, (mask, _) in zip(MARKERS, quads, masks, strict=True):

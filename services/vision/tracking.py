@@ -109,11 +109,13 @@ class MarkerMemory:
 class TrackerState:
     """What one frame leaves for the next: the last visible corners of each marker (to keep
     their order; with the orientation cue, only of a marker visible in the frame before),
-    its last view with depth, and how it has been moving."""
+    which markers the frame before saw whole (only theirs are looked for in a window around
+    those corners), its last view with depth, and how it has been moving."""
 
     previous_corners: dict[str, FloatArray] = field(default_factory=dict)
     memory: dict[str, MarkerMemory] = field(default_factory=dict)
     motion: dict[str, MarkerMotion] = field(default_factory=dict)
+    seen_last_frame: frozenset[str] = frozenset()  # the markers visible in the last frame
 
     def expected(self, name: str, t_s: float, k: CameraIntrinsics) -> MarkerMemory | None:
         """The marker's last view with depth, carried along its motion to ``t_s``."""
@@ -471,7 +473,10 @@ def observe(
     (None: none yet), and the state for the next frame. ``orientation_cue``
     (``marker.orientation_cue``): corners labelled by each marker's cue
     (:mod:`services.vision.cue`), carried on by continuity only from the frame before."""
-    quads = find_marker_quads(rgb, cfg, state.previous_corners, orientation_cue)
+    # Looked for around where they were only if seen whole last frame: the last visible
+    # corners of a marker since moved could hold a smaller blob of its colour for ever.
+    windows = {n: c for n, c in state.previous_corners.items() if n in state.seen_last_frame}
+    quads = find_marker_quads(rgb, cfg, state.previous_corners, orientation_cue, windows)
     fresh = depth is not None and depth.age_s == 0.0
     usable = depth is not None and depth.age_s <= cfg.max_depth_age_s
     measured: dict[str, MarkerMeasurement] = {}
@@ -529,4 +534,5 @@ def _next_state(
                 seen.corners_px, seen.depth_m, seen.depth_sigma_m, m.plane, t_s
             )
             motion[name] = motion.get(name, MarkerMotion()).seen(t_s, seen.points_m)
-    return TrackerState(previous, memory, motion)
+    visible = frozenset(name for name, m in measured.items() if m.marker.visible)
+    return TrackerState(previous, memory, motion, visible)

@@ -417,3 +417,22 @@ def test_a_hand_view_older_than_a_depth_image_may_be_is_not_held() -> None:
         held.append((t, hand_now.state, hand_now.reason))
     assert held[1] == (1.5, "visible", "")  # within a depth image's age of its view: held
     assert all(r[1:] == ("no_depth", "depth of it too old") for r in held[3::2])  # 2.5 s on
+
+
+def test_a_target_gone_from_its_window_is_looked_for_in_the_whole_image() -> None:
+    """The target moved away, a small red patch left where it was: its last visible corners
+    kept the search in a window around the patch for ever ("not the marker's size" every
+    frame) while the target lay whole elsewhere. The window is for a marker seen whole in the
+    frame before, so after one frame of it the whole image is searched."""
+    hand, target = scene()
+    rgb, depth = render([hand, target])
+    _, state = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, TrackerState(), 0.0)
+    moved = Marker(square_3d(np.array([0.06, -0.10, 0.5]), SIZE_M, rotation(0.3, 0.8, 0.4)), RED)
+    rgb, depth = render([hand, moved])
+    u, v = target.corners_px.mean(axis=0).astype(int)
+    rgb[v - 5 : v + 5, u - 5 : u + 5] = RED
+    states = []
+    for t in (0.1, 0.2, 0.3):
+        markers, state = observe(rgb, K, fresh(rgb, depth), CFG, SIZE_M, state, t)
+        states.append(markers["target"].state)
+    assert states == ["partial", "visible", "visible"]
