@@ -217,6 +217,11 @@ MIN_USABLE_DEPTH_M = 0.01
 MIN_USABLE_AREA_PX2 = 1.0
 
 
+def usable_depths(depths_m: np.ndarray) -> bool:
+    """Depths a usable marker may carry: finite, and at least :data:`MIN_USABLE_DEPTH_M`."""
+    return bool(np.all(np.isfinite(depths_m) & (depths_m >= MIN_USABLE_DEPTH_M)))
+
+
 def is_usable(state: str, fitted: bool) -> bool:
     """A marker's corners and depths can be acted on: seen whole, or partly hidden and fitted
     from what is seen (one rule for vision, the wire format and the controller)."""

@@ -7,9 +7,11 @@ exit codes come from the forkserver, whose children they are: killed with them, 
 report any (every one read 255, as if they had crashed). It still ends with the supervisor,
 when the pipe that keeps it alive closes.
 
-Multiprocessing has the forkserver ignore SIGINT only once its preload is done: a Ctrl-C in
-the half-second of imports before that ended it, and with it the run (the mask comes first in
-the preload, so it covers the rest).
+Multiprocessing has the forkserver ignore SIGINT only once its imports are done: a Ctrl-C
+during them ended it, and with it the run. The process that starts the forkserver
+(:func:`deploy.service_process.fork_service`) blocks both signals while it does, so the
+forkserver starts with them blocked; this module, first of the preload, keeps them so for good
+(the main script, imported before the preload, is covered by the inherited mask).
 
 Blocked, not ignored: a forked service inherits the mask, and unblocks both first thing
 (:func:`deploy.service_process.serve`), so one sent to it before then is held, then delivered,

@@ -36,9 +36,10 @@ from common.processes import ProcessEnd
 # What the forkserver imports before its first fork: every service's node and what it imports.
 # "__main__": the launching program's main module (a script, such as the ``umay`` entry point),
 # which multiprocessing imports in every process it starts, is then imported once, here.
-# Last, what only the forkserver imports: it blocks SIGTERM (deploy/forkserver_guard.py).
+# First, what only the forkserver imports: it keeps SIGTERM and SIGINT blocked
+# (deploy/forkserver_guard.py).
 PRELOAD = [
-    "deploy.forkserver_guard",  # first: its signal mask covers the imports after it
+    "deploy.forkserver_guard",
     "__main__",
     *(f"services.{name}.node" for name in SERVICES),
     __name__,
@@ -141,20 +142,32 @@ def fork_service(name: str, argv: list[str], env: dict[str, str], log_path: Path
     )
     # Blocked in this thread while it starts: a forkserver started now (the first call)
     # inherits the mask through its exec, so a Ctrl-C or SIGTERM to the process group during
-    # its interpreter's start and imports is held, not fatal (deploy/forkserver_guard.py keeps
-    # it so); here it is delivered when the mask is put back.
+    # its interpreter's start and imports (the main script's, then the preload's) is held, not
+    # fatal (deploy/forkserver_guard.py keeps it so); here it is delivered when the mask is put
+    # back.
     # The resource tracker first: starting it unblocks both signals again in this thread.
     multiprocessing.resource_tracker.ensure_running()
     mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
     try:
         process.start()
     except ChildProcessError as exc:  # multiprocessing looks for its parent's forkserver
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         raise ForkUnavailable("forked from a process whose forkserver it cannot use") from exc
     except OSError as exc:  # no forkserver here (a sandbox without Unix sockets...)
-        raise ForkUnavailable(f"{type(exc).__name__}: {exc}") from exc
-    finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, mask)
-    return ForkedService(process, name)
+        raise ForkUnavailable(f"{type(exc).__name__}: {exc}") from exc
+    except BaseException:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        raise
+    service = ForkedService(process, name)
+    try:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a signal held meanwhile comes now
+    except BaseException:
+        # Forked after the signal reached the group, the service did not get it, and its
+        # supervisor will not hear of it: it is stopped here.
+        service.send_signal(signal.SIGTERM)
+        raise
+    return service
 
 
 def serve(name: str, argv: list[str], env: dict[str, str], log_path: str) -> None:

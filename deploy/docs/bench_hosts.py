@@ -25,7 +25,7 @@ from deploy.docs.bench_tables import (
 from deploy.docs.sources import BENCH_DIR, LOCKSTEP_RUN, BenchRun, DocsError, Inputs
 from deploy.experiments.compare.summary import markdown_table
 
-__all__ = ["HEADERS", "bench_hosts", "measured", "within_goals"]
+__all__ = ["HEADERS", "bench_hosts", "within_goals"]
 
 HEADERS = [
     "run",

@@ -113,6 +113,11 @@ def phase_of(twist: EndEffectorTwist) -> str:
     return "servoing" if twist.valid else "holding"
 
 
+def phase_key(twist: EndEffectorTwist) -> tuple[str, str]:
+    """What a change of the controller's phase is judged by: the phase and the hold reason."""
+    return phase_of(twist), twist.hold_reason
+
+
 def status_log(status: ServiceStatus | None, service: str, t_s: float) -> Log:
     """One line per service and status query: its state, rates and processing time."""
     if status is None:
@@ -180,7 +185,7 @@ class ViewState:
 
     def phase_changes(self, twist: EndEffectorTwist) -> bool:
         """Whether ``twist`` changes the controller's phase or hold reason (logged, always)."""
-        return (phase_of(twist), twist.hold_reason) != self.last_phase
+        return phase_key(twist) != self.last_phase
 
     def _advance(self, t_s: float) -> None:
         self.sim_time_s = max(self.sim_time_s, t_s)
@@ -284,7 +289,7 @@ class ViewState:
                 ns,
             ),
         ]
-        now = (phase, twist.hold_reason)
+        now = phase_key(twist)
         if now != self.last_phase:
             self.last_phase = now
             text = phase + (f": {twist.hold_reason}" if twist.hold_reason else "")

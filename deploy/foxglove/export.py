@@ -28,7 +28,7 @@ class ExportReport:
     skipped: int = 0  # recorded messages the view does not show (timing)
     rejected: int = 0  # recorded payloads that do not decode
     notes: list[str] = field(default_factory=list)
-    runs: int = 1  # the sim's runs in the recording, told apart by simulated time going back
+    runs: int = 1  # the sim's runs in the recording (Header.run, or simulated time going back)
 
 
 def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 85) -> ExportReport:
@@ -68,8 +68,7 @@ def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 
     channels.close()
     if report.runs > 1:
         report.notes.append(
-            f"the recording holds {report.runs} runs (simulated time went back): "
-            "each exported from its own start"
+            f"the recording holds {report.runs} runs of the sim: each exported from its own start"
         )
     if reader.damage:
         report.notes.append(f"recording {reader.damage}")

@@ -141,6 +141,9 @@ class ViewNode:
             suffix: RateGate(periods.get(suffix, 1.0 / rate_hz)) for suffix in convert.VIEWED_KEYS
         }
         self._latest: dict[str, Any] = {}
+        # Twists a newer one would have replaced while the view was behind, kept because the
+        # newer one's phase or hold reason differs: shown first, in order.
+        self._phase_twists: list[Any] = []
         self._cond = threading.Condition()
         self.node = Node("view", keys, session, self.status_fields)  # status and liveliness
         self._subscribers = [
@@ -191,8 +194,12 @@ class ViewNode:
 
         def keep(message: Any) -> None:
             with self._cond:
-                if self._latest.pop(suffix, None) is not None:
-                    self.dropped[suffix] += 1  # the view is behind: the newer one wins
+                waiting = self._latest.pop(suffix, None)
+                if waiting is not None:
+                    if suffix == TWIST and convert.phase_key(waiting) != convert.phase_key(message):
+                        self._phase_twists.append(waiting)  # a change of phase: shown all the same
+                    else:
+                        self.dropped[suffix] += 1  # the view is behind: the newer one wins
                 self._latest[suffix] = message
                 self._cond.notify()
 
@@ -247,9 +254,10 @@ class ViewNode:
         try:
             while not stop.is_set():
                 with self._cond:
-                    if not self._latest:
+                    if not self._latest and not self._phase_twists:
                         self._cond.wait(0.1)
-                    batch, self._latest = list(self._latest.items()), {}
+                    batch = [(TWIST, t) for t in self._phase_twists] + list(self._latest.items())
+                    self._phase_twists, self._latest = [], {}
                 for suffix, message in batch:
                     self.on_event(suffix, message)
         finally:

@@ -1,7 +1,7 @@
 """The view's rate limit per key, as data: messages admitted on a schedule, not by the gap to
 the last one.
 
-A gap test (``now − last < period``: drop) drops about a third of a source that comes at the
+A gap test (``now − last < period``: drop) drops a good part of a source that comes at the
 limit itself, its arrivals jittering around the period. The schedule admits a message once its
 due time has come and moves the due time on by one period, from where it was (or from half a
 period before now, after a pause): a source at the limit passes whole, a faster one is held to

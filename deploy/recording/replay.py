@@ -42,6 +42,7 @@ import time
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
+from itertools import pairwise
 from pathlib import Path
 
 import zenoh
@@ -140,6 +141,12 @@ def first_by_frame(payloads: Iterator[tuple[int, bytes]]) -> dict[int, bytes]:
         if seq >= 0 and seq not in out:
             out[seq] = data
     return out
+
+
+def frame_going_back(frame_seqs: list[int]) -> int | None:
+    """The first frame number lower than the one before it (a second run), else None; a
+    number repeated (a lockstep resend) does not go back."""
+    return next((b for a, b in pairwise(frame_seqs) if b < a), None)
 
 
 def lockstep_steps(inputs: list[Recorded], io: ServiceIO) -> list[list[Recorded]]:
@@ -290,14 +297,15 @@ def replay_service(
             "without --check to see what the service makes of it"
         )
     triggers = [r.frame_seq for r in recorded_inputs if r.suffix == io.trigger]
-    if check and len(set(triggers)) < len(triggers):
+    back = frame_going_back(triggers)
+    if check and back is not None:
         # Outputs are matched by frame: a second run (a restarted sim, two runs recorded) would
-        # be matched against the first one's, or not compared at all.
-        repeated = next(seq for seq in triggers if triggers.count(seq) > 1)
+        # be matched against the first one's, or not compared at all. (A frame sent again, a
+        # lockstep resend, repeats its number without going back: answered alike, it checks.)
         raise ReplayError(
-            f"{path}: frame {repeated} comes {triggers.count(repeated)} times: the recording "
-            "holds more than one run, and --check compares one run frame by frame. Replay it "
-            "without --check, or record each run on its own (`umay run --record`)"
+            f"{path}: the frame numbers go back (to frame {back}): the recording holds more "
+            "than one run, and --check compares one run frame by frame. Replay it without "
+            "--check, or record each run on its own (`umay run --record`)"
         )
     if check:
         answered = recorded_outputs.keys()

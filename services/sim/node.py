@@ -2,8 +2,8 @@
 and (for evaluation only) ground truth; applies joint velocity commands.
 
 The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the first colour frame
-at or after each tick of ``camera.depth_hz`` (registered, possibly at a lower resolution; the
-schedule is services/sim/schedule.py, the motors' limit services/sim/motors.py). Per
+at or after each tick of ``camera.depth_hz``, in whole frames (registered, possibly at a lower
+resolution; the schedule is services/sim/schedule.py, the motors' limit services/sim/motors.py). Per
 frame the joint state, the ground truth and the previous frame's timing go out first, before
 the render, then the depth image if one was taken, then the colour frame, which names the newest
 depth image (``depth_frame_seq``). The images are drawn straight into the next slots of the

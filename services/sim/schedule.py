@@ -2,9 +2,11 @@
 camera frame: :func:`common.config.substeps_per_frame`).
 
 The colour stream runs at ``camera.rgb_hz``; a depth image is taken with the first colour
-frame at or after each tick of ``camera.depth_hz``. The ticks stay on their own grid (a late
-frame does not shift the next tick), so a lower depth rate never drifts against the colour
-stream. Pure: the sim node and the in-process pipeline (services/pipeline.py) both step it.
+frame at or after each tick of ``camera.depth_hz``, the ticks spaced in the colour frames' own
+period (whole physics steps), ``rgb_hz / depth_hz`` frames apart. The ticks stay on their own
+grid (a late frame does not shift the next tick), so a lower depth rate never drifts against
+the colour stream. Pure: the sim node and the in-process pipeline (services/pipeline.py) both
+step it.
 """
 
 from __future__ import annotations

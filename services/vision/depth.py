@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
+from common.messages import usable_depths
 from services.vision.occlusion import RING_WIDTH_PX
 from services.vision.quad import quad_area_px2
 
@@ -249,7 +250,7 @@ def corner_depths(
     corner_xy = pixel_to_normalized(corners, k)
     depths = plane.depths_m(corner_xy)
     sigmas = plane.depth_sigmas_m(corner_xy)
-    if not np.all((depths > 0) & (depths < np.inf)):
+    if not usable_depths(depths):  # behind the camera, or nearer than a message carries
         return None
     return CornerDepths(depths, sigmas, back_project(corners, depths, k), plane)
 

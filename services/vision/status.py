@@ -17,9 +17,12 @@ class VisionStatus(StatusFields):
         description="the depth image's age at the last colour frame (simulated s; none: no "
         "depth image yet)"
     )
-    depth_waits: int = Field(description="colour frames that waited for their depth image")
+    depth_waits: int = Field(
+        description="waits begun for a late depth image (a newer colour frame takes over a wait)"
+    )
     depth_missed: int = Field(
-        description="of those, frames whose depth image did not come in time: measured without it"
+        description="colour frames measured without the depth image they named: after a wait "
+        "ran out, or while the depth stream is late"
     )
     frames_by_ref: int = Field(description="camera frames read in place in the sim's ring")
     frames_by_copy: int = Field(description="camera frames received whole")

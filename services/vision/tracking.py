@@ -22,7 +22,6 @@ when most of its marker shows (its own forearm bordering it), since it is what i
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -31,7 +30,7 @@ import numpy as np
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized, project
 from common.config import VisionConfig
 from common.marker import Marker
-from common.messages import MIN_USABLE_DEPTH_M
+from common.messages import usable_depths
 from common.motion import MarkerMotion
 from services.vision.cue import cue_mask, label_corners
 from services.vision.depth import (
@@ -92,7 +91,7 @@ class MarkerMemory:
     depth_m: FloatArray
     depth_sigma_m: FloatArray
     plane: PlaneFit | None
-    t_s: float = 0.0  # sim time of the view
+    t_s: float  # sim time of the view
 
     def carried(self, shift_m: FloatArray, k: CameraIntrinsics) -> MarkerMemory:
         """Where this view is by now if the marker slid by ``shift_m`` (camera frame)."""
@@ -332,7 +331,7 @@ def _held(
     memory: MarkerMemory | None,
     k: CameraIntrinsics,
     marker_size_m: float,
-    oldest_s: float = -math.inf,
+    oldest_s: float,
 ) -> MarkerMeasurement:
     """A marker found in colour, measured with the depth remembered from its last full view,
     if that view is no older than ``oldest_s`` (sim s): as a depth image, a view older than
@@ -347,14 +346,14 @@ def _held(
     if HELD_DEPTH[name] == "plane" and memory.plane is not None:
         xy = pixel_to_normalized(corners, k)
         depths, sigmas = memory.plane.depths_m(xy), memory.plane.depth_sigmas_m(xy)
-        if not np.all((depths >= MIN_USABLE_DEPTH_M) & np.isfinite(depths)):
+        if not usable_depths(depths):
             return not_visible("no valid depth")
         points = back_project(corners, depths, k)
         if not marker_sized(points, marker_size_m):
             return not_visible("not the marker's size")
     else:
         depths, sigmas = memory.depth_m.copy(), memory.depth_sigma_m.copy()
-        if not np.all((depths >= MIN_USABLE_DEPTH_M) & np.isfinite(depths)):
+        if not usable_depths(depths):
             return not_visible("no valid depth")
         points = back_project(corners, depths, k)
     marker = Marker(

@@ -255,8 +255,8 @@ if __name__ == "__main__":
 
 def test_a_forkserver_signalled_as_it_starts_still_forks_the_service(tmp_path: Path) -> None:
     """Ctrl-C or SIGTERM to the process group in the moment the first service is forked (the
-    forkserver's interpreter starting, then its half-second of imports) ended the forkserver,
-    and the run with an EOFError: it starts with both signals blocked and keeps them so."""
+    forkserver's interpreter starting, then its imports) ended the forkserver, and the run
+    with an EOFError: it starts with both signals blocked and keeps them so."""
     script = tmp_path / "signalled.py"
     script.write_text(FORKSERVER_SIGNALLED_AT_BIRTH)
     log = tmp_path / "controller.log"

@@ -96,3 +96,9 @@ def test_verdict_leaves_out_claims_whose_strategies_did_not_run() -> None:
 def test_lower_compares_the_shown_numbers_not_their_text() -> None:
     assert not _lower(10.2, 9.5) and _lower(9.5, 10.2)
     assert not _lower(1.0061, 1.0058)  # both shown as 1.006: a tie
+
+
+def test_mpj_alone_is_not_the_winner_of_anything() -> None:
+    only = {m: THESIS_WRONG[m] for m in ("mpj", "points3d")}
+    figures = [verdict_figures(suite(only), m) for m in only]
+    assert mpj_the_winner(figures).startswith("*MPJ is clearly the winner*: does not hold.")

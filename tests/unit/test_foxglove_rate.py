@@ -15,7 +15,7 @@ def admitted(times_s: np.ndarray, period_s: float) -> int:
 
 def test_a_source_at_the_limit_passes_whole_despite_its_jitter() -> None:
     """15 Hz under a 15 Hz limit, arrivals jittered by up to a fifth of a period: a gap test
-    (now − last < period: drop) let about 60 % through."""
+    (now − last < period: drop) let only part of it through."""
     rng = np.random.default_rng(4)
     period = 1.0 / 15.0
     times = np.arange(150) * period + rng.uniform(-0.2, 0.2, 150) * period

@@ -17,6 +17,7 @@ from deploy.recording.replay import (
     SERVICE_IO,
     Recorded,
     ReplayError,
+    frame_going_back,
     lockstep_steps,
     replay_service,
     source_prefix,
@@ -154,6 +155,14 @@ def test_check_refuses_a_recording_of_two_runs_before_starting_anything(tmp_path
                 t = message.log_time + run * span
                 w.add_message(channels[channel.id], t, message.data, t)
         w.finish()
-    with pytest.raises(ReplayError, match=r"comes 2 times: the recording holds more than one"):
+    with pytest.raises(
+        ReplayError, match=r"go back \(to frame 0\): the recording holds more than one"
+    ):
         replay_service(doubled, "controller", None, True, tmp_path / "logs")
     assert not (tmp_path / "logs").exists()  # refused before anything started
+
+
+def test_a_resent_frame_is_not_a_second_run() -> None:
+    assert frame_going_back([0, 1, 2, 2, 3]) is None  # frame 2 sent again (lockstep resend)
+    assert frame_going_back([0, 1, 2, 0, 1]) == 0  # two runs
+    assert frame_going_back([]) is None

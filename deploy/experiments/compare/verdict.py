@@ -150,7 +150,7 @@ def mpj_the_winner(figures: Sequence[VerdictFigures]) -> str:
     beaten = [o.mode for o in others if _lower(mpj.path_ratio, o.path_ratio)]
     tied = [o.mode for o in others if _tied(mpj.path_ratio, o.path_ratio)]
     behind = [o.mode for o in others if _lower(o.path_ratio, mpj.path_ratio)]
-    holds = "holds" if len(beaten) == len(others) else "does not hold"
+    holds = "holds" if others and len(beaten) == len(others) else "does not hold"
     parts = [
         f"{verb} {_names(modes)}"
         for verb, modes in (("ties with", tied), ("is behind", behind), ("beats", beaten))
@@ -178,7 +178,7 @@ def points3d_paths(figures: Sequence[VerdictFigures]) -> str:
     best_ratio = min(f.path_ratio for f in four if f.path_ratio is not None)
     best = [f.mode for f in four if _tied(f.path_ratio, best_ratio)]
     below = 1.0 - p.path_ratio / best_ratio
-    holds = "holds" if below >= PATH_GOAL else "does not hold"
+    holds = "holds" if round(below, 3) >= PATH_GOAL else "does not hold"  # as shown
     times = ", ".join(
         f"{o.mode}'s {o.detour / p.detour:.0f}×" for o in four if o.detour and p.detour > 0.0
     )
