@@ -268,6 +268,12 @@ def run_key(start: str, mode: str) -> str:
     return f"{start}_{mode}"
 
 
+def study_overrides(study: StudyDefinition, overrides: Sequence[str] = ()) -> list[str]:
+    """What every run of the study adds to its start: its timeout, the study's own overrides,
+    then ``overrides`` (the command line's ``--set``)."""
+    return [f"run.timeout_s={study.timeout_s!r}", *study.overrides, *overrides]
+
+
 def check_overrides(
     study: StudyDefinition, base_path: Path, modes: Sequence[str], overrides: Sequence[str] = ()
 ) -> None:
@@ -275,12 +281,9 @@ def check_overrides(
     command line's ``--set``, the strategy) validated: raises :class:`CompareError` naming the
     option and the field. Cheap, so a study checks its input with it before anything is drawn
     or written (a worker would only find it drawing)."""
-    timeout = f"run.timeout_s={study.timeout_s!r}"
-    checks = [("--study overrides", [timeout, *study.overrides])]
-    checks += [("--set", [timeout, *study.overrides, *overrides])] if overrides else []
-    checks += [
-        (f"--modes {m}", job_overrides([timeout, *study.overrides, *overrides], m)) for m in modes
-    ]
+    checks = [("--study overrides", study_overrides(study))]
+    checks += [("--set", study_overrides(study, overrides))] if overrides else []
+    checks += [(f"--modes {m}", job_overrides(study_overrides(study, overrides), m)) for m in modes]
     for option, items in checks:
         try:
             load_scenario(base_path, parse_overrides(list(items)))
@@ -297,12 +300,12 @@ def plan_tasks(
 ) -> list[RunTask]:
     """Every strategy on every start that was not refused, start-major; each validated."""
     tasks = []
-    timeout = f"run.timeout_s={study.timeout_s!r}"
+    added = study_overrides(study, overrides)
     for start in starts:
         if start.refused:
             continue
         for mode in modes:
-            items = job_overrides([*start.overrides(), timeout, *study.overrides, *overrides], mode)
+            items = job_overrides([*start.overrides(), *added], mode)
             task = RunTask(run_key(start.name, mode), start.name, mode, str(base_path), items)
             try:
                 task.scenario()
