@@ -19,14 +19,25 @@ def positive_seconds(value: str) -> float:
 
 
 def tcp_port(value: str) -> int:
-    """argparse type of a TCP port a user names: 1-65535."""
+    """argparse type of a TCP port a user names: 0-65535 (0: any free one)."""
     try:
         port = int(value)
     except ValueError:
-        port = 0
-    if not 1 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"{value!r}: a TCP port, 1-65535")
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{value!r}: a TCP port, 0-65535 (0: any free one)")
     return port
+
+
+def at_least_one(value: str) -> int:
+    """argparse type of a count that must be 1 or more."""
+    try:
+        count = int(value)
+    except ValueError:
+        count = 0
+    if count < 1:
+        raise argparse.ArgumentTypeError(f"{value!r}: a whole number, at least 1")
+    return count
 
 
 # What a tool that hears nothing says after where it looked (status, record, view).

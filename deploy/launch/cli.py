@@ -387,8 +387,8 @@ def add_router_parser(sub: argparse._SubParsersAction) -> None:
 
 def add_logs_parser(sub: argparse._SubParsersAction) -> None:
     """``umay logs``: a service's log file."""
-    p = sub.add_parser("logs", help="show a service's log file")
-    p.add_argument("name", choices=(*SERVICES,))
+    p = sub.add_parser("logs", help="show a service's log file (or the live view's: view)")
+    p.add_argument("name", choices=(*SERVICES, "view"))
     p.add_argument("--log-dir", default="out/logs")
     p.add_argument("-n", "--lines", type=int, default=40)
     p.add_argument("-f", "--follow", action="store_true")

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from deploy.arguments import at_least_one
 from deploy.consoles import progress_bar, progress_console
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OK
 from deploy.interrupts import stop_requested
@@ -39,7 +40,9 @@ def add_domains_parser(sub: argparse._SubParsersAction) -> None:
         help="the study's grid, draws and seed (default: deploy/domains/study.toml)",
     )
     p.add_argument("--seed", type=int, default=None, help="instead of the study file's seed")
-    p.add_argument("--draws", type=int, default=None, help="draws per cell, instead of the file's")
+    p.add_argument(
+        "--draws", type=at_least_one, default=None, help="draws per cell, instead of the file's"
+    )
     p.add_argument(
         "--cells",
         default=None,
@@ -54,8 +57,10 @@ def add_domains_parser(sub: argparse._SubParsersAction) -> None:
         help="inprocess (default: the lockstep loop in one process), distributed (the four "
         "service processes, own key prefix per run), or module:function",
     )
-    p.add_argument("--jobs", type=int, default=2, help="local worker processes (default 2)")
-    p.add_argument(
+    where = p.add_mutually_exclusive_group()  # one executor or the other
+    # No default here: argparse takes an option given at its default value for not given.
+    where.add_argument("--jobs", type=int, default=None, help="local worker processes (default 2)")
+    where.add_argument(
         "--cluster",
         default=None,
         metavar="ADDRESS|local:N",
@@ -81,6 +86,9 @@ def add_domains_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_domains)
 
 
+DEFAULT_JOBS = 2
+
+
 def parse_cells(text: str | None, n: int) -> range:
     if text is None:
         return range(n)
@@ -89,6 +97,8 @@ def parse_cells(text: str | None, n: int) -> range:
         lo, hi = int(a or 0), int(b or n) if sep else int(a) + 1
     except ValueError as exc:
         raise ValueError(f"--cells: {text!r}: A:B, cell indices") from exc
+    if lo >= hi:
+        raise ValueError(f"--cells: {text!r}: A below B (cells A to B-1)")
     if not 0 <= lo < hi <= n:
         raise ValueError(f"--cells: {text!r}: within 0:{n}")
     return range(lo, hi)
@@ -189,6 +199,7 @@ def cmd_domains(args: argparse.Namespace) -> int:
     console = progress_console()
     try:
         modes = parse_modes(args.modes)
+        args.jobs = DEFAULT_JOBS if args.jobs is None else args.jobs
         check_jobs(args.jobs)
         study, base_path = dom.load_study(Path(args.study), seed=args.seed, draws=args.draws)
         chosen = parse_cells(args.cells, study.n_cells)

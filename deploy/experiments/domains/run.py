@@ -26,6 +26,7 @@ use it). Drawing the starts is spread over the same executor (:func:`draw_one`).
 from __future__ import annotations
 
 import importlib
+import logging
 import signal
 import tempfile
 import threading
@@ -71,8 +72,15 @@ def ignore_interrupts() -> None:
 
 def dask_setup(_worker: object) -> None:
     """Dask's preload hook (this module is the preload of a ``local:N`` cluster's workers,
-    restarted ones included): as :func:`ignore_interrupts`."""
+    restarted ones included): as :func:`ignore_interrupts`, and Dask's own logs at warnings."""
     ignore_interrupts()
+    quiet_dask()
+
+
+def quiet_dask() -> None:
+    """Dask's INFO lines (workers starting and closing, a couple of dozen a study) buried the
+    study's own on stderr: its warnings and errors only."""
+    logging.getLogger("distributed").setLevel(logging.WARNING)
 
 
 def run_inprocess(task: RunTask) -> RunResult:
@@ -228,6 +236,7 @@ class DaskExecutor:
             ) from exc
         self.cluster = None
         if address is None:
+            quiet_dask()  # the scheduler and the nannies run in this process
             self.cluster = LocalCluster(
                 n_workers=local_workers or 2,
                 threads_per_worker=1,
