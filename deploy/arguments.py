@@ -18,26 +18,26 @@ def positive_seconds(value: str) -> float:
     return seconds
 
 
+def _whole_number(value: str, low: int, high: int | None, says: str) -> int:
+    """``value`` as an int within [low, high] (None: no upper bound), else the argparse error
+    ``says``."""
+    try:
+        number = int(value)
+    except ValueError:
+        number = low - 1
+    if number < low or (high is not None and number > high):
+        raise argparse.ArgumentTypeError(f"{value!r}: {says}")
+    return number
+
+
 def tcp_port(value: str) -> int:
     """argparse type of a TCP port a user names: 0-65535 (0: any free one)."""
-    try:
-        port = int(value)
-    except ValueError:
-        port = -1
-    if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"{value!r}: a TCP port, 0-65535 (0: any free one)")
-    return port
+    return _whole_number(value, 0, 65535, "a TCP port, 0-65535 (0: any free one)")
 
 
 def at_least_one(value: str) -> int:
     """argparse type of a count that must be 1 or more."""
-    try:
-        count = int(value)
-    except ValueError:
-        count = 0
-    if count < 1:
-        raise argparse.ArgumentTypeError(f"{value!r}: a whole number, at least 1")
-    return count
+    return _whole_number(value, 1, None, "a whole number, at least 1")
 
 
 # What a tool that hears nothing says after where it looked (status, record, view).

@@ -11,6 +11,7 @@ and code they were measured on.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -82,10 +83,15 @@ def values(report: AlternationReport, field: str, side: str) -> list[float | Non
 
 
 def same_way(report: AlternationReport, field: str, fmt: str = ".2f") -> str:
-    """How many pairs moved ``field`` the way most did with the change: "4 of 4 down" (a pair
-    missing the figure on either side does not count). Values are compared as ``fmt`` shows
-    them: a move too small to show (a realtime run's real-time factor) is no move."""
+    """How many pairs moved ``field`` the way most did with the change (:func:`pairs_moved`)."""
     pairs = zip(values(report, field, "without"), values(report, field, "with_change"), strict=True)
+    return pairs_moved(pairs, fmt)
+
+
+def pairs_moved(pairs: Iterable[tuple[float | None, float | None]], fmt: str = ".2f") -> str:
+    """How many (without, with) pairs moved the way most did: "4 of 4 down" (a pair missing
+    the figure on either side does not count). Values are compared as ``fmt`` shows them: a
+    move too small to show (a realtime run's real-time factor) is no move."""
     moves = [
         float(format(w, fmt)) - float(format(o, fmt))
         for o, w in pairs

@@ -692,15 +692,11 @@ def moved(pairs: Sequence[tuple[float | None, float | None]], fmt: str) -> str:
     """How many pairs moved a figure the way most did: "3 of 3 up" (as ``umay bench
     --alternate`` counts them: values compared as shown, a pair missing one side not
     counted)."""
-    moves = [
-        float(format(w, fmt)) - float(format(o, fmt))
-        for o, w in pairs
-        if o is not None and w is not None
-    ]
-    down, up = sum(m < 0 for m in moves), sum(m > 0 for m in moves)
-    if not down and not up:
-        return f"none of {len(moves)} moved" if moves else "–"
-    return f"{max(down, up)} of {len(moves)} " + ("down" if down >= up else "up")
+    from deploy.bench.alternate import pairs_moved
+
+    if not any(o is not None and w is not None for o, w in pairs):
+        return "–"
+    return pairs_moved(pairs, fmt)
 
 
 def bench_view(inputs: Inputs, here: str) -> str:

@@ -183,6 +183,14 @@ class ViewState:
             return True
         return t_s < self.sim_time_s - RESTART_BACK_S
 
+    def continued(self, message: Any) -> ViewState:
+        """This state, or a fresh one when ``message`` begins a new run (:meth:`restarted`):
+        the one rule the live view and the export follow."""
+        header = getattr(message, "header", None)
+        if header is not None and self.restarted(header.run, header.sim_time_s):
+            return ViewState(self.scenario, self.trail_max)
+        return self
+
     def phase_changes(self, twist: EndEffectorTwist) -> bool:
         """Whether ``twist`` changes the controller's phase or hold reason (logged, always)."""
         return phase_key(twist) != self.last_phase

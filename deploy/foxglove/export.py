@@ -57,11 +57,11 @@ def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 
             except MessageError:
                 report.rejected += 1
                 continue
-            header = getattr(msg, "header", None)
             # A recording can span runs (the sim restarted): each gets its own view, as live.
-            if header is not None and state.restarted(header.run, header.sim_time_s):
+            fresh = state.continued(msg)
+            if fresh is not state:
                 report.runs += 1
-                state = convert.ViewState(scenario)
+                state = fresh
             for o in state.on_message(suffix, msg, jpeg_quality):
                 channels.log(o)
                 report.written[o.topic] = report.written.get(o.topic, 0) + 1

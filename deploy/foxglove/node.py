@@ -206,10 +206,10 @@ class ViewNode:
         return on_sample
 
     def on_event(self, suffix: str, message: Any) -> None:
-        header = getattr(message, "header", None)
-        if header is not None and self.state.restarted(header.run, header.sim_time_s):
-            log.info("a new run of the sim (at %.2f s simulated)", header.sim_time_s)
-            self.state = convert.ViewState(self.scenario)
+        state = self.state.continued(message)
+        if state is not self.state:
+            log.info("a new run of the sim (at %.2f s simulated)", message.header.sim_time_s)
+            self.state = state
         if suffix == TWIST and not (
             self.state.phase_changes(message) or self._gates[TWIST].admit(time.monotonic())
         ):
