@@ -4,7 +4,6 @@ to show what watching costs the loop (nothing, by design: the view is an observe
 from __future__ import annotations
 
 import contextlib
-import socket
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -29,19 +28,17 @@ def watched_by_a_view(
     """``umay view`` on the run, and a client that subscribes to every channel and reads all
     it gets (the Foxglove app's load). Yields a dict that, once left, holds the client's
     message counts per topic."""
-    with socket.socket() as s:
-        s.bind((DEFAULT_HOST, 0))
-        port = s.getsockname()[1]
-    report: dict[str, Any] = {"port": port}
+    report: dict[str, Any] = {}
     with contextlib.ExitStack() as stack:
         try:
-            stack.enter_context(
-                view_process(keys.prefix, endpoint, port, log_dir / "view.log", scenario_path,
+            view = stack.enter_context(  # port 0: the view takes a free one and says which
+                view_process(keys.prefix, endpoint, 0, log_dir / "view.log", scenario_path,
                              overrides)
             )  # fmt: skip
         except ViewStartError as exc:
             raise BenchError(str(exc)) from exc
-        client = FoxgloveClient(f"ws://{DEFAULT_HOST}:{port}", keep=False).start()
+        report["port"] = view.port
+        client = FoxgloveClient(f"ws://{DEFAULT_HOST}:{view.port}", keep=False).start()
         try:
             if not client.wait_for(
                 lambda cl: cl.counts.get(topics.COLOUR_IMAGE, 0) > 0, startup_timeout_s

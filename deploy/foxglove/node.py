@@ -23,12 +23,13 @@ import argparse
 import contextlib
 import logging
 import os
-import socket
+import re
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -304,8 +305,7 @@ def serve(args: argparse.Namespace) -> int:
                 looked_on=where_connecting(args.connect),
             )  # fmt: skip
             print(
-                f"umay view: Foxglove WebSocket at ws://{args.host}:{server.port} for "
-                f"{keys.prefix}; layout {LAYOUT_PATH}",
+                f"{SERVING}{args.host}:{server.port} for {keys.prefix}; layout {LAYOUT_PATH}",
                 flush=True,
             )
             view.run(stop)  # closes the session on the way out
@@ -329,21 +329,42 @@ def stop_server(server: foxglove.WebSocketServer, timeout_s: float = SERVER_STOP
 
 
 LAYOUT_PATH = Path(__file__).resolve().parent / "layout.json"
+SERVING = "umay view: Foxglove WebSocket at ws://"  # the line that says the view serves
 
 
 # --- launching it beside `umay up` / `umay run` --------------------------------------------
-def wait_for_port(host: str, port: int, proc: subprocess.Popen, timeout_s: float) -> bool:
-    """True once ``host:port`` accepts connections; False if ``proc`` ends or time runs out."""
+def served_port(log_text: str) -> int | None:
+    """The port the view says it serves on, in its log's text (None: not said yet)."""
+    said = re.search(re.escape(SERVING) + r"\S+:(\d+) for ", log_text)
+    return int(said.group(1)) if said else None
+
+
+def wait_for_serving(
+    log_path: Path, offset: int, proc: subprocess.Popen, timeout_s: float
+) -> int | None:
+    """The port the view serves on, once it says so in its log (after byte ``offset``); None
+    if ``proc`` ends or time runs out. Its own line, not a probe connection: a connection that
+    never completes a WebSocket handshake is logged by the server as a failed one, and the
+    line also tells which port ``--port 0`` took."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
+        with log_path.open("rb") as log:
+            log.seek(offset)
+            port = served_port(log.read().decode(errors="replace"))
+        if port is not None:
+            return port
         if proc.poll() is not None:
-            return False
-        with socket.socket() as s:
-            s.settimeout(0.2)
-            if s.connect_ex((host, port)) == 0:
-                return True
+            return None
         time.sleep(0.1)
-    return False
+    return None
+
+
+@dataclass(frozen=True)
+class ServedView:
+    """A view process and the port it serves on."""
+
+    proc: subprocess.Popen
+    port: int
 
 
 class ViewStartError(RuntimeError):
@@ -361,7 +382,7 @@ def view_process(
     host: str = DEFAULT_HOST,
     extra: list[str] | None = None,
     startup_timeout_s: float = 30.0,
-) -> Iterator[subprocess.Popen]:
+) -> Iterator[ServedView]:
     """``umay view`` as a child process for the run on ``prefix`` at ``endpoint``, its output
     in ``log_path``; stopped (SIGTERM, then SIGKILL) on the way out. :class:`ViewStartError`
     when it does not serve within ``startup_timeout_s``."""
@@ -374,14 +395,16 @@ def view_process(
     argv += extra or []
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("ab") as out:
+        offset = out.tell()  # the log of earlier runs stays; this run's lines follow it
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=dict(os.environ))
     try:
-        if not wait_for_port(host, port, proc, startup_timeout_s):
+        served = wait_for_serving(log_path, offset, proc, startup_timeout_s)
+        if served is None:
             tail = log_path.read_text(errors="replace").strip().splitlines()[-3:]
             raise ViewStartError(
                 f"the view did not start serving on {host}:{port}: " + " / ".join(tail)
             )
-        yield proc
+        yield ServedView(proc, served)
     finally:
         if proc.poll() is None:
             proc.terminate()

@@ -194,7 +194,7 @@ def _start_view(
 
     log_path = Path(args.log_dir) / "view.log"
     try:
-        stack.enter_context(
+        view = stack.enter_context(
             view_process(
                 prefix, endpoint, args.view_port, log_path, args.scenario, overrides,
                 host=DEFAULT_HOST,
@@ -203,7 +203,7 @@ def _start_view(
     except ViewStartError as exc:
         print(f"umay {command}: {exc} (see {log_path})", file=sys.stderr)
         return False
-    print(f"umay {command}: Foxglove view at ws://{DEFAULT_HOST}:{args.view_port}", flush=True)
+    print(f"umay {command}: Foxglove view at ws://{DEFAULT_HOST}:{view.port}", flush=True)
     return True
 
 
@@ -280,7 +280,7 @@ def cmd_service(args: argparse.Namespace) -> int:
     # A service's own level (its log says what it runs and waits for), not the command's.
     logging.getLogger().setLevel(os.environ.get("UMAY_LOG_LEVEL", "INFO"))
     module = importlib.import_module(f"services.{args.name}.node")
-    return int(module.main(args.rest))
+    return int(module.main(args.service_options))
 
 
 def cmd_status(args: argparse.Namespace) -> int:
@@ -397,9 +397,19 @@ def add_logs_parser(sub: argparse._SubParsersAction) -> None:
 
 def add_service_parser(sub: argparse._SubParsersAction) -> None:
     """``umay service``: one service alone."""
-    p = sub.add_parser("service", help="run one service alone")
-    p.add_argument("name", choices=SERVICES)
-    p.add_argument("rest", nargs=argparse.REMAINDER, help="options of the service")
+    p = sub.add_parser(
+        "service",
+        help="run one service alone",
+        description="Run one service alone; its own options follow its name "
+        "(umay service NAME --help lists them).",
+    )
+    p.add_argument("name", choices=SERVICES, metavar="NAME", help=", ".join(SERVICES))
+    p.add_argument(
+        "service_options",
+        nargs=argparse.REMAINDER,
+        metavar="...",
+        help="the service's options: --scenario, --prefix, --connect, --zenoh-config, --set",
+    )
     p.set_defaults(func=cmd_service)
 
 

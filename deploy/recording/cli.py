@@ -18,7 +18,7 @@ from common.session import open_session, where_connecting, zenoh_reason
 from deploy.arguments import NOTHING_RUNNING_THERE, positive_seconds
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_NOT_CONVERGED
 from deploy.interrupts import stop_requested
-from deploy.paths import check_output_dir, check_output_file
+from deploy.paths import check_output_dir, check_output_file, remove_created_folders
 
 
 def cmd_record(args: argparse.Namespace) -> int:
@@ -57,11 +57,13 @@ def cmd_record(args: argparse.Namespace) -> int:
     print(f"{total:8d}  messages in {args.out}")
     if recorder.lost:
         print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
-    if not total:  # the file is written all the same
+    if not total:  # a recording of nothing is no recording: nothing is left behind
+        Path(args.out).unlink(missing_ok=True)
+        remove_created_folders()
         where = where_connecting(args.connect)
         print(
-            f"umay record: nothing heard on {recorder.key_expr} at {where}: "
-            + NOTHING_RUNNING_THERE,
+            f"umay record: nothing heard on {recorder.key_expr} at {where}, so no file "
+            f"written: " + NOTHING_RUNNING_THERE,
             file=sys.stderr,
         )
         return EXIT_FAILED

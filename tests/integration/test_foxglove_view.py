@@ -4,6 +4,8 @@ schemas the server advertised or the MCAP file holds, compared with what the ser
 
 from __future__ import annotations
 
+import re
+import select
 import socket
 import subprocess
 import sys
@@ -29,12 +31,6 @@ from tests.conftest import launch_umay_up
 
 CORNER_TOL_PX = 0.01
 EE_TOL_M = 1e-6
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Sent:
@@ -134,13 +130,29 @@ def check_content(decoded: dict[str, list[tuple[int, object]]], sent: Sent) -> d
     return checked
 
 
+def announced_view_port(proc: subprocess.Popen, timeout_s: float) -> int:
+    """The port in ``umay up``'s line "Foxglove view at ws://HOST:PORT", read off its output."""
+    said: list[str] = []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
+        if ready:
+            line = proc.stdout.readline()
+            assert line, "umay up ended: " + "".join(said)
+            said.append(line)
+            found = re.search(r"Foxglove view at ws://127\.0\.0\.1:(\d+)", line)
+            if found:
+                return int(found.group(1))
+    raise AssertionError("umay up did not say where the view serves: " + "".join(said))
+
+
 @pytest.fixture(scope="module")
 def live(tmp_path_factory):
     """``umay up --view`` (lockstep) and a Zenoh listener on the same data keys."""
     tmp = tmp_path_factory.mktemp("view")
-    port = free_port()
-    proc, keys, endpoint = launch_umay_up(tmp / "logs", "lockstep", "--view", "--view-port",
-                                          str(port))  # fmt: skip
+    # Port 0: the view takes a free port, and `umay up` says which.
+    proc, keys, endpoint = launch_umay_up(tmp / "logs", "lockstep", "--view", "--view-port", "0")
+    port = announced_view_port(proc, 60)
     session = open_session(connect=[endpoint])
     sent = Sent()
     subs = [
@@ -173,7 +185,7 @@ def collect(client: FoxgloveClient) -> dict[str, list[tuple[int, object]]]:
 
 @pytest.mark.xdist_group("live_view")  # the module's live run is started once per worker
 def test_live_view_shows_the_run(live) -> None:
-    url, sent, _keys, _tmp = live
+    url, sent, _keys, tmp = live
     client = FoxgloveClient(url).start()
     try:
         enough = client.wait_for(
@@ -197,6 +209,10 @@ def test_live_view_shows_the_run(live) -> None:
     assert checked["image"] >= 3 and checked["depth"] >= 1
     logs = [decoder(advertised[topics.LOG])(r.payload) for r in client.messages(topics.LOG)]
     assert {lg.name for lg in logs} >= {"sim", "vision", "controller", "actuation"}
+    # Waiting for the view to serve opened no connection of its own (the server would log it).
+    view_log = (tmp / "logs" / "view.log").read_text()
+    assert "umay view: Foxglove WebSocket at ws://" in view_log
+    assert "handshake" not in view_log.lower(), view_log
 
 
 @pytest.mark.xdist_group("live_view")  # the module's live run is started once per worker

@@ -181,16 +181,17 @@ def test_reference_check_catches_a_sub_pixel_change_in_vision(tmp_path: Path) ->
     assert "target.corners_px[" in fields and "hand." not in fields
 
 
-def test_umay_record_that_hears_nothing_says_where_it_listened_and_exits_1(
+def test_umay_record_that_hears_nothing_says_where_it_listened_and_leaves_no_file(
     tmp_path: Path,
 ) -> None:
-    """Nothing runs under the prefix: the (empty) recording is written all the same, and the
-    exit code and a line on stderr say that nothing was heard, and where."""
-    out, endpoint, prefix = tmp_path / "empty.mcap", free_tcp_endpoint(), unique_prefix()
+    """Nothing runs under the prefix: the exit code and a line on stderr say that nothing was
+    heard, and where; no empty recording is left behind, nor the folder made for it."""
+    folder = tmp_path / "new"
+    out, endpoint, prefix = folder / "empty.mcap", free_tcp_endpoint(), unique_prefix()
     proc = umay("record", str(out), "--duration", "0.5", "--prefix", prefix, "--connect", endpoint)
     assert proc.returncode == 1, proc.stderr
-    assert f"nothing heard on {prefix}/** at {endpoint}" in proc.stderr
-    assert read_info(out).message_count == 0
+    assert f"nothing heard on {prefix}/** at {endpoint}, so no file written" in proc.stderr
+    assert not out.exists() and not folder.exists()
 
 
 def test_recorder_writes_concurrent_messages_safely(tmp_path: Path) -> None:
