@@ -34,6 +34,15 @@ from common.publishers import TypedPublisher, decode_or_fetch, typed_publisher
 M = TypeVar("M", bound=BaseModel)
 log = logging.getLogger("umay")
 
+# The longest reason a status carries: a rejection's reason quotes what the sender chose (a
+# field name, say), and a status too large to decode would have the service taken for hung.
+MAX_REASON_CHARS = 500
+
+
+def clipped(text: str, limit: int = MAX_REASON_CHARS) -> str:
+    """``text``, cut to ``limit`` characters with an ellipsis when longer."""
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
 
 class Node:
     """One service: a Zenoh session, typed pub/sub, a status queryable, a liveliness token.
@@ -225,6 +234,18 @@ class Node:
                 self._loop_waiting = False
                 self._loop_left_s = time.monotonic()
 
+    def wait_idle(self, seconds: float) -> None:
+        """Wait ``seconds`` (less once closed) as the event loop waits for input, taking no
+        event: a wait before the loop's first event (the sim's for its peers) is then not
+        taken for a start that hangs (the status's ``loop_busy_s`` is 0, not None)."""
+        with self._cond:
+            self._loop_waiting = True
+            try:
+                self._cond.wait_for(lambda: self._closed, seconds)
+            finally:
+                self._loop_waiting = False
+                self._loop_left_s = time.monotonic()
+
     def reject(self, key: str, reason: str) -> None:
         """Count a message on ``key`` the service could not use (a frame whose ring slot was
         overwritten while it was in use): as a payload that failed validation."""
@@ -233,7 +254,7 @@ class Node:
     def _reject(self, key: str, reason: str) -> None:
         with self._cond:
             self.rejected += 1
-            self.last_rejection = f"{key}: {reason}"
+            self.last_rejection = clipped(f"{key}: {reason}")
         now = time.monotonic()
         if now - self._last_reject_log > 1.0:  # rate-limited: a flood must not flood the log
             self._last_reject_log = now
@@ -258,7 +279,7 @@ class Node:
             host=socket.gethostname(),
             uptime_s=now - self._started,
             state="degraded" if reason else self.state,  # type: ignore[arg-type]
-            degraded_reason=reason,
+            degraded_reason=clipped(reason),
             # Copies (list() holds the GIL throughout): the main thread may add a key meanwhile.
             received={k: m.stats(now) for k, m in list(self.received.items())},
             published={k: p.meter.stats(now) for k, p in list(self._publishers.items())},
@@ -287,10 +308,10 @@ class Node:
 
     def loop_busy_s(self, now_s: float) -> float | None:
         """Seconds since the event loop left :meth:`next_event` (0 while it is inside)."""
+        if self._loop_waiting:  # its first wait included: a loop waiting for input has started
+            return 0.0
         left = self._loop_left_s
-        if left is None:
-            return None
-        return 0.0 if self._loop_waiting else max(0.0, now_s - left)
+        return None if left is None else max(0.0, now_s - left)
 
     def _answer_status(self, query: zenoh.Query) -> None:
         try:

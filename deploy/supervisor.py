@@ -11,9 +11,10 @@ A process can also hang without exiting: a deadlock, a native call that never re
 ``SIGSTOP``. Given a session, the supervisor asks every service for its status each second
 and kills (SIGKILL) a child whose event loop has been busy in one step, or that has not
 answered, for ``hang_timeout_s``; its restart policy then applies as to any other death.
-A child that has not answered yet is still starting, so a slow start is not taken for a hang;
-one that has answered nothing ``start_timeout_s`` after it started is (a start that never ends,
-or a hang before its first answer).
+A child that has not answered yet, or whose event loop has not started yet, is still starting,
+so a slow start is not taken for a hang; one still starting ``start_timeout_s`` after it
+started is (a start that never ends, or a hang before its loop runs). A restart that cannot
+make a process counts as a death of its own (exit 127), judged by the same policy.
 
 With ``cpu_wakeup_latency_us`` set, the supervisor holds that CPU wake-up latency request
 (:mod:`deploy.cpu_latency`) from :meth:`Supervisor.start` to :meth:`Supervisor.stop`.
@@ -22,6 +23,7 @@ With ``cpu_wakeup_latency_us`` set, the supervisor holds that CPU wake-up latenc
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import subprocess
@@ -61,6 +63,8 @@ def backoff_s(recent_restarts: int, config: SupervisorConfig) -> float:
 _FORK_REFUSALS_SAID: set[str] = set()  # why services could not be forked, as logged
 
 HEALTH_CHECK_S = 1.0  # how often the supervisor asks the services for their status
+UNDECODABLE_SAY_EVERY_S = 10.0  # a status answer that cannot be read is logged at most this often
+START_FAILED_EXIT = 127  # the exit code a start that made no process counts as (the shell's)
 KILL_WAIT_S = 5.0  # how long stop() waits for a SIGKILLed child before leaving it
 
 
@@ -83,19 +87,23 @@ def hang_reason(
 ) -> str | None:
     """Why a running child counts as hung, else None. ``unanswered_since_s``: when the first
     status query it has not answered was sent (None: it answered the last one). A child that
-    has never answered is still starting: it is judged only once ``start_timeout_s`` (0: never)
-    have passed since it started at ``started_s``, so that one that hangs before its first
-    answer is not left hanging for good."""
-    if hang_timeout_s <= 0:
-        return None
+    has not yet answered, or whose event loop has not yet started, is still starting: it is
+    judged by ``start_timeout_s`` (0: never) since it started at ``started_s``, so that one
+    that hangs during its start is not left hanging for good; ``hang_timeout_s`` (0: never)
+    judges the rest. Each timeout turns its own check off."""
+    starting_for_s = None if started_s is None else now_s - started_s
+    start_overrun = starting_for_s is not None and 0 < start_timeout_s < starting_for_s
     if heard is None:
-        if started_s is None or start_timeout_s <= 0 or now_s - started_s <= start_timeout_s:
-            return None
-        return f"no status answer in the {now_s - started_s:.1f} s since it started"
-    if unanswered_since_s is not None and now_s - unanswered_since_s > hang_timeout_s:
-        return f"no status answer for {now_s - unanswered_since_s:.1f} s"
-    if heard.loop_busy_s is not None and heard.loop_busy_s > hang_timeout_s:
-        return f"event loop stuck in one step for {heard.loop_busy_s:.1f} s"
+        if start_overrun:
+            return f"no status answer in the {starting_for_s:.1f} s since it started"
+        return None
+    if hang_timeout_s > 0:
+        if unanswered_since_s is not None and now_s - unanswered_since_s > hang_timeout_s:
+            return f"no status answer for {now_s - unanswered_since_s:.1f} s"
+        if heard.loop_busy_s is not None and heard.loop_busy_s > hang_timeout_s:
+            return f"event loop stuck in one step for {heard.loop_busy_s:.1f} s"
+    if heard.loop_busy_s is None and start_overrun:
+        return f"its event loop not started in the {starting_for_s:.1f} s since it started"
     return None
 
 
@@ -172,7 +180,9 @@ class Supervisor:
         self.session = session
         self.keys = Keys(prefix)
         self._heard: dict[tuple[str, int], Heard] = {}  # by (service, pid); Zenoh's thread
-        self._queries_s: list[float] = []  # send times of the status queries, oldest first
+        # Send times of the status queries, oldest first, as far back as a hang can reach.
+        self._queries_s: list[float] = []
+        self._undecodable_said_s = -math.inf  # when a status that failed to decode was logged
         self.extra_env = dict(env or {})
         self.zenoh_config = zenoh_config
         self.config = config or SupervisorConfig()
@@ -217,6 +227,8 @@ class Supervisor:
                     _FORK_REFUSALS_SAID.add(self.fork_refused)
                     log.warning("cannot fork the services (%s); exec'ing them", exc)
         child.process = process or exec_service(child.name, child.args, env, child.log_path)
+        # An answer an earlier process of it gave under the same (reused) pid is not this one's.
+        self._heard.pop((child.name, child.process.pid), None)
         child.started_s = time.monotonic()
         child.restart_due_s = None
         child.killed_as_hung = False
@@ -268,7 +280,10 @@ class Supervisor:
                 child.process.kill()  # works on a stopped process too; exited() sees it
                 events.append(f"{child.name} hung ({reason}); killed")
         if not self._queries_s or now - self._queries_s[-1] >= HEALTH_CHECK_S:
-            self._queries_s = [*self._queries_s[-100:], now]
+            # Kept for as long as a hang takes to show: the first query a child left
+            # unanswered must still be here once hang_timeout_s have passed since it.
+            kept_s = self.config.hang_timeout_s + 2 * HEALTH_CHECK_S
+            self._queries_s = [t for t in self._queries_s if now - t <= kept_s] + [now]
             # A late answer still shows the process alive: wait for it as long as a hang.
             timeout_s = max(HEALTH_CHECK_S, self.config.hang_timeout_s)
             self.session.get(self.keys.all_status, self._on_status, timeout=timeout_s)
@@ -277,7 +292,11 @@ class Supervisor:
     def _on_status(self, reply: zenoh.Reply) -> None:
         try:
             status = status_from_reply(reply)
-        except MessageError:  # not a status: the service judges it, not the supervisor
+        except MessageError as exc:  # a child whose answers fail will be taken for hung: say why
+            now = time.monotonic()
+            if now - self._undecodable_said_s > UNDECODABLE_SAY_EVERY_S:
+                self._undecodable_said_s = now
+                log.warning("a status answer could not be read: %s", exc)
             return
         if status is None:  # an error reply
             return
@@ -289,28 +308,40 @@ class Supervisor:
         now = time.monotonic() if now_s is None else now_s
         events = self.check_hangs(now)
         for child in self.exited():
-            code = child.exit_codes[-1]
-            window = self.config.restart_window_s
-            child.restart_times = [t for t in child.restart_times if now - t <= window]
-            if not wants_restart(self.config.policy(child.name), code):
-                events.append(f"{child.name} exited ({code}); policy says no restart")
-            elif len(child.restart_times) >= self.config.max_restarts:
-                child.given_up = True
-                events.append(
-                    f"{child.name} exited ({code}); {len(child.restart_times)} restarts in "
-                    f"{window:.0f} s, giving up"
-                )
-            else:
-                delay = backoff_s(len(child.restart_times), self.config)
-                child.restart_due_s = now + delay
-                events.append(f"{child.name} exited ({code}); restarting in {delay:.2f} s")
+            events.extend(self._after_exit(child, now))
         for child in self.children.values():
             if child.restart_due_s is not None and now >= child.restart_due_s:
                 child.restarts += 1
                 child.restart_times.append(now)
-                self.start_child(child)
+                try:
+                    self.start_child(child)
+                except OSError as exc:  # no process to start (its log gone, fork refused):
+                    # a failed start, judged by the policy as a death; the others keep running.
+                    child.restart_due_s = None
+                    child.exit_codes.append(START_FAILED_EXIT)
+                    events.append(f"{child.name} could not be restarted ({exc})")
+                    events.extend(self._after_exit(child, now))
+                    continue
                 events.append(f"{child.name} restarted (pid {child.process.pid})")
         return events
+
+    def _after_exit(self, child: Child, now: float) -> list[str]:
+        """The restart policy for ``child``, whose process just ended with its last exit code:
+        schedule a restart, or say why not."""
+        code = child.exit_codes[-1]
+        window = self.config.restart_window_s
+        child.restart_times = [t for t in child.restart_times if now - t <= window]
+        if not wants_restart(self.config.policy(child.name), code):
+            return [f"{child.name} exited ({code}); policy says no restart"]
+        if len(child.restart_times) >= self.config.max_restarts:
+            child.given_up = True
+            return [
+                f"{child.name} exited ({code}); {len(child.restart_times)} restarts in "
+                f"{window:.0f} s, giving up"
+            ]
+        delay = backoff_s(len(child.restart_times), self.config)
+        child.restart_due_s = now + delay
+        return [f"{child.name} exited ({code}); restarting in {delay:.2f} s"]
 
     def stop(self, grace_s: float | None = None) -> None:
         """SIGTERM every child, SIGKILL what is still alive after ``grace_s``."""
@@ -355,22 +386,24 @@ class Supervisor:
         return SupervisorStatus(
             cpu_wakeup_latency=self.cpu_wakeup.state,
             launch=self.launch,
-            children={
-                name: ChildStatus(
-                    pid=c.process.pid if c.process else None,
-                    running=c.process is not None,
-                    answered=c.process is not None and (name, c.process.pid) in self._heard,
-                    restarts=c.restarts,
-                    last_exit_codes=c.exit_codes[-5:],
-                    policy=self.config.policy(name).value,
-                    given_up=c.given_up,
-                    hang_kills=c.hang_kills,
-                    last_hang=c.last_hang,
-                    log=str(c.log_path),
-                )
-                for name, c in self.children.items()
-            },
+            children={name: self._child_status(name, c) for name, c in self.children.items()},
+        )
+
+    def _child_status(self, name: str, c: Child) -> ChildStatus:
+        """On a Zenoh thread: ``c.process`` is read once, as exited() may clear it meanwhile."""
+        process = c.process
+        return ChildStatus(
+            pid=process.pid if process else None,
+            running=process is not None,
+            answered=process is not None and (name, process.pid) in self._heard,
+            restarts=c.restarts,
+            last_exit_codes=c.exit_codes[-5:],
+            policy=self.config.policy(name).value,
+            given_up=c.given_up,
+            hang_kills=c.hang_kills,
+            last_hang=c.last_hang,
+            log=str(c.log_path),
         )
 
     def pids(self) -> dict[str, int | None]:
-        return {n: (c.process.pid if c.process else None) for n, c in self.children.items()}
+        return {n: (p.pid if (p := c.process) else None) for n, c in self.children.items()}

@@ -279,11 +279,13 @@ class SimService:
         """Before the first lockstep frame: wait until the other services announce themselves."""
         deadline = time.monotonic() + timeout_s
         others = set(SERVICES) - {"sim"}
+        # Waits as the event loop waiting (Node.wait_idle): the supervisor takes a loop that
+        # never started for a start that hangs.
         while not self.ctx.stop.is_set() and time.monotonic() < deadline:
             if others <= alive_services(self.ctx.session, self.ctx.keys, 0.5):
-                time.sleep(0.2)  # let their subscriptions propagate too
+                self.node.wait_idle(0.2)  # let their subscriptions propagate too
                 return
-            time.sleep(0.1)
+            self.node.wait_idle(0.1)
         log.warning("not all services announced themselves; starting anyway")
 
     def run_lockstep(self) -> None:

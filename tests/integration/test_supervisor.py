@@ -17,11 +17,11 @@ from pathlib import Path
 import pytest
 from zenoh import SampleKind
 
-from common.codec import encode
+from common.codec import DEFAULT_MAX_BYTES, encode
 from common.config import SupervisorConfig
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus, StatusFields
-from common.node import Node
+from common.node import MAX_REASON_CHARS, Node
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
 from deploy.service_process import exec_command
@@ -54,6 +54,34 @@ def test_tick_restarts_with_a_cap(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     assert child.given_up and child.restarts == 2, events
     assert child.exit_codes == [3, 3, 3]
     assert any("giving up" in e for e in events)
+
+
+def test_a_restart_that_cannot_start_a_process_is_a_death_the_others_outlive(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Vision dies, and its restart fails (its log folder is gone): a failed start counts as a
+    death (exit 127) under the restart policy, until it gives up; the sim runs on."""
+    cfg = SupervisorConfig(backoff_initial_s=0.0, max_restarts=2, restart_window_s=60.0)
+    logs = tmp_path / "logs"
+    sup = Supervisor(None, "test/x", "tcp/127.0.0.1:1", logs, services=("sim", "vision"),
+                     config=cfg)  # fmt: skip
+    stand_in(monkeypatch, [sys.executable, "-c", "import time; time.sleep(60)"])
+    sup.start()
+    try:
+        for log_file in logs.iterdir():
+            log_file.unlink()
+        logs.rmdir()
+        sup.children["vision"].process.kill()
+        vision, events = sup.children["vision"], []
+        deadline = time.monotonic() + 20
+        while not vision.given_up and time.monotonic() < deadline:
+            events += sup.tick()
+            time.sleep(0.05)
+        assert vision.given_up and vision.exit_codes == [-9, 127, 127], events
+        assert any("vision could not be restarted" in e and "vision.log" in e for e in events)
+        assert sup.children["sim"].process.poll() is None  # still running
+    finally:
+        sup.stop()
 
 
 def test_the_frame_ring_of_a_child_killed_outright_is_removed(
@@ -139,6 +167,29 @@ def test_loop_busy_s_is_zero_while_the_loop_waits_and_grows_while_it_works() -> 
         assert node.status().loop_busy_s == 0.0  # blocked in next_event: idle, not stuck
         waiting.join()
         assert node.status().loop_busy_s < 0.2
+    finally:
+        node.close()
+
+
+def test_a_node_waiting_before_its_loop_is_idle_and_its_rejections_are_clipped() -> None:
+    """``wait_idle`` (the sim waiting for its peers) reads as a loop waiting, not one that
+    never started; a rejection's reason, which quotes what the sender chose, stays short
+    enough for the status to be read."""
+    session = open_session(connect=[], listen=[free_tcp_endpoint()])
+    node = Node("sim", Keys(f"test/{os.getpid()}idle"), session)
+    try:
+        assert node.status().loop_busy_s is None
+        waiting = threading.Thread(target=node.wait_idle, args=(1.0,))
+        waiting.start()
+        time.sleep(0.2)
+        assert node.status().loop_busy_s == 0.0
+        waiting.join()
+        assert node.status().loop_busy_s < 0.2
+        node.reject("test/k", "x" * 70_000)
+        status = node.status()
+        assert len(status.last_rejection) == MAX_REASON_CHARS
+        assert status.last_rejection.startswith("test/k: xxx") and status.last_rejection[-1] == "…"
+        assert len(encode(status)) < DEFAULT_MAX_BYTES
     finally:
         node.close()
 

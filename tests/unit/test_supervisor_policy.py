@@ -63,4 +63,58 @@ def test_a_child_that_never_answers_is_judged_after_the_start_timeout() -> None:
     reason = hang_reason(None, 1.0, 21.5, 5.0, started_s=1.0, start_timeout_s=20.0)
     assert reason == "no status answer in the 20.5 s since it started"
     assert hang_reason(None, 1.0, 99.0, 5.0, started_s=1.0, start_timeout_s=0.0) is None  # off
-    assert hang_reason(None, 1.0, 99.0, 0.0, started_s=1.0, start_timeout_s=20.0) is None
+    # Each timeout turns only its own check off.
+    reason = hang_reason(None, 1.0, 99.0, 0.0, started_s=1.0, start_timeout_s=20.0)
+    assert reason == "no status answer in the 98.0 s since it started"
+
+
+def test_a_child_whose_loop_never_starts_is_judged_after_the_start_timeout() -> None:
+    """It answers (the node answers from its construction on) but hangs before its event
+    loop's first wait: still starting until ``start_timeout_s``, then hung."""
+    not_started = Heard(pid=1, at_s=20.5, loop_busy_s=None)
+    assert hang_reason(not_started, None, 20.9, 5.0, started_s=1.0, start_timeout_s=20.0) is None
+    reason = hang_reason(not_started, None, 21.5, 5.0, started_s=1.0, start_timeout_s=20.0)
+    assert reason == "its event loop not started in the 20.5 s since it started"
+    assert hang_reason(not_started, None, 99.0, 5.0, started_s=1.0, start_timeout_s=0.0) is None
+    started = Heard(pid=1, at_s=20.5, loop_busy_s=0.0)
+    assert hang_reason(started, None, 99.0, 5.0, started_s=1.0, start_timeout_s=20.0) is None
+
+
+class _Silent:
+    """A child's process that runs and never exits (nor answers: nothing answers here)."""
+
+    pid = 4242
+    returncode = None
+
+    def poll(self) -> int | None:
+        return self.returncode
+
+    def kill(self) -> None:
+        self.returncode = -9
+
+
+class _Session:
+    def get(self, *_args, **_kwargs) -> None:  # the queries go nowhere
+        pass
+
+
+def test_a_child_silent_for_a_long_hang_timeout_is_still_killed(tmp_path) -> None:
+    """The queries kept reach as far back as ``hang_timeout_s`` (up to the 300 s the config
+    allows): a child that answered once and then fell silent is killed that long after."""
+    from deploy.supervisor import Supervisor
+
+    cfg = SupervisorConfig(hang_timeout_s=150.0, start_timeout_s=0.0)
+    sup = Supervisor(
+        None, "test/x", "tcp/127.0.0.1:1", tmp_path, services=("vision",), config=cfg,
+        session=_Session(),
+    )  # fmt: skip
+    child = sup.children["vision"]
+    process = child.process = _Silent()
+    sup._heard[("vision", process.pid)] = Heard(process.pid, at_s=0.5, loop_busy_s=0.0)
+    killed_at = None
+    for now in range(400):
+        if sup.check_hangs(float(now)):
+            killed_at = now
+            break
+    assert killed_at == 152 and child.last_hang == "no status answer for 151.0 s"
+    assert len(sup._queries_s) <= 153
