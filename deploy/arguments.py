@@ -40,6 +40,12 @@ def at_least_one(value: str) -> int:
     return _whole_number(value, 1, None, "a whole number, at least 1")
 
 
+def a_seed(value: str) -> int:
+    """argparse type of a random seed: a whole number, 0 or more (numpy's generators refuse
+    negative ones)."""
+    return _whole_number(value, 0, None, "a seed, a whole number 0 or more")
+
+
 # What a tool that hears nothing says after where it looked (status, record, view).
 NOTHING_RUNNING_THERE = (
     "nothing running there? (`umay up` starts the services; --prefix and --connect look elsewhere)"

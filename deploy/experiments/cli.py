@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from common.config import ScenarioError
+from deploy.arguments import a_seed, at_least_one
 from deploy.consoles import progress_bar, progress_console
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 from deploy.experiments.compare import ALL_MODES
@@ -238,7 +239,9 @@ def add_campaign_parser(sub: argparse._SubParsersAction) -> None:
         "start_0003) or indices; the same starts as in the whole campaign, to see some of its "
         "runs again (with figures, the first one's runs are recorded and plotted)",
     )
-    p.add_argument("--seed", type=int, default=None, help="instead of the distribution file's seed")
+    p.add_argument(
+        "--seed", type=a_seed, default=None, help="instead of the distribution file's seed"
+    )
     p.add_argument(
         "--distribution",
         default=str(DEFAULT_DISTRIBUTION),
@@ -337,10 +340,6 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 def cmd_accuracy(args: argparse.Namespace) -> int:
     from common.config import load_scenario
     from common.runtime import parse_overrides
-
-    if args.frames < 1 or args.seed < 0:
-        print("umay accuracy: --frames must be at least 1, --seed 0 or more", file=sys.stderr)
-        return EXIT_BAD_INPUT
     from deploy.launch.reachability import check_scenario
 
     try:
@@ -376,8 +375,8 @@ def add_accuracy_parser(sub: argparse._SubParsersAction) -> None:
     """``umay accuracy``: vision against the simulator's truth."""
     p = sub.add_parser("accuracy", help="vision against ground truth under sensor conditions")
     p.add_argument("--scenario", action="append", default=None, help="scenario TOML (repeatable)")
-    p.add_argument("--frames", type=int, default=100, help="postures per scenario")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--frames", type=at_least_one, default=100, help="postures per scenario")
+    p.add_argument("--seed", type=a_seed, default=0, help="the postures' and noise's seed (0)")
     p.add_argument("--json", default=None, metavar="OUT.json", help="write the results here")
     p.add_argument("--set", action="append", default=[], metavar="TABLE.FIELD=VALUE")
     p.set_defaults(func=cmd_accuracy)

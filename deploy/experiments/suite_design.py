@@ -42,9 +42,9 @@ WHOLE = 0.99  # fraction of a marker's square that must show the marker itself
 class StartReport:
     """What the camera sees at the start and at the goal (from the true camera pose)."""
 
-    hand_range_m: float  # nearest hand-marker corner from the camera, at the start
-    goal_range_m: float  # ... at the goal
-    target_range_m: float
+    hand_depth_m: float  # nearest hand-marker corner's depth (along the optical axis), at start
+    goal_depth_m: float  # ... at the goal
+    target_depth_m: float
     target_centre_px: tuple[float, float]  # (u, v) of the red square's centre
     target_side_px: float  # its mean side length in the image
     gap_px: float  # smallest distance between the two squares' corners in the image
@@ -65,9 +65,10 @@ class StartReport:
 
 
 def min_range_m(scenario: Scenario) -> float:
-    """How near the camera a marker may come: the Kinect model's near limit (0.4 m) plus 3 cm
-    when it is on (its depth is invalid below the limit), plus 1 cm with exact depth (the
-    default scenario's own start is at 0.419 m)."""
+    """How shallow in the image a marker's corner may be: the Kinect model's near limit
+    (0.4 m deep) plus 3 cm when it is on (its depth is invalid below the limit), plus 1 cm with
+    exact depth, valid at any depth (the default scenario's own start is 0.408 m deep, so the
+    check flags it: kept as the thesis's start)."""
     kinect = scenario.camera.kinect
     margin = KINECT_RANGE_MARGIN_M if kinect.enabled else PERFECT_RANGE_MARGIN_M
     return kinect.min_range_m + margin
@@ -132,9 +133,13 @@ def goal_on_start_branch(scenario: Scenario) -> np.ndarray:
     return check_scenario(scenario)
 
 
-def _nearest_range_m(pose: np.ndarray, scenario: Scenario) -> float:
+def nearest_depth_m(pose: np.ndarray, scenario: Scenario) -> float:
+    """The smallest depth of a marker's corners at ``pose``: the distance along the camera's
+    optical axis, which the Kinect's near limit bounds (its depth image is cut by depth, not
+    by the distance from the lens, which is larger off the axis)."""
     corners = kin.marker_corners(pose, scenario.marker.size_m)
-    return float(np.min(np.linalg.norm(corners - scenario.camera.pose()[:3, 3], axis=1)))
+    camera = scenario.camera.pose()
+    return float(np.min((corners - camera[:3, 3]) @ camera[:3, 2]))
 
 
 def check_start(scenario: Scenario) -> StartReport:
@@ -168,9 +173,9 @@ def check_start(scenario: Scenario) -> StartReport:
     report = {
         "target_centre_px": tuple(float(v) for v in truth.target_corners_px.mean(axis=0)),
         "target_side_px": float(np.mean(sides)),
-        "hand_range_m": _nearest_range_m(hand, scenario),
-        "goal_range_m": _nearest_range_m(goal, scenario),
-        "target_range_m": _nearest_range_m(truth.target_marker_pose, scenario),
+        "hand_depth_m": nearest_depth_m(hand, scenario),
+        "goal_depth_m": nearest_depth_m(goal, scenario),
+        "target_depth_m": nearest_depth_m(truth.target_marker_pose, scenario),
         "gap_px": gap,
         "hand_fraction": seen["hand"].fraction,
         "target_fraction": seen["target"].fraction,
@@ -184,7 +189,7 @@ def check_start(scenario: Scenario) -> StartReport:
     }
     problems = []
     nearest = min_range_m(scenario)
-    for name in ("hand_range_m", "goal_range_m", "target_range_m"):
+    for name in ("hand_depth_m", "goal_depth_m", "target_depth_m"):
         if report[name] < nearest:
             problems.append(f"{name} {report[name]:.3f} m below {nearest:.2f} m")
     if not marker_in_image(kin.marker_corners(goal, scenario.marker.size_m), scenario):
@@ -221,17 +226,17 @@ def moved_target_problems(scenario: Scenario) -> list[str]:
         check_scenario(ended)
     except ScenarioError as exc:
         return [f"after its move to {np.round(moved, 3).tolist()}: {exc}"]
-    nearest = _nearest_range_m(goal_pose(ended), ended)
+    nearest = nearest_depth_m(goal_pose(ended), ended)
     if nearest < min_range_m(ended):
-        return [f"after its move the goal is {nearest:.3f} m from the camera"]
+        return [f"after its move the goal is {nearest:.3f} m deep in the image"]
     return []
 
 
 def format_report(name: str, r: StartReport) -> str:
     verdict = "ok" if r.ok else "PROBLEM: " + "; ".join(r.problems)
     return (
-        f"{name:28s} start {r.offset_mm:5.0f} mm {r.turn_deg:5.1f} deg from goal | range hand "
-        f"{r.hand_range_m:.3f} goal {r.goal_range_m:.3f} target {r.target_range_m:.3f} m | "
+        f"{name:28s} start {r.offset_mm:5.0f} mm {r.turn_deg:5.1f} deg from goal | depth hand "
+        f"{r.hand_depth_m:.3f} goal {r.goal_depth_m:.3f} target {r.target_depth_m:.3f} m | "
         f"target at ({r.target_centre_px[0]:.0f}, {r.target_centre_px[1]:.0f}) px, side "
         f"{r.target_side_px:.0f} px | gap {r.gap_px:5.0f} px | seen hand {r.hand_fraction:.3f} "
         f"target {r.target_fraction:.3f} at goal {r.goal_hand_fraction:.3f} | joint margin "

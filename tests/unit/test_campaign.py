@@ -224,6 +224,17 @@ def test_bad_campaign_input_exits_2_before_any_start_is_drawn(
     assert not (tmp_path / "out").exists()
 
 
+def test_a_seed_given_to_the_campaign_is_checked_as_the_files_own() -> None:
+    """Called from code, not argparse: a negative seed is refused by name, not by numpy
+    later, while the starts are drawn."""
+    from deploy.experiments.campaign.run import campaign_inputs
+    from deploy.experiments.compare import CompareError
+
+    assert campaign_inputs(1, seed=7)[0].seed == 7
+    with pytest.raises(CompareError, match="--seed -3: Input should be greater than or equal"):
+        campaign_inputs(1, seed=-3)
+
+
 @pytest.mark.parametrize("index", [0, 102])  # a goal constant holds, and one it leaves
 def test_a_starts_goal_stability_is_what_the_controller_measures_there(index: int) -> None:
     """The campaign judges each goal from the true geometry; the controller computes the same

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from common.config import Scenario, ScenarioError, load_scenario
 from common.runtime import parse_overrides
 from deploy.experiments.campaign.report import campaign_rows, starts_json, taxonomy_markdown
@@ -82,8 +84,11 @@ def campaign_inputs(
     if n < 1:
         raise CompareError(f"--n: at least 1 start, not {n}")
     dist, base_path = load_distribution(distribution_path)
-    if seed is not None:
-        dist = dist.model_copy(update={"seed": seed})
+    if seed is not None:  # validated as the file's own seed is (model_copy would not)
+        try:
+            dist = Distribution.model_validate({**dist.model_dump(), "seed": seed})
+        except ValidationError as exc:
+            raise CompareError(f"--seed {seed}: {exc.errors()[0]['msg']}") from exc
     try:
         base = load_scenario(base_path, parse_overrides(list(overrides)))
     except ScenarioError as exc:

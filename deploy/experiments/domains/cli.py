@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from deploy.arguments import at_least_one
+from deploy.arguments import a_seed, at_least_one
 from deploy.consoles import progress_bar, progress_console
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_OK
 from deploy.interrupts import stop_requested
@@ -39,7 +39,7 @@ def add_domains_parser(sub: argparse._SubParsersAction) -> None:
         metavar="FILE.toml",
         help="the study's grid, draws and seed (default: deploy/domains/study.toml)",
     )
-    p.add_argument("--seed", type=int, default=None, help="instead of the study file's seed")
+    p.add_argument("--seed", type=a_seed, default=None, help="instead of the study file's seed")
     p.add_argument(
         "--draws", type=at_least_one, default=None, help="draws per cell, instead of the file's"
     )
