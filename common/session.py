@@ -92,9 +92,28 @@ def _base_config(
     return cfg
 
 
+# Protocols whose address ends in ``:port``: Zenoh's parser takes any port there, and a session
+# told to connect to port 99999 only retries in silence.
+PORTED_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
+
+
+def _port_problem(endpoint: str) -> str:
+    """Why ``endpoint``'s port is not a TCP/UDP port, or "" (no port to check)."""
+    protocol, _, address = endpoint.partition("/")
+    if protocol not in PORTED_PROTOCOLS:
+        return ""
+    _host, colon, port = address.split("?", 1)[0].split("#", 1)[0].rpartition(":")
+    if not colon:
+        return "no :port after its address"
+    if not (port.isdigit() and int(port) <= 65535):
+        return f"port {port!r} is not 0-65535"
+    return ""
+
+
 def check_endpoints(value: str) -> list[str]:
     """The comma-separated Zenoh endpoints in ``value`` (``tcp/127.0.0.1:7447,...``), each
-    checked by Zenoh's own parser; ValueError naming the first bad one and why."""
+    checked by Zenoh's own parser and for a port in range; ValueError naming the first bad
+    one and why."""
     endpoints = [e.strip() for e in value.split(",")]
     for endpoint in endpoints:
         try:
@@ -104,6 +123,9 @@ def check_endpoints(value: str) -> list[str]:
                 f"invalid endpoint {endpoint!r}: expected <protocol>/<address>[?<metadata>], "
                 f"e.g. {DEFAULT_ENDPOINT}"
             ) from None
+        problem = _port_problem(endpoint)
+        if problem:
+            raise ValueError(f"invalid endpoint {endpoint!r}: {problem}")
     return endpoints
 
 

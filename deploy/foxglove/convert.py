@@ -179,8 +179,8 @@ class ViewState:
         back by more than :data:`RESTART_BACK_S`. Kept, this state would hold the old run's
         trail and clock, and send no fixed scene or calibration until the new run passed the
         old one's time."""
-        if run and self.run and run != self.run:
-            return True
+        if run and self.run:  # both stamped: the run decides (a stop may carry any time)
+            return run != self.run
         return t_s < self.sim_time_s - RESTART_BACK_S
 
     def continued(self, message: Any) -> ViewState:

@@ -169,10 +169,10 @@ def twist_to_joint_velocities(
     dt_s: float = 0.0,
 ) -> JointCommand:
     """``q̇ = J⁺_δ(q) · V_e`` (thesis eq. 5.36) with the joints held back by a near limit
-    leaving their share of the twist to the others (:func:`redistribute_at_limits`), then the
-    safety limits in order of authority: acceleration (soft: shapes the motion), then joint
-    position and speed limits (hard: always hold, even if that means a sharper change), then
-    a last finite-value guard."""
+    leaving their share of the twist to the others (:func:`redistribute_at_limits`), a
+    finite-value guard on that (a zero command instead), then the safety limits in order of
+    authority: acceleration (soft: shapes the motion), then joint position and speed limits
+    (hard: always hold, even if that means a sharper change)."""
     jac = kin.geometric_jacobian(q_rad)
     w = kin.manipulability(jac)
     delta = damping_for(w, damping_max, threshold)

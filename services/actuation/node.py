@@ -65,6 +65,7 @@ class ActuationService:
         self.pairer: FramePairer[EndEffectorTwist, JointState] = FramePairer()
         self.last_output: JointVelocityCommand | None = None
         self.limiter = LimiterState()  # the command the motors follow now
+        self.sim_time_s = 0.0  # the newest input's sim time: a deadman stop's (it has none)
 
     def deadman_active(self) -> bool:
         return deadman_expired(
@@ -101,6 +102,7 @@ class ActuationService:
 
     def on_pair(self, twist: EndEffectorTwist, joints: JointState) -> None:
         t, seq = twist.header.sim_time_s, twist.header.frame_seq
+        self.sim_time_s = max(self.sim_time_s, t)
         if twist.valid:
             if not self.lockstep and self.deadman_active():
                 # No fresh twist for the deadman's time: the motors were stopped, by the
@@ -141,7 +143,7 @@ class ActuationService:
         ):
             self.last_deadman_s = now
             self.deadman_stops += 1
-            self.publish(np.zeros(kin.N_JOINTS), "deadman", 0.0, -1)
+            self.publish(np.zeros(kin.N_JOINTS), "deadman", self.sim_time_s, -1)
 
     def on_event(self, key: str, msg: EndEffectorTwist | JointState) -> None:
         if not self.runs.admit(msg.header.run, self.new_run):

@@ -106,6 +106,8 @@ def test_controller_killed_and_not_restarted_motors_stop_within_300_ms(tmp_path:
             f"to the motors {applied_ms:.0f} ms after; {len(later)} encoder samples since"
         )
         assert stop[1].reason == "deadman"
+        # Stamped with the time of the run it stops (a view or recording plots it there).
+        assert stop[1].header.sim_time_s > 0.0 and stop[1].header.frame_seq == -1
         # The stop is counted where a user looks for it.
         actuation = {v.name: v for v in collect(session, keys, 1.0)}["actuation"].status
         assert actuation.fields["deadman_stops"] >= 1

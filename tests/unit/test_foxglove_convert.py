@@ -236,6 +236,17 @@ def test_a_sim_restarted_early_is_told_by_its_run_not_its_time(scenario: Scenari
     assert state.restarted(12, 0.03)  # a new run, 0.77 s back in time
 
 
+def test_a_message_of_the_same_run_earlier_in_time_is_not_a_new_run(scenario: Scenario) -> None:
+    """A stamped message is judged by its run alone: a stop of the run seen, stamped with an
+    earlier time (a deadman stop once carried 0 s), does not start the view afresh."""
+    state = convert.ViewState(scenario)
+    later = features(scenario, 1.87, seq=56)
+    later = later.model_copy(update={"header": later.header.model_copy(update={"run": 3})})
+    state.on_message(FEATURES, later)
+    assert not state.restarted(3, 0.0) and state.continued(later) is state
+    assert state.restarted(4, 0.0)
+
+
 def test_status_logs_warn_of_a_silent_service() -> None:
     st = ServiceStatus(service="vision", pid=12, host="h", uptime_s=3.0, state="running")
     outs = convert.status_logs([st], 4.0)

@@ -33,9 +33,10 @@ def failure_cause(row: CompareRow, manipulability_threshold: float = 0.002) -> s
     stalled)``: the run ended stalled above the threshold, no limit to blame); *acquisition
     failed*; *error*;
     *collision* with what the arm pressed on (``collision (object)``: it touched the scenery,
-    whatever followed, which a servo law cannot undo by itself); a run ended holding: *marker
-    left the image* when the hand marker was at or past the image border, else *stuck* with
-    what it waited for (from the detail); a run still servoing at its end: *joint limit*
+    whatever followed, which a servo law cannot undo by itself); *marker left the image* when
+    at the end the hand marker was at or past the image border (holding or servoing); a run
+    ended holding: *stuck* with what it waited for (from the detail); a run still servoing at
+    its end: *joint limit*
     (a joint inside the actuation's slow-down zone at the end, :data:`JOINT_LIMIT_MARGIN_DEG`),
     *singularity* (least manipulability below the actuation's damping threshold), else
     *local minimum (against the clearance)* (stalled with the hand held above the object by
