@@ -10,8 +10,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from common.config import ClockMode, Scenario, ScenarioError
+from deploy.arguments import at_least_one
 from deploy.exit_codes import EXIT_BAD_INPUT
 from deploy.paths import FIGURE_SUFFIXES, check_output_dir, check_output_file
+
+DEFAULT_PAIRS = 3  # pairs of runs of --alternate
 
 if TYPE_CHECKING:
     from deploy.bench.report import BenchReport
@@ -32,19 +35,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.mode not in {c.value for c in ClockMode}:
         print(f"umay bench: --mode {args.mode!r}: lockstep or realtime", file=sys.stderr)
         return EXIT_BAD_INPUT
-    if (
-        args.frames < 2
-        or args.warmup < 0
-        or (args.synthetic_frames or 0) < 0
-        or args.repeat < 1
-        or args.pairs < 1
-    ):
+    if args.frames < 2 or args.warmup < 0 or (args.synthetic_frames or 0) < 0 or args.repeat < 1:
         print(
-            "umay bench: --frames >= 2, --repeat and --pairs >= 1, --warmup and "
-            "--synthetic-frames >= 0",
+            "umay bench: --frames >= 2, --repeat >= 1, --warmup and --synthetic-frames >= 0",
             file=sys.stderr,
         )
         return EXIT_BAD_INPUT
+    if args.pairs is not None and args.alternate is None:
+        print("umay bench: --pairs counts the pairs of --alternate: give it too", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    args.pairs = DEFAULT_PAIRS if args.pairs is None else args.pairs
     if args.alternate is not None and (args.figure or args.view):
         print(
             "umay bench: --alternate compares headline figures: no --figure or --view with it",
@@ -289,7 +289,12 @@ def add_bench_parser(sub: argparse._SubParsersAction) -> None:
         help="judge one change: run the bench without and with this --set item in turns "
         "(--pairs pairs) and compare their headline figures; --json writes the pairs",
     )
-    p.add_argument("--pairs", type=int, default=3, help="pairs of runs with --alternate")
+    p.add_argument(
+        "--pairs",
+        type=at_least_one,
+        default=None,
+        help=f"pairs of runs with --alternate ({DEFAULT_PAIRS})",
+    )
     p.add_argument(
         "--workflows",
         action="store_true",

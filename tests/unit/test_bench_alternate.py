@@ -109,7 +109,11 @@ def test_the_report_round_trips_and_the_docs_block_renders_it(tmp_path: Path) ->
             ["--alternate", "supervisor.cpu_wakeup_latency_us=-1"],
             "supervisor.cpu_wakeup_latency_us",
         ),
-        (["--alternate", "supervisor.cpu_wakeup_latency_us=0", "--pairs", "0"], "--pairs >= 1"),
+        (
+            ["--alternate", "supervisor.cpu_wakeup_latency_us=0", "--pairs", "0"],
+            "--pairs: '0': a whole number, at least 1",
+        ),
+        (["--pairs", "3"], "--pairs counts the pairs of --alternate: give it too"),
         (["--alternate", "x.y=1", "--figure", "out.png"], "no --figure or --view"),
     ],
 )
