@@ -18,7 +18,8 @@ from common.camera import CameraIntrinsics
 N_JOINTS = 6
 
 # Sane ranges: a value outside them is a fault, not a command to follow.
-Pixel = Annotated[float, Field(ge=-1e4, le=1e4)]
+PIXEL_LIMIT_PX = 1e4
+Pixel = Annotated[float, Field(ge=-PIXEL_LIMIT_PX, le=PIXEL_LIMIT_PX)]
 Metres = Annotated[float, Field(ge=-50.0, le=50.0)]
 Depth = Annotated[float, Field(ge=0.0, le=50.0)]
 Angle = Annotated[float, Field(ge=-7.0, le=7.0)]  # rad, a little over ±2π

@@ -56,7 +56,6 @@ class ControllerService:
         self.lifted = False  # the last twist was
         self.hand_predicted = False  # the last twist servoed on the hand carried by the encoders
         self.progress = Progress()  # whether servoing still brings the error down
-        self.events_end_s = scenario.events_end_s  # progress counts once they are over
 
     def status_fields(self) -> ControllerStatus:
         since = self.hold_since_s
@@ -113,8 +112,9 @@ class ControllerService:
         self.lifted = out.lifted
         self.hand_predicted = out.hand_predicted
         # On the goal (umay up holds it there) the error has nothing left to fall by.
+        # The scenario's scripted events are not the controller's to know (the camera and the
+        # encoders are all it has): the run's judge, not this status, waits for their end.
         servoing = out.phase == "servoing" and not out.converged
-        servoing = servoing and self.sim_time_s >= self.events_end_s
         self.progress = self.progress.after(self.sim_time_s, out.error_px_rms, servoing)
         self.last_output = twist_message(
             out,

@@ -21,7 +21,7 @@ class Progress:
 
     def after(self, t_s: float, error_px: float, servoing: bool) -> Progress:
         """The progress after a step at sim time ``t_s`` with image error ``error_px``; a step
-        that is not servoing (holding, acquiring, the scenario's events going on) restarts it."""
+        that is not servoing (holding, acquiring) restarts it."""
         if not servoing:
             return Progress()
         if self.best_px is None or error_px < (1.0 - STALL_PROGRESS) * self.best_px:

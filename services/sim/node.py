@@ -22,7 +22,6 @@ Clock modes:
 from __future__ import annotations
 
 import logging
-import math
 import time
 
 import numpy as np
@@ -46,7 +45,7 @@ from common.runs import new_run
 from common.runtime import ServiceContext
 from common.session import ENV_SHM
 from services.sim.motors import bounded_at_angles, motor_velocities
-from services.sim.schedule import DepthSchedule
+from services.sim.schedule import DepthSchedule, frames_missed
 from services.sim.status import SimStatus
 from services.sim.truth import truth_message
 from services.sim.world import World
@@ -59,12 +58,15 @@ class SimService:
         self.ctx = ctx
         self.scenario = ctx.scenario
         self.world = World(ctx.scenario)
-        self.period_s = 1.0 / ctx.scenario.camera.rgb_hz
+        # The camera period in whole physics steps, as lockstep and the depth schedule have it
+        # (1/rgb_hz would put realtime frames off the depth ticks' grid).
+        self.period_s = ctx.scenario.frame_period_s
         self.substeps = substeps_per_frame(ctx.scenario.camera.rgb_hz, self.world.physics_dt_s)
         self.frame_seq = 0
         self.run_id = new_run()  # on every message: a restarted sim is a new run (common.runs)
         self.depth_schedule = DepthSchedule.of(ctx.scenario.camera, ctx.scenario.frame_period_s)
         self._last_frame: list[tuple[TypedPublisher, object]] = []  # for a lockstep resend
+        self._last_depth: DepthFrame | None = None  # the newest depth image, for a resend
         self.dropped_frames = 0
         self.render_ms = 0.0
         self.started_s = time.monotonic()
@@ -177,14 +179,16 @@ class SimService:
         # vision has both when the colour frame arrives.
         if depth_m is not None:
             self.depth_schedule = self.depth_schedule.taken(t, seq)
-            put(
-                self.pub_depth,
-                DepthFrame(
-                    header=self.node.header(t, seq, run=self.run_id),
-                    intrinsics=self.world.depth_intrinsics,
-                    depth_m=ImageData.view_of(depth_m),
-                ),
+            self._last_depth = DepthFrame(
+                header=self.node.header(t, seq, run=self.run_id),
+                intrinsics=self.world.depth_intrinsics,
+                depth_m=ImageData.view_of(depth_m),
             )
+            put(self.pub_depth, self._last_depth)
+        elif self._last_depth is not None:
+            # Not put now, but put again with a resend: a vision started since the depth
+            # image was taken has not got the one this frame names.
+            messages.append((self.pub_depth, self._last_depth))
         rgb_header = self.node.header(t, seq, run=self.run_id)
         put(
             self.pub_rgb,
@@ -351,8 +355,8 @@ class SimService:
                 if behind > 0:
                     apply_commands(0.0)
             waiting = awaited is not None and time.monotonic() - awaited_since < wait_s
-            if self.world.sim_time_s >= next_frame_s and not waiting:
-                missed = math.floor((self.world.sim_time_s - next_frame_s) / self.period_s)
+            missed = frames_missed(self.world.sim_time_s, next_frame_s, self.period_s)
+            if missed is not None and not waiting:
                 self.dropped_frames += missed
                 self.publish_frame()
                 awaited, awaited_since = self.frame_seq, time.monotonic()

@@ -48,3 +48,16 @@ class DepthSchedule:
             depth_frame_seq=frame_seq,
             depth_images=self.depth_images + 1,
         )
+
+
+def frames_missed(t_s: float, next_frame_s: float, period_s: float) -> int | None:
+    """Realtime: is a colour frame due at sim time ``t_s``, the next one on the camera's grid
+    being at ``next_frame_s`` (``period_s`` apart)? None if not yet; else how many ticks of
+    the grid went by without a frame (0: none missed). Compared within
+    :data:`TIME_EPSILON_S`: physics steps summed one by one fall a hair short of the frame
+    times they meet (8 × 1/240 s < 1/30 s in floating point), which would send every frame
+    a physics step late."""
+    late_s = t_s + TIME_EPSILON_S - next_frame_s
+    if late_s < 0:
+        return None
+    return int(late_s // period_s)

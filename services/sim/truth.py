@@ -11,8 +11,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from common.camera import CameraIntrinsics, project
 from common.kinematics import FloatArray
-from common.messages import Header, SimTruth
+from common.messages import PIXEL_LIMIT_PX, Header, SimTruth
+
+LARGEST_BOX_PX = 16  # a quad's bounding box this many images large is measured, not drawn
 
 
 @dataclass(frozen=True)
@@ -38,6 +41,12 @@ def square_pixels(
     quad = centre + (corners_px - centre) * (1.0 + grow_px / radius)
     lo = np.floor(quad.min(axis=0)).astype(int) - 1
     hi = np.ceil(quad.max(axis=0)).astype(int) + 2
+    if (hi[1] - lo[1]) * (hi[0] - lo[0]) > LARGEST_BOX_PX * shape[0] * shape[1]:
+        # A quad far larger than the image (its corners far out of view): the pixels in the
+        # image drawn alone, its size counted as its area, not a box of 10⁸ pixels drawn.
+        mask = np.zeros(shape[:2], np.uint8)
+        cv2.fillConvexPoly(mask, np.round(quad * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+        return mask > 0, round(cv2.contourArea(quad.astype(np.float32)))
     box = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
     cv2.fillConvexPoly(box, np.round((quad - lo) * 16).astype(np.int32), 1, cv2.LINE_8, 4)
     mask = np.zeros(shape[:2], bool)
@@ -46,6 +55,21 @@ def square_pixels(
     if r1 > r0 and c1 > c0:
         mask[r0:r1, c0:c1] = box[r0 - lo[1] : r1 - lo[1], c0 - lo[0] : c1 - lo[0]] > 0
     return mask, int(np.count_nonzero(box))
+
+
+# A corner this near the camera's plane, or behind it, has no image point: it is placed as if
+# this deep, far out on its own side of the image, then within the wire's pixel range.
+NEAREST_PROJECTED_M = 1e-3
+
+
+def truth_corners_px(corners_cam_m: FloatArray, k: CameraIntrinsics) -> FloatArray:
+    """The image points of a marker's corners (N×3, optical frame) for judging a run, also
+    when the marker is far out of view or behind the camera (as a random posture can put it):
+    beyond the image on the side it lies, within :data:`PIXEL_LIMIT_PX` of the wire, never a
+    projection through the camera's centre that would fall back inside the image."""
+    c = np.asarray(corners_cam_m, dtype=float)
+    in_front = np.column_stack([c[:, :2], np.maximum(c[:, 2], NEAREST_PROJECTED_M)])
+    return np.clip(project(in_front, k), -PIXEL_LIMIT_PX, PIXEL_LIMIT_PX)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from common import kinematics as kin
-from common.camera import CameraIntrinsics, project
+from common.camera import CameraIntrinsics
 from common.config import Scenario
 from services.sim.bullet import BulletClient, pybullet
 from services.sim.events import SceneState, scene_state
@@ -30,7 +30,7 @@ from services.sim.renderers import close_renderer, open_renderer
 from services.sim.scenery import HalfSpace, view_frustum, visible_box
 from services.sim.sensor_model import exposed_rgb, noisy_depth
 from services.sim.shapes import VisualShape, body_ids, shape_poses, visual_shapes
-from services.sim.truth import MarkerView, Truth, square_pixels
+from services.sim.truth import MarkerView, Truth, square_pixels, truth_corners_px
 from services.sim.urdf import (
     CUE_RGBA,
     TORSO_CENTRE_M,
@@ -441,7 +441,7 @@ class World:
         def corners_px(pose: FloatArray) -> FloatArray:
             c = kin.marker_corners(pose, size)
             c_cam = (cam_inv @ np.column_stack([c, np.ones(4)]).T).T[:, :3]
-            return project(c_cam, self.intrinsics)
+            return truth_corners_px(c_cam, self.intrinsics)
 
         contact_n, contact_with = self.arm_contacts()
         return Truth(

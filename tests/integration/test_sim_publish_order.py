@@ -101,3 +101,53 @@ def test_the_joint_state_and_truth_go_before_the_frame_and_its_timing_after_its_
         # ... with the command that answered the frame.
         assert [a.frame_seq for a in got[seq].applied] == [seq]
         assert got[seq].frame_send_time_s >= got[seq].capture_time_s >= got[seq].render_start_s
+
+
+def test_a_resend_puts_again_the_depth_image_its_frame_names(tmp_path: Path) -> None:
+    """Depth at 1 Hz: frame 1 carries no depth image of its own but names frame 0's. Left
+    unanswered, frame 1 is sent again with that depth image before it, so a vision started
+    since frame 0 measures it at once instead of waiting for the next depth tick."""
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    session = open_session(connect=[], listen=[endpoint])
+    arrivals: list[tuple[str, int]] = []
+    runs: set[int] = set()
+    lock = threading.Condition()
+
+    def on_sim(sample) -> None:
+        suffix = str(sample.key_expr).removeprefix(f"{keys.prefix}/sim/")
+        if suffix in ("depth", "rgb"):
+            header = unpack(sample.payload.to_bytes())["header"]
+            with lock:
+                runs.add(int(header["run"]))
+                arrivals.append((suffix, int(header["frame_seq"])))
+                lock.notify_all()
+
+    subs = [session.declare_subscriber(f"{keys.prefix}/sim/**", on_sim)]
+    stand_ins = [Node(name, keys, session) for name in ("vision", "controller", "actuation")]
+    for node in stand_ins:
+        node.ready()
+    commands = stand_ins[2].publisher(keys.joint_command)
+    overrides = ["camera.depth_hz=1.0", "sim.lockstep_resend_s=0.3"]
+    sup = Supervisor(None, keys.prefix, endpoint, tmp_path, overrides, services=("sim",))
+    try:
+        sup.start()
+        with lock:
+            assert lock.wait_for(lambda: ("rgb", 0) in arrivals, 60), arrivals
+            (run,) = runs
+        header = Header(seq=0, sim_time_s=0.0, send_time_s=time.time(), frame_seq=0, run=run)
+        commands.put(JointVelocityCommand(header=header, velocity_rad_s=[0.0] * 6))
+        with lock:  # frame 1, then (no command for it) frame 1 again
+            assert lock.wait_for(lambda: arrivals.count(("rgb", 1)) >= 2, 30), arrivals
+            order = list(arrivals)
+    finally:
+        sup.stop()
+        for s in subs:
+            s.undeclare()
+        for node in stand_ins:
+            node.close()
+        session.close()
+    first, again = [i for i, a in enumerate(order) if a == ("rgb", 1)][:2]
+    assert ("depth", 1) not in order  # frame 1 took no depth image
+    assert order[:first].count(("depth", 0)) == 1  # frame 0's, sent once with frame 0
+    assert ("depth", 0) in order[first + 1 : again]  # and again before frame 1's resend
