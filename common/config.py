@@ -8,6 +8,7 @@ so a typo is reported with its path instead of being silently ignored.
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from enum import StrEnum
 from pathlib import Path
@@ -26,7 +27,9 @@ from pydantic import (
 from common.camera import CameraIntrinsics, look_at_rotation
 from common.kinematics import (
     BASE_UP,
+    HAND_THICKNESS_M,
     JOINT_VELOCITY_LIMIT_RAD_S,
+    MARKER_THICKNESS_M,
     POSITION_LIMIT_ZONE_RAD,
     homogeneous,
     rot_x,
@@ -145,6 +148,14 @@ class KinectConfig(_Strict):
         0.0, ge=-1.0, le=1.0, description="-1 warm (red up, blue down) … +1 cool"
     )
 
+    @model_validator(mode="after")
+    def _range(self) -> KinectConfig:
+        if self.min_range_m >= self.max_range_m:  # no depth at any range
+            raise ValueError(
+                f"min_range_m ({self.min_range_m}) must be below max_range_m ({self.max_range_m})"
+            )
+        return self
+
 
 class CalibrationError(_Strict):
     """How far the camera pose the controller assumes is from the true mount: the true pose
@@ -217,6 +228,13 @@ class CameraConfig(_Strict):
                 )
         if self.near_m >= self.far_m:
             raise ValueError(f"near_m ({self.near_m}) must be below far_m ({self.far_m})")
+        axis = np.array(self.look_at, dtype=float) - np.array(self.position, dtype=float)
+        if np.linalg.norm(axis) < 1e-6:
+            raise ValueError("look_at equals position: no optical axis")
+        if np.linalg.norm(np.cross(axis / np.linalg.norm(axis), BASE_UP)) < 1e-3:
+            raise ValueError(
+                "look_at straight above or below position: the image's up is undefined"
+            )
         return self
 
     @property
@@ -250,6 +268,9 @@ class CameraConfig(_Strict):
         )
 
 
+Rgb = Annotated[list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=3, max_length=3)]
+
+
 class HsvRange(_Strict):
     """Inclusive OpenCV HSV range (H in 0..179, S and V in 0..255). Red wraps: give two."""
 
@@ -263,6 +284,13 @@ class HsvRange(_Strict):
             raise ValueError("expected H in 0..179, S and V in 0..255")
         return v
 
+    @model_validator(mode="after")
+    def _lower_below_upper(self) -> HsvRange:
+        # An empty range matches nothing: a marker never found (red's wrap is two ranges).
+        if any(lo > up for lo, up in zip(self.lower, self.upper, strict=True)):
+            raise ValueError(f"lower {self.lower} above upper {self.upper} in some channel")
+        return self
+
 
 class VisionConfig(_Strict):
     segmentation: Literal["hsv", "rgb"] = Field(
@@ -273,6 +301,7 @@ class VisionConfig(_Strict):
     # HSV: hue bands with a high saturation floor and a low value floor, so that exposure
     # changes (value) leave the masks alone; low-saturation table, arm and floor stay out.
     red_hsv: list[HsvRange] = Field(
+        min_length=1,
         description="the red marker's OpenCV HSV ranges (H 0..179; red wraps, so two)",
         default_factory=lambda: [
             HsvRange(lower=[0, 120, 30], upper=[8, 255, 255]),
@@ -280,6 +309,7 @@ class VisionConfig(_Strict):
         ],
     )
     green_hsv: list[HsvRange] = Field(
+        min_length=1,
         description="the green marker's HSV ranges",
         default_factory=lambda: [HsvRange(lower=[45, 120, 30], upper=[75, 255, 255])],
     )
@@ -287,21 +317,27 @@ class VisionConfig(_Strict):
     # the table, the arm, the floor nor the blue-grey block (saturation below 100) reaches.
     # Looked for only inside a marker's square, in both segmentation modes.
     cue_hsv: list[HsvRange] = Field(
+        min_length=1,
         description="the orientation cue's HSV ranges, looked for inside each marker",
         default_factory=lambda: [HsvRange(lower=[100, 120, 30], upper=[130, 255, 255])],
     )
     # RGB mode (the thesis's first method): a reference colour per marker and a per-channel
     # tolerance, calibrated on the markers as the default scene renders them (diffuse light).
-    red_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = Field(
-        [130, 12, 12], description="rgb: the red marker's reference colour (0..255)"
-    )
-    green_rgb: Annotated[list[int], Field(min_length=3, max_length=3)] = Field(
-        [15, 115, 22], description="rgb: the green marker's reference colour (0..255)"
-    )
+    red_rgb: Annotated[
+        list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=3, max_length=3)
+    ] = Field([130, 12, 12], description="rgb: the red marker's reference colour (0..255)")
+    green_rgb: Annotated[
+        list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=3, max_length=3)
+    ] = Field([15, 115, 22], description="rgb: the green marker's reference colour (0..255)")
     rgb_tolerance: int = Field(
         50, ge=1, le=255, description="rgb: how far each channel may be from the reference"
     )
-    min_area_px: int = Field(60, ge=4, description="smaller blobs are rejected")
+    min_area_px: int = Field(
+        60,
+        ge=4,
+        description="a smaller blob is not measured as a whole square; the fit of a partly "
+        "hidden marker from its visible edges may still find it",
+    )
     occlusion_ring_px: int = Field(
         5,
         ge=1,
@@ -605,8 +641,15 @@ class RunConfig(_Strict):
     timeout_s: float = Field(30.0, gt=0.0, le=3600.0, description="simulated seconds")
 
 
+DEADMAN_FRAMES = 1.5  # the deadman's time, in camera frames, must exceed this
+
+
 class Scenario(_Strict):
-    name: str = Field("default", description="the scenario's name in results and recordings")
+    name: str = Field(
+        "default",
+        description="the scenario's name in results and recordings (letters, digits, _ . -: it "
+        "names folders)",
+    )
     robot: RobotConfig
     target: TargetConfig
     marker: MarkerConfig = MarkerConfig()
@@ -641,6 +684,58 @@ class Scenario(_Strict):
                 f"actuation.deadman_timeout_s ({deadman}) not below sim.command_watchdog_s "
                 f"({watchdog}): the deadman is the first stop, the sim's watchdog the second, "
                 "and the stop must have time to reach the motors before the watchdog acts"
+            )
+        return self
+
+    @field_validator("name")
+    @classmethod
+    def _a_folder_name(cls, name: str) -> str:
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+", name) or set(name) == {"."}:
+            raise ValueError(f"{name!r}: letters, digits, _ . - only (it names a folder)")
+        return name
+
+    @model_validator(mode="after")
+    def _deadman_longer_than_a_frame(self) -> Scenario:
+        # In realtime twists come once a camera frame: a deadman as short would stop the arm
+        # between any two of them, and each twist would find it stopped and ramp it up from
+        # rest again, so the arm never moves. (In lockstep the motors follow each frame's
+        # command whatever the deadman sends between frames: tests use that.)
+        if self.run.clock is not ClockMode.REALTIME:
+            return self
+        deadman, frame_s = self.actuation.deadman_timeout_s, self.frame_period_s
+        if deadman <= DEADMAN_FRAMES * frame_s:
+            raise ValueError(
+                f"actuation.deadman_timeout_s ({deadman}) not above {DEADMAN_FRAMES:g} camera "
+                f"frames ({DEADMAN_FRAMES * frame_s:.3f} s at camera.rgb_hz "
+                f"{self.camera.rgb_hz:g}): in realtime it would stop the arm between two twists"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _goal_above_the_clearance(self) -> Scenario:
+        # The hand box lies under its marker: with the box kept above the object's top face,
+        # a goal lower than the box's thickness and the clearance is one the hand never reaches.
+        if not self.controller.keep_above_target:
+            return self
+        lowest = HAND_THICKNESS_M + MARKER_THICKNESS_M + self.controller.hand_clearance_m
+        if self.target.approach_height_m < lowest:
+            raise ValueError(
+                f"target.approach_height_m ({self.target.approach_height_m}) below {lowest:.4f} "
+                "m, the hand box's thickness under its marker and controller.hand_clearance_m: "
+                "the clearance keeps the hand from its goal (or set "
+                "controller.keep_above_target = false)"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _events_within_the_run(self) -> Scenario:
+        # A run is judged converged only once the last event is over.
+        ends = [e.end_s for e in self.events]
+        if ends and max(ends) > self.run.timeout_s:
+            last = int(np.argmax(ends))
+            raise ValueError(
+                f"events[{last}] ends at {ends[last]:g} s, after run.timeout_s "
+                f"({self.run.timeout_s:g}): a run is judged only once its events are over"
             )
         return self
 

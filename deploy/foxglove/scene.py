@@ -43,8 +43,7 @@ from services.sim.urdf import TORSO_CENTRE_M, TORSO_SIZE_M
 
 FloatArray = np.ndarray
 
-TABLE_TOP_Y_M = -0.40  # as the sim's world draws it (services/sim/world.py)
-TABLE_CENTRE_M = (0.42, TABLE_TOP_Y_M - 0.02, 0.0)
+TABLE_CENTRE_M = (0.42, kin.TABLE_TOP_Y_M - 0.02, 0.0)
 TABLE_SIZE_M = (0.56, 0.04, 0.90)
 FRUSTUM_DEPTH_M = 0.6  # how far the drawn camera frustum reaches
 
@@ -153,11 +152,11 @@ def static_scene(scenario: Scenario, t_s: float) -> SceneUpdate:
     entities.append(_entity("table", BASE, t_s, cubes=[table]))
     target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
     top_y = float(target[1, 3])
-    if top_y - TABLE_TOP_Y_M > 0.005:
-        centre = np.array([target[0, 3], (top_y + TABLE_TOP_Y_M) / 2, target[2, 3]])
+    if top_y - kin.TABLE_TOP_Y_M > 0.005:
+        centre = np.array([target[0, 3], (top_y + kin.TABLE_TOP_Y_M) / 2, target[2, 3]])
         block_pose = kin.homogeneous(target[:3, :3], centre)
         side = scenario.object_side_m
-        block = _cube(block_pose, (side, side, top_y - TABLE_TOP_Y_M), BLOCK)
+        block = _cube(block_pose, (side, side, top_y - kin.TABLE_TOP_Y_M), BLOCK)
         # The block's height is along the marker's normal (z of the target frame).
         entities.append(_entity("block", BASE, t_s, cubes=[block]))
     red = _cube(target, (size, size, 0.002), RED)

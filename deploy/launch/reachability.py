@@ -118,9 +118,19 @@ def check_scenario(scenario: Scenario, seeds: int | None = None) -> np.ndarray:
         joints = ", ".join(f"joint_{i + 1}" for i in outside)
         raise ScenarioError(f"robot.q0: {joints} outside the joint limits")
     size = scenario.marker.size_m
+    if scenario.target.position[1] <= kin.TABLE_TOP_Y_M:
+        raise ScenarioError(
+            f"target.position: y {scenario.target.position[1]:g} m is not above the table's top "
+            f"(y {kin.TABLE_TOP_Y_M:g} m): the red marker lies on an object on the table"
+        )
     target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
     if not marker_in_image(kin.marker_corners(target, size), scenario):
         raise ScenarioError("target.position: the target marker is not fully in the camera image")
+    if not marker_in_image(kin.marker_corners(goal_pose(scenario), size), scenario):
+        raise ScenarioError(
+            "target.approach_height_m: the hand marker's goal, above the target by it, is not "
+            "fully in the camera image"
+        )
     start = kin.forward_kinematics(q0) @ kin.hand_marker_in_ee()
     if not marker_in_image(kin.marker_corners(start, size), scenario):
         raise ScenarioError("robot.q0: the hand marker is not fully in the camera image at start")

@@ -43,7 +43,6 @@ from services.sim.urdf import (
 FloatArray = np.ndarray
 log = logging.getLogger(__name__)
 
-TABLE_TOP_Y_M = -0.40  # table top height in the base frame (y up)
 FLOOR_TOP_Y_M = -0.75
 TABLE_COLOUR = (0.86, 0.84, 0.80, 1.0)
 FLOOR_COLOUR = (0.55, 0.57, 0.60, 1.0)
@@ -221,7 +220,7 @@ class World:
         # The object: a box from the table top up to the red marker, which lies on its top face.
         size = self.scenario.marker.size_m
         top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M
-        height = top_y - TABLE_TOP_Y_M
+        height = top_y - kin.TABLE_TOP_Y_M
         self._target_quat = self.client.getQuaternionFromEuler([0.0, self.scenario.target.yaw, 0.0])
         self.object_body: int | None = None
         if height > 0.005:
@@ -258,7 +257,7 @@ class World:
         self.torso_body = self._scenery_box(
             torso, np.array(TORSO_CENTRE_M), TORSO_COLOUR, frustum, collide=False
         )
-        table = np.array([0.42, TABLE_TOP_Y_M - 0.02, 0.0])
+        table = np.array([0.42, kin.TABLE_TOP_Y_M - 0.02, 0.0])
         self.table_body = self._scenery_box((0.28, 0.02, 0.45), table, TABLE_COLOUR, frustum)
         floor = np.array([0.3, FLOOR_TOP_Y_M - 0.01, 0.0])
         self.floor_body = self._scenery_box((1.5, 0.01, 1.5), floor, FLOOR_COLOUR, frustum)
@@ -270,7 +269,7 @@ class World:
         """Centre of the block under the marker: straight below the marker, down to the table."""
         top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M
         return np.array(
-            [self.target_pose[0, 3], (top_y + TABLE_TOP_Y_M) / 2, self.target_pose[2, 3]]
+            [self.target_pose[0, 3], (top_y + kin.TABLE_TOP_Y_M) / 2, self.target_pose[2, 3]]
         )
 
     # --- scenario events ------------------------------------------------------------------

@@ -26,10 +26,10 @@ SMALL = ["camera.width_px=160", "camera.height_px=120", "sim.renderer='gl'"]
 
 def at_goal(approach_height_m: float, measure: Callable[[World], T]) -> T:
     """``measure`` of a world whose hand holds its marker ``approach_height_m`` above the
-    target."""
-    scenario = load_scenario(
-        None, parse_overrides([*SMALL, f"target.approach_height_m={approach_height_m}"])
-    )
+    target (the controller's clearance off: a goal in the object is no run's goal)."""
+    height = f"target.approach_height_m={approach_height_m}"
+    unguarded = "controller.keep_above_target=false"
+    scenario = load_scenario(None, parse_overrides([*SMALL, height, unguarded]))
     solved = solve_goal(scenario)
     assert solved is not None
     world = World(scenario)
@@ -129,3 +129,13 @@ def test_importing_the_simulator_prints_no_pybullet_banner() -> None:
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert (proc.stdout, proc.stderr) == ("imported True\n", "")
+
+
+def test_a_target_in_the_table_or_a_goal_out_of_view_is_refused_before_launch() -> None:
+    """Each was accepted and then left the run acquiring or stuck to its timeout."""
+    in_table = load_scenario(None, {"target": {"position": [0.28, -0.42, 0.04]}})
+    with pytest.raises(ScenarioError, match=r"target\.position: y -0\.42 m is not above the"):
+        check_scenario(in_table)
+    high_goal = load_scenario(None, {"target": {"approach_height_m": 0.2}})
+    with pytest.raises(ScenarioError, match=r"target\.approach_height_m: the hand marker's goal"):
+        check_scenario(high_goal)

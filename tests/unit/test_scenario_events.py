@@ -58,11 +58,63 @@ def test_bad_events_are_refused_with_the_reason(fields: dict, fragment: str) -> 
         ({"depth_width_px": 320}, "both"),
         ({"depth_width_px": 320, "depth_height_px": 200}, "aspect ratio"),
         ({"near_m": 6.0}, "below far_m"),
+        ({"look_at": [0.02, 0.08, -0.13]}, "look_at equals position"),
+        ({"position": [0.28, 0.4, 0.04], "look_at": [0.28, -0.4, 0.04]}, "straight above or"),
+        ({"kinect": {"min_range_m": 3.0, "max_range_m": 1.0}}, "min_range_m .3.0. must be"),
     ],
 )
 def test_bad_camera_settings_are_refused_with_the_reason(camera: dict, fragment: str) -> None:
     with pytest.raises(ScenarioError, match=fragment):
         load_scenario(None, {"camera": camera})
+
+
+@pytest.mark.parametrize(
+    "fields, fragment",
+    [
+        ({"vision": {"red_hsv": []}}, "vision.red_hsv: List should have at least 1 item"),
+        ({"vision": {"cue_hsv": []}}, "vision.cue_hsv: List should have at least 1 item"),
+        (
+            {"vision": {"green_hsv": [{"lower": [75, 120, 30], "upper": [45, 255, 255]}]}},
+            r"lower \[75, 120, 30\] above upper",
+        ),
+        ({"vision": {"red_rgb": [300, 5, 12]}}, "vision.red_rgb.0: Input should be less"),
+        ({"target": {"approach_height_m": 0.015}}, r"below 0.0271 m, the hand box"),
+        (
+            {"actuation": {"deadman_timeout_s": 0.04}, "run": {"clock": "realtime"}},
+            "not above 1.5 camera frames",
+        ),
+        ({"events": [{"at_s": 100.0, "action": "hide_target"}]}, r"events\[0\] ends at 100 s"),
+        ({"name": "../escape"}, "letters, digits"),
+        ({"name": ".."}, "letters, digits"),
+    ],
+)
+def test_settings_that_would_fail_the_run_later_are_refused_now(
+    fields: dict, fragment: str
+) -> None:
+    """Each was once accepted and then crashed a service, stalled the run, claimed a run
+    converged far off its goal, or wrote outside the results' folder."""
+    with pytest.raises(ScenarioError, match=fragment):
+        load_scenario(None, fields)
+
+
+def test_the_limits_of_those_checks_are_accepted() -> None:
+    scenario = load_scenario(
+        None,
+        {
+            "target": {"approach_height_m": 0.028},
+            "actuation": {"deadman_timeout_s": 0.06},
+            "run": {"clock": "realtime"},
+            "events": [{"at_s": 29.0, "action": "hide_target", "duration_s": 1.0}],
+            "name": "a-b_c.1",
+        },
+    )
+    assert scenario.events_end_s == scenario.run.timeout_s == 30.0
+    lowered = load_scenario(
+        None, {"target": {"approach_height_m": 0.0}, "controller": {"keep_above_target": False}}
+    )
+    assert lowered.target.approach_height_m == 0.0
+    lockstep = load_scenario(None, {"actuation": {"deadman_timeout_s": 0.005}})
+    assert lockstep.actuation.deadman_timeout_s == 0.005  # lockstep: it changes nothing
 
 
 def test_set_reaches_nested_tables_and_the_events_list() -> None:
