@@ -150,7 +150,7 @@ def test_gl_agrees_with_tinyrenderer_on_the_accuracy_postures(gl_world: World) -
         [
             "marker.orientation_cue=true",
             "target.yaw=0.6",
-            'events=[{at_s = 0.0, action = "occlude_hand", duration_s = 60.0}]',
+            'events=[{at_s = 0.0, action = "occlude_hand", duration_s = 30.0}]',
         ],
     ],
 )
