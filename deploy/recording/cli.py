@@ -57,8 +57,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     print(f"{total:8d}  messages in {args.out}")
     if recorder.lost:
         print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
-    if not total:  # a recording of nothing is no recording: nothing is left behind
-        Path(args.out).unlink(missing_ok=True)
+    if not total:  # the recorder made no file (nor emptied one there): no folder either
         remove_created_folders()
         where = where_connecting(args.connect)
         print(

@@ -80,7 +80,8 @@ def _send_time_ns(payload: bytes) -> int | None:
 
 class Recorder:
     """Subscribe to ``key_expr`` (default: everything under the prefix) and write every data
-    message to an MCAP file. Thread-safe: Zenoh calls back from several threads.
+    message to an MCAP file, made at the first message. Thread-safe: Zenoh calls back from
+    several threads.
 
     Use as a context manager, or call :meth:`close` to finish the file (summary, indexes).
     """
@@ -115,18 +116,30 @@ class Recorder:
         self._channels: dict[str, int] = {}
         self._schemas: dict[type[BaseModel], int] = {}
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._stream: IO[bytes] = self.path.open("wb")
-        self._writer = Writer(self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-        self._writer.start(profile=PROFILE, library="umay deploy.recording")
-        if metadata or without_frames:
-            described = {k: str(v) for k, v in (metadata or {}).items()}
-            if without_frames:
-                described["frames"] = "left out"
-            self._writer.add_metadata(METADATA_NAME, described)
-        # What the writer has written (the header, the metadata, then each finished chunk)
-        # goes to the file at once, for a recorder killed outright to leave behind.
-        self._stream.flush()
+        self._chunk_size = chunk_size
+        self._metadata = {k: str(v) for k, v in (metadata or {}).items()}
+        if without_frames:
+            self._metadata["frames"] = "left out"
+        # The file is made at the first message (_writer_at_first): a recorder that hears
+        # nothing leaves no file, and does not empty one already at its path.
+        self._stream: IO[bytes] | None = None
+        self._writer: Writer | None = None
         self._subscriber = session.declare_subscriber(self.key_expr, self._on_sample)
+
+    def _writer_at_first(self) -> Writer:
+        """The MCAP writer, the file opened and started at the first call. With the lock held."""
+        if self._writer is None:
+            self._stream = self.path.open("wb")
+            self._writer = Writer(
+                self._stream, chunk_size=self._chunk_size, compression=CompressionType.ZSTD
+            )
+            self._writer.start(profile=PROFILE, library="umay deploy.recording")
+            if self._metadata:
+                self._writer.add_metadata(METADATA_NAME, self._metadata)
+            # What the writer has written (the header, the metadata, then each finished chunk)
+            # goes to the file at once, for a recorder killed outright to leave behind.
+            self._stream.flush()
+        return self._writer
 
     def __enter__(self) -> Recorder:
         return self
@@ -141,20 +154,20 @@ class Recorder:
             model = split[2] if split else None
         return model
 
-    def _channel(self, key: str, model: type[BaseModel]) -> int:
+    def _channel(self, writer: Writer, key: str, model: type[BaseModel]) -> int:
         """Called with the lock held."""
         channel = self._channels.get(key)
         if channel is None:
             schema = self._schemas.get(model)
             if schema is None:
-                schema = self._writer.register_schema(
+                schema = writer.register_schema(
                     name=model.__name__,
                     encoding=SCHEMA_ENCODING,
                     data=json.dumps(model.model_json_schema()).encode(),
                 )
                 self._schemas[model] = schema
             encoding = FRAME_MESSAGE_ENCODING if codec.image_field(model) else MESSAGE_ENCODING
-            channel = self._writer.register_channel(
+            channel = writer.register_channel(
                 topic=key, message_encoding=encoding, schema_id=schema
             )
             self._channels[key] = channel
@@ -202,14 +215,16 @@ class Recorder:
             if self._closed:
                 return
             now_ns = time.time_ns()  # taken under the lock: log times follow the file order
-            channel = self._channel(key, model)
-            self._writer.add_message(
+            writer = self._writer_at_first()
+            channel = self._channel(writer, key, model)
+            writer.add_message(
                 channel_id=channel,
                 log_time=now_ns,
                 data=payload,
                 publish_time=now_ns if sent_ns is None else sent_ns,
                 sequence=self.counts[key],
             )
+            assert self._stream is not None
             self._stream.flush()  # a no-op until the writer finishes a chunk
             self.counts[key] += 1
 
@@ -226,5 +241,6 @@ class Recorder:
         with contextlib.suppress(Exception):  # the session may already be closed
             self._subscriber.undeclare()
         with self._lock:
-            self._writer.finish()
-            self._stream.close()
+            if self._writer is not None and self._stream is not None:
+                self._writer.finish()
+                self._stream.close()

@@ -97,11 +97,19 @@ class Recorded:
     log_time_ns: int
     frame_seq: int
     payload: bytes
+    run: int = 0  # the sim's run the message belongs to (Header.run; 0: not stamped)
 
 
 def frame_seq_of(payload: bytes) -> int | None:
+    stamp = stamp_of(payload)
+    return None if stamp is None else stamp[1]
+
+
+def stamp_of(payload: bytes) -> tuple[int, int] | None:
+    """(run, frame_seq) of a message's header, None for a message without one."""
     try:
-        return int(unpack(payload)["header"]["frame_seq"])  # type: ignore[index]
+        header = unpack(payload)["header"]  # type: ignore[index]
+        return int(header.get("run", 0)), int(header["frame_seq"])
     except Exception:  # not a message with a header
         return None
 
@@ -127,10 +135,10 @@ def load_recorded(recording: RecordingReader, prefix: str, suffixes: set[str]) -
     wanted = {f"{prefix}/{s}" for s in suffixes}
     out = []
     for _schema, channel, message in recording.messages(wanted.__contains__):
-        seq = frame_seq_of(message.data)
-        if seq is not None:
+        stamp = stamp_of(message.data)
+        if stamp is not None:
             suffix = channel.topic[len(prefix) + 1 :]
-            out.append(Recorded(suffix, message.log_time, seq, message.data))
+            out.append(Recorded(suffix, message.log_time, stamp[1], message.data, stamp[0]))
     return out
 
 
@@ -153,12 +161,13 @@ def lockstep_steps(inputs: list[Recorded], io: ServiceIO) -> list[list[Recorded]
     """One step per trigger, in the recorded order: the other inputs of its frame (the joint
     states) not yet published, then itself. A frame's inputs come from different services, so
     the recorder may log its joint state after its trigger (vision answering before the joint
-    state reached the recorder): they are grouped by frame, not by the order they were logged."""
-    others: dict[int, list[Recorded]] = {}
+    state reached the recorder): they are grouped by frame, not by the order they were logged,
+    and by run (a recording that spans a sim restart has each frame number once a run)."""
+    others: dict[tuple[int, int], list[Recorded]] = {}
     for r in inputs:
         if r.suffix != io.trigger:
-            others.setdefault(r.frame_seq, []).append(r)
-    return [[*others.pop(r.frame_seq, []), r] for r in inputs if r.suffix == io.trigger]
+            others.setdefault((r.run, r.frame_seq), []).append(r)
+    return [[*others.pop((r.run, r.frame_seq), []), r] for r in inputs if r.suffix == io.trigger]
 
 
 # --- the replay ---------------------------------------------------------------------------
@@ -360,7 +369,9 @@ def replay_service(
         check=check,
         tolerance=io.tolerance if tolerance is None else tolerance,
         notes=notes,
-        ok=True,
+        # At the service's own pace every frame has its answer: one missing is a failure (at a
+        # --speed a service that falls behind drops frames, as it would live).
+        ok=speed is not None or no_answer == 0,
     )
     if check:
         check_outputs(report, recorded_outputs, replayed, field_defaults(DATA_SUFFIXES[io.output]))

@@ -183,6 +183,8 @@ def format_report(report: ReplayReport, max_fields: int = 20) -> str:
     ]
     lines += [f"  note: {n}" for n in report.notes]
     if not report.check:
+        if not report.ok:
+            lines.append(f"  result: FAILED ({report.no_answer} frames went unanswered)")
         return "\n".join(lines)
     tol = "bit-identical" if report.tolerance == 0 else f"tolerance {report.tolerance:g}"
     lines += [

@@ -185,13 +185,19 @@ def test_umay_record_that_hears_nothing_says_where_it_listened_and_leaves_no_fil
     tmp_path: Path,
 ) -> None:
     """Nothing runs under the prefix: the exit code and a line on stderr say that nothing was
-    heard, and where; no empty recording is left behind, nor the folder made for it."""
+    heard, and where; no empty recording is left behind, nor the folder made for it, and a
+    recording already at the path is left as it was."""
     folder = tmp_path / "new"
     out, endpoint, prefix = folder / "empty.mcap", free_tcp_endpoint(), unique_prefix()
     proc = umay("record", str(out), "--duration", "0.5", "--prefix", prefix, "--connect", endpoint)
     assert proc.returncode == 1, proc.stderr
     assert f"nothing heard on {prefix}/** at {endpoint}, so no file written" in proc.stderr
     assert not out.exists() and not folder.exists()
+    kept = tmp_path / "kept.mcap"
+    kept.write_bytes(REFERENCE.read_bytes())
+    proc = umay("record", str(kept), "--duration", "0.5", "--prefix", prefix, "--connect", endpoint)
+    assert proc.returncode == 1, proc.stderr
+    assert kept.read_bytes() == REFERENCE.read_bytes()
 
 
 def test_recorder_writes_concurrent_messages_safely(tmp_path: Path) -> None:
@@ -235,15 +241,16 @@ def test_recorder_writes_concurrent_messages_safely(tmp_path: Path) -> None:
 
 
 def test_what_a_recorder_wrote_is_on_disk_while_it_runs(tmp_path: Path) -> None:
-    """A recorder killed outright leaves what it has written: the header and metadata at
-    once, then each chunk as it fills, small enough that seconds of small messages fill one
-    (at 1 MiB a minute of twists was lost to a kill, and the file was empty)."""
+    """A recorder killed outright leaves what it has written: the header and metadata with
+    the first message (no file before it), then each chunk as it fills, small enough that
+    seconds of small messages fill one (at 1 MiB a minute of twists was lost to a kill, and
+    the file was empty)."""
     keys = Keys(unique_prefix())
     session = open_session(connect=[], listen=[free_tcp_endpoint()])
     path = tmp_path / "running.mcap"
     try:
         with Recorder(path, session, keys, metadata={"prefix": keys.prefix}) as recorder:
-            assert read_info(path).metadata["umay"]["prefix"] == keys.prefix  # before any data
+            assert not path.exists()  # nothing heard yet
             for i in range(400):  # about 13 s of joint states at 30 Hz
                 h = Header(seq=i, sim_time_s=i / 30, send_time_s=1.0 + i, frame_seq=i)
                 js = JointState(header=h, position_rad=[0.1] * 6, velocity_rad_s=[0.0] * 6)
@@ -254,6 +261,7 @@ def test_what_a_recorder_wrote_is_on_disk_while_it_runs(tmp_path: Path) -> None:
                 time.sleep(0.05)
             running = read_info(path)  # as a kill would leave it: no summary yet
             assert running.damage is not None and running.message_count > 0, running
+            assert running.metadata["umay"]["prefix"] == keys.prefix
     finally:
         session.close()
     assert read_info(path).message_count == 400

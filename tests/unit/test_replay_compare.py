@@ -61,6 +61,28 @@ def test_a_frame_s_joint_state_logged_after_its_trigger_is_still_replayed_with_i
     ]
 
 
+def test_the_runs_of_a_recording_that_spans_a_restart_are_replayed_each_with_its_own() -> None:
+    """Each run numbers its frames from 0: a frame's joint state is the one of its run, not
+    the first run's frame of the same number (which sent the service to the second run early
+    and left the rest of the first unanswered)."""
+    io = SERVICE_IO["controller"]
+
+    def rec(suffix: str, t: int, seq: int, run: int) -> Recorded:
+        return Recorded(suffix, t, seq, b"", run)
+
+    inputs = [
+        rec(JOINT_STATE, 1, 0, 7), rec(JOINT_STATE, 2, 1, 7), rec("vision/features", 3, 0, 7),
+        rec(JOINT_STATE, 4, 0, 8),  # the restarted sim's frame 0, logged before run 7's 1
+        rec("vision/features", 5, 1, 7), rec("vision/features", 6, 0, 8),
+    ]  # fmt: skip
+    steps = lockstep_steps(inputs, io)
+    assert [[(r.run, r.suffix, r.frame_seq) for r in step] for step in steps] == [
+        [(7, JOINT_STATE, 0), (7, "vision/features", 0)],
+        [(7, JOINT_STATE, 1), (7, "vision/features", 1)],
+        [(8, JOINT_STATE, 0), (8, "vision/features", 0)],
+    ]
+
+
 def test_a_field_a_recording_predates_reads_as_its_default() -> None:
     """A twist recorded before ``lifted`` and ``header.run`` existed checks against a replayed
     one that carries them at their defaults; a replayed ``lifted`` of True is a difference."""
