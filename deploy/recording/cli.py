@@ -133,7 +133,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from deploy.recording.plots import plot_recording, recorded_converged_px
+    from deploy.recording.plots import (
+        FIGURE_NAMES,
+        load_series,
+        plot_series,
+        recorded_converged_px,
+    )
     from deploy.recording.read import NotARecordingError, RecordingReader
 
     path = Path(args.file)
@@ -150,9 +155,18 @@ def cmd_plot(args: argparse.Namespace) -> int:
     converged_px, notes = recorded_converged_px(reader)
     for note in notes:
         print(f"umay plot: note: {note}", file=sys.stderr)
-    written = plot_recording(path, Path(args.out), converged_px)
+    series = load_series(path)
+    if series.runs > 1:
+        print(
+            f"umay plot: note: {path} holds {series.runs} runs of the sim (restarted): the last "
+            "one is drawn",
+            file=sys.stderr,
+        )
+    written = plot_series(series, Path(args.out), converged_px, source=str(path))
     for p in written:
         print(p)
+    for name in sorted(set(FIGURE_NAMES) - {p.name for p in written}):
+        print(f"umay plot: note: no data for {name} in {path}: left out", file=sys.stderr)
     if not written:
         print(f"umay plot: {path} holds nothing to plot", file=sys.stderr)
         return EXIT_NOT_CONVERGED

@@ -107,6 +107,7 @@ class RunSeries:
     truth_t_s: np.ndarray = field(default_factory=lambda: np.empty(0))
     truth_ee_m: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
     skipped: dict[str, int] = field(default_factory=dict)  # undecodable payloads per suffix
+    runs: int = 1  # runs of the sim the recording holds (a restart begins one): the last drawn
 
     @property
     def mode_label(self) -> str | None:
@@ -134,17 +135,33 @@ def _iter_payloads(path: Path) -> Iterator[tuple[str, bytes]]:
         log.warning("%s: %s", path, reader.damage)
 
 
-def _decoded(path: Path) -> tuple[dict[str, list[BaseModel]], dict[str, int]]:
+def _decoded(path: Path) -> tuple[dict[str, list[BaseModel]], dict[str, int], int]:
+    """The messages per suffix of the recording's last run of the sim (and those stamped with
+    no run), the undecodable payloads per suffix, and how many runs it holds: the runs of a
+    recording that spans a sim restart each start at 0 s, and drawn together they interleave."""
     messages: dict[str, list[BaseModel]] = {s: [] for s in _MODELS}
     skipped: Counter[str] = Counter()
+    runs: dict[int, None] = {}  # in the order the recording met them
     for suffix, payload in _iter_payloads(path):
         try:
-            messages[suffix].append(decode(payload, _MODELS[suffix], DEFAULT_MAX_BYTES))
+            message = decode(payload, _MODELS[suffix], DEFAULT_MAX_BYTES)
         except MessageError as exc:
             if not skipped[suffix]:
                 log.warning("%s: skipping undecodable %s payload: %s", path, suffix, exc)
             skipped[suffix] += 1
-    return messages, dict(skipped)
+            continue
+        messages[suffix].append(message)
+        run = message.header.run  # type: ignore[attr-defined]
+        if run:
+            runs.pop(run, None)  # met again: the newest is the one running last
+            runs[run] = None
+    if len(runs) > 1:
+        last = next(reversed(runs))
+        messages = {
+            s: [m for m in msgs if m.header.run in (0, last)]  # type: ignore[attr-defined]
+            for s, msgs in messages.items()
+        }
+    return messages, dict(skipped), max(1, len(runs))
 
 
 def _sorted_by_time(msgs: list[M]) -> list[M]:
@@ -200,8 +217,9 @@ def _twist_fields(twists: list[EndEffectorTwist]) -> dict:
 
 
 def load_series(path: Path) -> RunSeries:
-    """Read a recording into a :class:`RunSeries` (undecodable payloads are skipped)."""
-    messages, skipped = _decoded(Path(path))
+    """Read a recording into a :class:`RunSeries` (undecodable payloads are skipped; of a
+    recording that spans a sim restart, its last run)."""
+    messages, skipped, runs = _decoded(Path(path))
     feats = _sorted_by_time(messages[SUFFIX_FEATURES])
     twists = _sorted_by_time(messages[SUFFIX_TWIST])
     cmds = _sorted_by_time(
@@ -224,6 +242,7 @@ def load_series(path: Path) -> RunSeries:
         truth_t_s=_times(truths),
         truth_ee_m=_rows([t.ee_position_m for t in truths], 3),  # type: ignore[attr-defined]
         skipped=skipped,
+        runs=runs,
     )
 
 
@@ -434,6 +453,14 @@ def plot_recording(
     return plot_series(load_series(Path(path)), out_dir, converged_px, source=str(path))
 
 
+FIGURE_NAMES = (
+    "image_trajectory.png",
+    "ee_velocity.png",
+    "feature_error.png",
+    "joint_velocities.png",
+)
+
+
 def plot_series(
     series: RunSeries,
     out_dir: Path,
@@ -449,11 +476,14 @@ def plot_series(
         ("feature_error.png", lambda: feature_error_figure(series, converged_px)),
         ("joint_velocities.png", lambda: joint_velocities_figure(series)),
     ]
+    assert tuple(name for name, _ in builders) == FIGURE_NAMES
     written: list[Path] = []
     for name, build in builders:
         fig = build()
         if fig is None:
             log.info("%s: no data for %s, skipped", source, name)
+            # One of another recording's, left there, would pass for this one's.
+            (out / name).unlink(missing_ok=True)
             continue
         target = out / name
         fig.savefig(target, dpi=DPI)

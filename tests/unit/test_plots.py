@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib.image as mpimg
+import msgpack
 import numpy as np
 import pytest
 from mcap.writer import Writer
@@ -139,9 +140,12 @@ def write_recording(
     junk_twist: bool = False,
     runs: int = 1,
     metadata: dict[str, str] | None = None,
+    stamp_runs: bool = False,
 ) -> Path:
     """``runs`` copies of the run one after the other, as a sim restarted within one
-    recording (simulated time back to 0, log time going on); ``metadata``: the recorder's."""
+    recording (simulated time back to 0, log time going on; ``stamp_runs``: each copy's
+    messages stamped with its own run, 1, 2, ..., as the sim's are); ``metadata``: the
+    recorder's."""
     with path.open("wb") as f:
         writer = Writer(f)
         writer.start(profile="", library="test_plots")
@@ -163,6 +167,10 @@ def write_recording(
             for suffix, data in payloads.items():
                 if suffix in skip:
                     continue
+                if stamp_runs and not suffix.startswith("sim/rgb") and suffix != "sim/depth":
+                    fields = msgpack.unpackb(data)
+                    fields["header"]["run"] = n // N_FRAMES + 1
+                    data = msgpack.packb(fields)
                 topic = f"{PREFIX}/{suffix}"
                 if topic not in channels:
                     channels[topic] = writer.register_channel(topic, "msgpack", schema)
@@ -197,10 +205,31 @@ def test_missing_channel_skips_only_its_figure(tmp_path: Path) -> None:
         assert_good_png(p)
 
 
+def test_a_figure_left_out_does_not_leave_another_recordings_in_its_place(
+    tmp_path: Path,
+) -> None:
+    full = write_recording(tmp_path / "full.mcap")
+    without = write_recording(tmp_path / "without.mcap", skip=("actuation/joint_command",))
+    assert len(plot_recording(full, tmp_path / "figs")) == 4
+    plot_recording(without, tmp_path / "figs")
+    assert not (tmp_path / "figs" / "joint_velocities.png").exists()
+
+
 def test_recording_without_wanted_channels_writes_nothing(tmp_path: Path) -> None:
     wanted = tuple(s for s in fake_run(0) if s not in ("sim/rgb", "sim/depth"))
     rec = write_recording(tmp_path / "run.mcap", skip=wanted)
     assert plot_recording(rec, tmp_path / "figs") == []
+
+
+def test_a_recording_of_two_runs_is_drawn_by_its_last(tmp_path: Path) -> None:
+    """A sim restarted mid-recording begins its time again at 0: drawn together, the two
+    runs' series would interleave. The last run is drawn, and the series says there were two."""
+    one = load_series(write_recording(tmp_path / "one.mcap", stamp_runs=True))
+    two = load_series(write_recording(tmp_path / "two.mcap", runs=2, stamp_runs=True))
+    assert (one.runs, two.runs) == (1, 2)
+    assert two.feat_t_s.shape == two.twist_t_s.shape == (N_FRAMES,)
+    np.testing.assert_array_equal(two.error_px_rms, one.error_px_rms)
+    assert np.all(np.diff(two.twist_t_s) > 0)
 
 
 def test_load_series(tmp_path: Path) -> None:
