@@ -12,14 +12,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import foxglove
 
 from common.codec import FRAME_MAX_BYTES, MessageError, decode
+from common.config import Scenario
 from deploy.foxglove import convert
 from deploy.foxglove.channels import FoxgloveChannels
 from deploy.recording.channels import METADATA_NAME, split_data_key
 from deploy.recording.read import RecordingReader, recorded_scenario
+
+# A recording that spans a sim restart holds runs that each begin at 0 s simulated: exported,
+# each later run follows the one before by this much, on one timeline.
+RUN_GAP_S = 1.0
 
 
 @dataclass
@@ -31,13 +37,42 @@ class ExportReport:
     runs: int = 1  # the sim's runs in the recording (Header.run, or simulated time going back)
 
 
+def shifted(message: Any, offset_s: float) -> Any:
+    """``message`` with its header's simulated time moved by ``offset_s`` (the same message
+    for 0); messages without a header as they are."""
+    header = getattr(message, "header", None)
+    if not offset_s or header is None:
+        return message
+    moved = header.model_copy(update={"sim_time_s": header.sim_time_s + offset_s})
+    return message.model_copy(update={"header": moved})
+
+
 def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 85) -> ExportReport:
-    """Write ``out`` from ``recording``; raises NotARecordingError for a file that is not
-    MCAP, ScenarioError for a recorded scenario that does not load."""
+    """Write ``out`` from ``recording`` (through a file beside it, renamed once complete: an
+    export cut short, or with nothing to show, leaves no file that passes for one); raises
+    NotARecordingError for a file that is not MCAP, ScenarioError for a recorded scenario that
+    does not load."""
     reader = RecordingReader(recording)
     scenario, notes = recorded_scenario(reader)
+    out = Path(out)
+    partial = out.with_name(f".{out.name}.partial")
+    try:
+        report = _export(reader, scenario, partial, jpeg_quality, notes)
+        if report.written:
+            partial.replace(out)
+    finally:
+        partial.unlink(missing_ok=True)
+    return report
+
+
+def _export(
+    reader: RecordingReader, scenario: Scenario, out: Path, jpeg_quality: int, notes: list[str]
+) -> ExportReport:
+    recording = reader.path
     report = ExportReport(notes=notes)
     state = convert.ViewState(scenario)
+    offset_s = 0.0  # added to the current run's simulated time
+    over: set[int] = set()  # runs of the sim already followed by another
     context = foxglove.Context()
     channels = FoxgloveChannels(context)
     with foxglove.open_mcap(str(out), allow_overwrite=True, context=context) as writer:
@@ -57,18 +92,26 @@ def export_foxglove(recording: str | Path, out: str | Path, jpeg_quality: int = 
             except MessageError:
                 report.rejected += 1
                 continue
-            # A recording can span runs (the sim restarted): each gets its own view, as live.
-            fresh = state.continued(msg)
+            if msg.header.run in over:  # a message of a run already ended, logged late
+                report.skipped += 1
+                continue
+            # A recording can span runs (the sim restarted): each gets its own view, as live,
+            # and follows the one before on the timeline.
+            fresh = state.continued(shifted(msg, offset_s))
             if fresh is not state:
                 report.runs += 1
+                if state.run:
+                    over.add(state.run)
+                offset_s = state.sim_time_s + RUN_GAP_S - msg.header.sim_time_s
                 state = fresh
-            for o in state.on_message(suffix, msg, jpeg_quality):
+            for o in state.on_message(suffix, shifted(msg, offset_s), jpeg_quality):
                 channels.log(o)
                 report.written[o.topic] = report.written.get(o.topic, 0) + 1
     channels.close()
     if report.runs > 1:
         report.notes.append(
-            f"the recording holds {report.runs} runs of the sim: each exported from its own start"
+            f"the recording holds {report.runs} runs of the sim: each exported from its own "
+            f"start, {RUN_GAP_S:g} s after the end of the one before"
         )
     if reader.damage:
         report.notes.append(f"recording {reader.damage}")

@@ -20,7 +20,7 @@ from mcap.writer import MCAP0_MAGIC
 from pydantic import BaseModel
 
 from common import codec
-from common.config import DEFAULT_SCENARIO, Scenario, load_scenario
+from common.config import DEFAULT_SCENARIO, Scenario, ScenarioError, load_scenario
 from common.runtime import parse_overrides
 from deploy.recording.channels import METADATA_NAME
 
@@ -45,7 +45,7 @@ class RecordingInfo(BaseModel):
     end_time_s: float | None
     duration_s: float
     compression: list[str]
-    chunk_count: int
+    chunk_count: int | None  # None: not known (a file cut short has no summary to list them)
     metadata: dict[str, dict[str, str]]
     damage: str | None = None  # a file cut short or damaged: how much of it was read
 
@@ -190,7 +190,7 @@ def read_info(path: str | Path) -> RecordingInfo:
         end_time_s=max(ends) if ends else None,
         duration_s=(max(ends) - min(starts)) if starts else 0.0,
         compression=sorted({c.compression or "none" for c in chunks}),
-        chunk_count=len(chunks),
+        chunk_count=len(chunks) if summary else None,
         metadata=reader.metadata(),
         damage=reader.damage,
     )
@@ -209,7 +209,11 @@ def format_info(info: RecordingInfo) -> str:
         f"duration     {info.duration_s:.3f} s  ({when(info.start_time_s)} → "
         f"{when(info.end_time_s)})",
         f"messages     {info.message_count} in {len(info.channels)} channels, "
-        f"{info.chunk_count} chunks ({', '.join(info.compression) or 'none'})",
+        + (
+            "chunks not known (no summary)"
+            if info.chunk_count is None
+            else f"{info.chunk_count} chunks ({', '.join(info.compression) or 'none'})"
+        ),
         *([f"warning      {info.damage}"] if info.damage else []),
         "",
     ]
@@ -251,7 +255,10 @@ def recorded_scenario(reader: RecordingReader) -> tuple[Scenario, list[str]]:
     """The scenario the recording ran (its metadata), with its overrides; the default one
     (with a note) when it holds none."""
     meta = reader.metadata().get(METADATA_NAME, {})
-    overrides = json.loads(meta.get("overrides_json", "[]"))
+    try:
+        overrides = [str(o) for o in json.loads(meta.get("overrides_json", "[]"))]
+    except (ValueError, TypeError) as exc:  # written by another tool, or damaged
+        raise ScenarioError(f"{reader.path}: its metadata's overrides_json: {exc}") from exc
     notes = []
     text = meta.get("scenario_toml")
     if not text:

@@ -8,7 +8,7 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from deploy.foxglove import topics
-from deploy.foxglove.export import export_foxglove
+from deploy.foxglove.export import RUN_GAP_S, export_foxglove
 from tests.unit.test_plots import write_recording
 
 
@@ -29,8 +29,46 @@ def test_a_sim_restart_starts_a_fresh_view_as_live(tmp_path: Path) -> None:
     assert alone[topics.CALIBRATION] and alone[topics.SCENE] and alone[topics.ANNOTATIONS]
     # Kept, the first run's view sent the second no calibration nor fixed scene.
     assert {t: len(m) for t, m in both.items()} == {t: 2 * len(m) for t, m in alone.items()}
-    # The second run's messages, fixed scene and trail included, are the first run's again.
-    assert both == {topic: messages * 2 for topic, messages in alone.items()}
+    # The second run's messages, fixed scene and trail included, are the first run's again,
+    # following them on the timeline a second after the first run's last instant.
+    end_ns = max(t for messages in alone.values() for t, _ in messages)
+    gap_ns = end_ns + round(RUN_GAP_S * 1e9)
+    for topic, messages in alone.items():
+        times = [t for t, _ in messages]
+        assert [t for t, _ in both[topic]] == times + [t + gap_ns for t in times], topic
     assert two.written[topics.CALIBRATION] == 2 * one.written[topics.CALIBRATION]
     assert (one.runs, two.runs) == (1, 2)
     assert any("2 runs" in note for note in two.notes)
+
+
+def test_an_export_with_nothing_to_show_or_cut_short_leaves_no_file(tmp_path: Path) -> None:
+    wanted = ("controller/twist", "vision/features", "sim/joint_state", "sim/rgb", "sim/depth",
+              "actuation/joint_command", "sim/truth")  # fmt: skip
+    empty = write_recording(tmp_path / "empty.mcap", skip=wanted)
+    out = tmp_path / "out.mcap"
+    out.write_bytes(b"an earlier export")
+    assert not export_foxglove(empty, out).written
+    assert out.read_bytes() == b"an earlier export"  # kept: nothing replaced it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.mcap", "out.mcap"]
+
+
+def test_stamped_runs_follow_one_another_on_the_timeline(tmp_path: Path) -> None:
+    """Runs told apart by Header.run (as the sim stamps them) are shifted alike: in the
+    export, every topic's time runs forward across the restart."""
+    two = write_recording(tmp_path / "two.mcap", runs=2, stamp_runs=True)
+    report = export_foxglove(two, tmp_path / "two_fox.mcap")
+    assert report.runs == 2
+    for topic, messages in exported(tmp_path / "two_fox.mcap").items():
+        times = [t for t, _ in messages]
+        assert times == sorted(times), topic
+
+
+def test_unreadable_overrides_in_a_recordings_metadata_are_refused_by_name(tmp_path: Path) -> None:
+    import pytest
+
+    from common.config import ScenarioError
+
+    odd = write_recording(tmp_path / "odd.mcap", metadata={"overrides_json": "not json"})
+    with pytest.raises(ScenarioError, match="its metadata's overrides_json"):
+        export_foxglove(odd, tmp_path / "odd_fox.mcap")
+    assert not (tmp_path / "odd_fox.mcap").exists()
