@@ -166,6 +166,7 @@ class ViewState:
     static_sent_s: float | None = None
     sim_time_s: float = 0.0
     run: int = 0  # the sim's run of the messages seen (Header.run; 0: none stamped)
+    past_runs: frozenset[int] = frozenset()  # runs a later one followed: their messages are late
 
     @property
     def oriented(self) -> bool:
@@ -188,8 +189,15 @@ class ViewState:
         the one rule the live view and the export follow."""
         header = getattr(message, "header", None)
         if header is not None and self.restarted(header.run, header.sim_time_s):
-            return ViewState(self.scenario, self.trail_max)
+            past = self.past_runs | {self.run} if self.run else self.past_runs
+            return ViewState(self.scenario, self.trail_max, past_runs=past)
         return self
+
+    def of_a_past_run(self, message: Any) -> bool:
+        """Whether ``message`` belongs to a run a later one has followed (sent before the sim
+        restarted, and come late): shown, it would start that old run's view again."""
+        header = getattr(message, "header", None)
+        return header is not None and header.run in self.past_runs
 
     def phase_changes(self, twist: EndEffectorTwist) -> bool:
         """Whether ``twist`` changes the controller's phase or hold reason (logged, always)."""

@@ -72,7 +72,6 @@ def _export(
     report = ExportReport(notes=notes)
     state = convert.ViewState(scenario)
     offset_s = 0.0  # added to the current run's simulated time
-    over: set[int] = set()  # runs of the sim already followed by another
     context = foxglove.Context()
     channels = FoxgloveChannels(context)
     with foxglove.open_mcap(str(out), allow_overwrite=True, context=context) as writer:
@@ -92,7 +91,7 @@ def _export(
             except MessageError:
                 report.rejected += 1
                 continue
-            if msg.header.run in over:  # a message of a run already ended, logged late
+            if state.of_a_past_run(msg):  # logged late, after the sim restarted
                 report.skipped += 1
                 continue
             # A recording can span runs (the sim restarted): each gets its own view, as live,
@@ -100,8 +99,6 @@ def _export(
             fresh = state.continued(shifted(msg, offset_s))
             if fresh is not state:
                 report.runs += 1
-                if state.run:
-                    over.add(state.run)
                 offset_s = state.sim_time_s + RUN_GAP_S - msg.header.sim_time_s
                 state = fresh
             for o in state.on_message(suffix, shifted(msg, offset_s), jpeg_quality):

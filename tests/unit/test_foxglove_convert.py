@@ -245,6 +245,12 @@ def test_a_message_of_the_same_run_earlier_in_time_is_not_a_new_run(scenario: Sc
     state.on_message(FEATURES, later)
     assert not state.restarted(3, 0.0) and state.continued(later) is state
     assert state.restarted(4, 0.0)
+    # The next run's first message starts afresh; one of run 3 come late is then of the past.
+    nxt = features(scenario, 0.03, seq=0)
+    nxt = nxt.model_copy(update={"header": nxt.header.model_copy(update={"run": 4})})
+    fresh = state.continued(nxt)
+    assert fresh is not state and fresh.past_runs == {3}
+    assert fresh.of_a_past_run(later) and not fresh.of_a_past_run(nxt)
 
 
 def test_status_logs_warn_of_a_silent_service() -> None:
