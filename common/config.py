@@ -596,6 +596,9 @@ class EventAction(StrEnum):
     MOVE_TARGET = "move_target"  # the object slides at velocity_m_s for duration_s
 
 
+MAX_TARGET_SPEED_M_S = 0.2  # how fast a move_target event may slide the object
+
+
 class Event(_Strict):
     """One entry of the scenario's ``[[events]]`` timeline (simulated time). Only the sim acts
     on events: perception and control learn of them through the camera, as they would."""
@@ -618,8 +621,8 @@ class Event(_Strict):
             raise ValueError("move_target needs velocity_m_s")
         if not moving and self.velocity_m_s is not None:
             raise ValueError(f"velocity_m_s is only for move_target, not {self.action.value}")
-        if moving and float(np.linalg.norm(self.velocity_m_s)) > 0.2:
-            raise ValueError("move_target: speed above 0.2 m/s")
+        if moving and float(np.linalg.norm(self.velocity_m_s)) > MAX_TARGET_SPEED_M_S:
+            raise ValueError(f"move_target: speed above {MAX_TARGET_SPEED_M_S:g} m/s")
         timed = self.action in (EventAction.MOVE_TARGET, EventAction.OCCLUDE_HAND)
         if timed and self.duration_s is None:
             raise ValueError(f"{self.action.value} needs duration_s")
@@ -642,6 +645,7 @@ class RunConfig(_Strict):
 
 
 DEADMAN_FRAMES = 1.5  # the deadman's time, in camera frames, must exceed this
+FRAME_RATE_TOLERANCE = 0.05  # the camera's rate in whole physics steps, this near rgb_hz
 
 
 class Scenario(_Strict):
@@ -728,6 +732,21 @@ class Scenario(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _moves_together_within_the_speed_limit(self) -> Scenario:
+        # Moves that overlap add up (services/sim/events.py): their sum has the one's limit.
+        moves = [(i, e) for i, e in enumerate(self.events) if e.action is EventAction.MOVE_TARGET]
+        for i, started in moves:
+            t = started.at_s  # the sum only changes where a move starts or ends
+            together = [e for _, e in moves if e.at_s <= t < e.end_s]
+            speed = float(np.linalg.norm(np.sum([e.velocity_m_s for e in together], axis=0)))
+            if speed > MAX_TARGET_SPEED_M_S:
+                raise ValueError(
+                    f"events[{i}]: with the moves it overlaps the object slides at {speed:.3f} "
+                    f"m/s at {t:g} s, above {MAX_TARGET_SPEED_M_S:g} m/s"
+                )
+        return self
+
+    @model_validator(mode="after")
     def _events_within_the_run(self) -> Scenario:
         # A run is judged converged only once the last event is over.
         ends = [e.end_s for e in self.events]
@@ -736,6 +755,19 @@ class Scenario(_Strict):
             raise ValueError(
                 f"events[{last}] ends at {ends[last]:g} s, after run.timeout_s "
                 f"({self.run.timeout_s:g}): a run is judged only once its events are over"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _frames_near_the_rate_asked(self) -> Scenario:
+        # A frame lasts whole physics steps: the rate the camera gets is physics_hz over their
+        # number, which for a rate near or above physics_hz is far from the one asked.
+        got_hz = 1.0 / self.frame_period_s
+        if abs(got_hz - self.camera.rgb_hz) > FRAME_RATE_TOLERANCE * self.camera.rgb_hz:
+            raise ValueError(
+                f"camera.rgb_hz ({self.camera.rgb_hz:g}) at sim.physics_hz "
+                f"({self.sim.physics_hz:g}): a frame lasts whole physics steps, which makes "
+                f"{got_hz:.4g} frames/s; choose a rate that divides the physics rate"
             )
         return self
 

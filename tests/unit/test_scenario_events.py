@@ -85,6 +85,26 @@ def test_bad_camera_settings_are_refused_with_the_reason(camera: dict, fragment:
         ),
         ({"events": [{"at_s": 100.0, "action": "hide_target"}]}, r"events\[0\] ends at 100 s"),
         ({"name": "../escape"}, "letters, digits"),
+        ({"sim": {"physics_hz": 30.0}, "camera": {"rgb_hz": 120.0}}, "makes 30 frames/s"),
+        (
+            {
+                "events": [
+                    {
+                        "at_s": 1.0,
+                        "action": "move_target",
+                        "duration_s": 2.0,
+                        "velocity_m_s": [0.15, 0.0, 0.0],
+                    },
+                    {
+                        "at_s": 2.0,
+                        "action": "move_target",
+                        "duration_s": 2.0,
+                        "velocity_m_s": [0.15, 0.0, 0.0],
+                    },
+                ]
+            },
+            r"events\[1\]: with the moves it overlaps the object slides at 0.300 m/s at 2 s",
+        ),
         ({"name": ".."}, "letters, digits"),
     ],
 )
