@@ -20,7 +20,6 @@ from deploy.docs.bench_tables import (
     link,
     load_cell,
     measured,
-    num,
 )
 from deploy.docs.sources import BENCH_DIR, LOCKSTEP_RUN, BenchRun, DocsError, Inputs
 from deploy.experiments.compare.summary import markdown_table
@@ -48,15 +47,15 @@ def _row(here: str, run: BenchRun) -> list[str]:
         m.get("cpu_model") or "not recorded",
         code_cell(m),
         load_cell(m),
-        num(d["distributed"]["real_time_factor"]),
-        num(frame_handoff_ms(d)),
-        f"{num(lat['p50'])} / {num(lat['p99'])}",
-        num(d["distribution_adds_ms"]["p50"]),
+        REAL_TIME_GOAL.shown(d["distributed"]["real_time_factor"]),
+        HANDOFF_GOAL.shown(frame_handoff_ms(d)),
+        f"{LATENCY_P50_GOAL.shown(lat['p50'])} / {LATENCY_P99_GOAL.shown(lat['p99'])}",
+        ADDS_GOAL.shown(d["distribution_adds_ms"]["p50"]),
     ]
 
 
 def within_goals(reports: list[Mapping[str, Any]]) -> str:
-    """How many of the runs have each figure within its goal (as the table shows it)."""
+    """How many of the runs have each figure within its goal."""
 
     def count(goal: Any, figure: Any) -> int:
         return sum(goal.met(figure(d)) for d in reports)

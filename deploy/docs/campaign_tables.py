@@ -201,7 +201,7 @@ def campaign_goals(inputs: Inputs, here: str) -> str:
         success.append(f"({share})" if variant else share)
     unnamed = sum(
         cause_family(r["cause"]) not in CAUSES or (r["cause"] != ON_GOAL and not r["detail"])
-        for r in runs
+        for r in runs  # a refused start's record too: its reason is its detail
     )
     held = [h for r in ran if (h := _held_s(r["detail"])) is not None]
     stuck = f"{min(held):.2f}–{max(held):.2f} s simulated ({len(held)} runs)" if held else "–"
@@ -211,7 +211,8 @@ def campaign_goals(inputs: Inputs, here: str) -> str:
     why = "; ".join(f'{n} "{d}"' for d, n in reasons.most_common()) or "none"
     rows = [
         [
-            f"runs on goal out of non-refused random starts, per strategy (N = {len(starts)})",
+            "runs on goal out of non-refused random starts, per strategy "
+            f"(N = {len(starts) - len(refused)})",
             ", ".join(success),
             "≥ 98 %",
         ],
@@ -222,7 +223,7 @@ def campaign_goals(inputs: Inputs, here: str) -> str:
         ],
         [
             "runs without a named cause, or a failure without a detail",
-            f"{unnamed} of {len(runs)}",
+            f"{unnamed} of {len(ran)} runs and {len(runs) - len(ran)} refused starts' records",
             "0",
         ],
         ["time to report a stuck run (held until reported)", stuck, "≤ 5 s simulated"],

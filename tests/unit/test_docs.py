@@ -475,12 +475,14 @@ def test_the_campaign_taxonomy_and_goals_count_every_cause_from_causes_json() ->
     assert cells["median frames"] == "85" and cells["refused at start"] == "1"
     assert cells["stuck"] == "1" and cells["acquisition failed"] == "1" and cells["timeout"] == "0"
     goals = BLOCKS["campaign-goals"].render(Inputs(campaign=runs), "docs")
-    assert "pmj 50.0 %" in goals
+    assert "pmj 50.0 %" in goals and "per strategy (N = 4)" in goals  # the refused one aside
     assert '1 of 5 (20.0 %): 1 "target.position: out of reach"' in goals
-    assert "| 0 of 5 | 0 |" in goals  # every run named, every failure with its detail
+    # Every run named, every failure with its detail; a refused start's record with its reason.
+    assert "| 0 of 4 runs and 1 refused starts' records | 0 |" in goals
     assert "4.07–4.07 s simulated (1 runs)" in goals
     runs[2]["detail"] = ""
-    assert "| 1 of 5 | 0 |" in BLOCKS["campaign-goals"].render(Inputs(campaign=runs), "docs")
+    said = "| 1 of 4 runs and 1 refused starts' records | 0 |"
+    assert said in BLOCKS["campaign-goals"].render(Inputs(campaign=runs), "docs")
 
 
 def test_the_stability_block_splits_every_row_by_the_goals_constant_leaves() -> None:

@@ -39,11 +39,13 @@ from tests.unit.test_docs import _bench, _stage
 VIEW_COMMAND = "umay bench --frames 60 --repeat 3 --no-reference --synthetic-frames 0"
 
 
-def test_a_goal_is_met_as_the_tables_show_the_figure() -> None:
+def test_a_goal_is_met_by_the_figure_and_shown_on_its_side_of_the_limit() -> None:
     assert (str(HANDOFF_GOAL), str(ADDS_GOAL), str(REAL_TIME_GOAL)) == ("≤ 0.5", "≤ 2.0", "≥ 2.5")
-    assert HANDOFF_GOAL.met(0.5049)  # shown as 0.50
-    assert not HANDOFF_GOAL.met(0.506)  # shown as 0.51
-    assert REAL_TIME_GOAL.met(2.5) and not REAL_TIME_GOAL.met(2.49)
+    assert not HANDOFF_GOAL.met(0.5041) and HANDOFF_GOAL.met(0.5)
+    assert HANDOFF_GOAL.shown(0.5041) == "0.504"  # not "0.50", which would read as met
+    assert HANDOFF_GOAL.shown(0.50004) == "0.50004" and HANDOFF_GOAL.shown(0.4321) == "0.43"
+    assert REAL_TIME_GOAL.met(2.5) and not REAL_TIME_GOAL.met(2.4999)
+    assert REAL_TIME_GOAL.shown(2.4999) == "2.4999" and REAL_TIME_GOAL.shown(None) == "–"
     assert not LATENCY_P50_GOAL.met(None)  # not measured: not within
 
 
