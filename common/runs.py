@@ -7,7 +7,9 @@ from 0 and the arm from its start posture, so what a service keeps for a run (me
 for their partner frame, vision's tracking, the controller's memory, the limiter's last
 command) belongs to a run that is over. :class:`RunWatch` tells, message by message, whether it
 belongs to the run in progress, begins a new one, or is left over from an earlier one (in
-flight when the sim restarted: to be dropped, since its frame numbers mean other frames now).
+flight when the sim restarted: to be dropped, since its frame numbers mean other frames now);
+a run taken for over that keeps coming with nothing of the run in progress between is the live
+one after all (a stray message had taken its place) and takes it back.
 Run 0 is a run like any other: the messages of recordings made before runs were stamped, and
 of sources that do not draw one (the bench's synthetic frames, the in-process pipeline).
 """
@@ -33,20 +35,37 @@ class RunVerdict(Enum):
     OVER = "over"  # a run that was replaced: its messages are left over
 
 
+# Messages of one run taken for over, in a row with none of the run in progress between: that
+# run is the live one after all. A stray message of a run never seen (sent long before, or by
+# a process that was frozen) otherwise took the live run's place for good; a backlog of a run
+# that did end is shorter (a frame's messages in lockstep) and is interleaved with the new one.
+REVIVE_AFTER = 10
+
+
 class RunWatch:
     """The run in progress, from the runs of the messages as they come, and the last
     ``remembered`` runs it replaced."""
 
-    def __init__(self, remembered: int = 8) -> None:
+    def __init__(self, remembered: int = 8, revive_after: int = REVIVE_AFTER) -> None:
         self.current: int | None = None
         self._over: deque[int] = deque(maxlen=remembered)
+        self.revive_after = revive_after
+        self._streak: tuple[int | None, int] = (None, 0)  # an over run heard in a row, how often
 
     def see(self, run: int) -> RunVerdict:
-        """What a message of ``run`` is; a new run becomes the one in progress."""
+        """What a message of ``run`` is; a new run becomes the one in progress, and so does an
+        over one heard :data:`REVIVE_AFTER` times in a row."""
         if run == self.current:
+            self._streak = (None, 0)
             return RunVerdict.SAME
         if run in self._over:
-            return RunVerdict.OVER
+            heard, times = self._streak
+            times = times + 1 if heard == run else 1
+            self._streak = (run, times)
+            if times < self.revive_after:
+                return RunVerdict.OVER
+            self._over.remove(run)  # the live one: it takes the place back
+        self._streak = (None, 0)
         if self.current is not None:
             self._over.append(self.current)
         self.current = run

@@ -39,6 +39,12 @@ class LimiterState:
         """After a stop with no frame to time it (the deadman): from rest, no time base."""
         return LimiterState()
 
+    @staticmethod
+    def at_rest_since(sim_time_s: float) -> LimiterState:
+        """The motors at rest since ``sim_time_s``: the next command ramps up from zero over
+        the time since (a state without a time base would allow no change at all)."""
+        return LimiterState(np.zeros(kin.N_JOINTS), sim_time_s)
+
 
 @dataclass(frozen=True)
 class ActuationStep:

@@ -107,8 +107,10 @@ class ActuationService:
             if not self.lockstep and self.deadman_active():
                 # No fresh twist for the deadman's time: the motors were stopped, by the
                 # deadman or, if it could not send (this process frozen), by the sim's
-                # watchdog. Ramp up from rest, not from the command before the gap.
-                self.limiter = LimiterState.at_rest()
+                # watchdog. Ramp up from rest, not from the command before the gap: over one
+                # camera period, as from a frame's command (with no time base the ramp allowed
+                # nothing, and twists that came that far apart never moved the arm).
+                self.limiter = LimiterState.at_rest_since(t - self.camera_period_s)
             self.last_valid_twist_s = time.monotonic()
         step = actuation_step(
             self.config,

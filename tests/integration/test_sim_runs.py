@@ -24,7 +24,7 @@ from common.messages import (
     JointVelocityCommand,
     RgbFrame,
 )
-from common.runs import RunVerdict, RunWatch, new_run
+from common.runs import REVIVE_AFTER, RunVerdict, RunWatch, new_run
 from common.session import free_tcp_endpoint, open_session
 from services.pipeline import Pipeline
 
@@ -45,6 +45,24 @@ def test_runs_are_told_apart_and_a_replaced_one_stays_over() -> None:
     watch = RunWatch()
     used = [watch.admit(run, lambda: started.append(watch.current)) for run in (1, 1, 2, 1, 2)]
     assert used == [True, True, True, False, True] and started == [1, 2]
+
+
+def test_a_stray_message_of_a_run_never_seen_does_not_stop_the_live_run_for_good() -> None:
+    """Run 22 in progress; one message of run 11, never seen (sent long before, a process
+    frozen meanwhile), takes its place, and 22's messages then read as left over. Heard
+    REVIVE_AFTER times in a row, 22 is the live run after all and takes the place back; a
+    backlog of an ended run interleaved with the new run's messages revives nothing."""
+    watch = RunWatch()
+    assert [watch.see(r) for r in (22, 11)] == [RunVerdict.NEW, RunVerdict.NEW]
+    over = [watch.see(22) for _ in range(REVIVE_AFTER - 1)]
+    assert over == [RunVerdict.OVER] * (REVIVE_AFTER - 1) and watch.current == 11
+    assert watch.see(22) is RunVerdict.NEW and watch.current == 22
+    assert watch.see(22) is RunVerdict.SAME and watch.see(11) is RunVerdict.OVER
+    backlog = RunWatch()
+    backlog.see(1)
+    backlog.see(2)  # the sim restarted: run 1's messages still come in
+    verdicts = [backlog.see(r) for _ in range(3 * REVIVE_AFTER) for r in (1, 2)]
+    assert set(verdicts[0::2]) == {RunVerdict.OVER} and backlog.current == 2
 
 
 @pytest.fixture(scope="module")
@@ -200,7 +218,8 @@ def test_the_sim_applies_commands_of_its_own_run_and_stops_of_any() -> None:
 def test_actuation_frozen_past_its_deadman_ramps_up_from_rest(ctx, pipeline_frames) -> None:
     """Realtime: actuation frozen (SIGSTOP) for longer than its deadman cannot send the stop,
     and the sim's watchdog stops the motors instead. On resume its first command must ramp from
-    rest, not jump back to the speed it last commanded (the acceleration limit broken)."""
+    rest over a camera period, not jump back to the speed it last commanded (the acceleration
+    limit broken), nor stay at rest (twists that came that far apart never moved the arm)."""
     from common.runtime import parse_overrides
     from services.actuation.node import ActuationService
 
@@ -218,6 +237,15 @@ def test_actuation_frozen_past_its_deadman_ramps_up_from_rest(ctx, pipeline_fram
         assert last.twist.valid
         service.on_event(ctx.keys.joint_state, in_run(last.joints, RUN_A))
         service.on_event(ctx.keys.twist, in_run(last.twist, RUN_A))
-        assert sent[-1].header.frame_seq == 5 and not np.any(sent[-1].velocity_rad_s)
+        resumed = np.abs(sent[-1].velocity_rad_s)
+        ramp = ctx.scenario.actuation.max_joint_acceleration_rad_s2 * ctx.scenario.frame_period_s
+        assert sent[-1].header.frame_seq == 5 and 0 < resumed.max() <= ramp * (1 + 1e-9)
+        assert resumed.max() < np.abs(sent[3].velocity_rad_s).max()
+        # Every twist after such a gap (a render far slower than the deadman): the arm moves.
+        for f in pipeline_frames[6:10]:
+            service.last_valid_twist_s -= 1.0
+            service.on_event(ctx.keys.joint_state, in_run(f.joints, RUN_A))
+            service.on_event(ctx.keys.twist, in_run(f.twist, RUN_A))
+            assert np.any(sent[-1].velocity_rad_s), f.twist.header.frame_seq
     finally:
         service.node.close()
