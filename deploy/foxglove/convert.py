@@ -50,6 +50,7 @@ from common.messages import (
     SimTruth,
 )
 from common.messages import JointState as UmayJointState
+from common.runs import RunVerdict, RunWatch
 from deploy.foxglove.image import (
     calibration,
     compressed_image,
@@ -166,38 +167,36 @@ class ViewState:
     static_sent_s: float | None = None
     sim_time_s: float = 0.0
     run: int = 0  # the sim's run of the messages seen (Header.run; 0: none stamped)
-    past_runs: frozenset[int] = frozenset()  # runs a later one followed: their messages are late
+    runs: RunWatch = field(default_factory=RunWatch)  # the sim's runs seen, kept across runs
 
     @property
     def oriented(self) -> bool:
         """Corners paired i with i, as the controller does with ``marker.orientation_cue``."""
         return self.scenario.marker.orientation_cue
 
-    def restarted(self, run: int, t_s: float) -> bool:
-        """Whether a message of the sim's run ``run`` (its header's, 0: not stamped) at ``t_s``
-        belongs to a new run: another run than the one seen (another run, or the sim restarted
-        by its supervisor, however early), or, for messages without one, simulated time gone
-        back by more than :data:`RESTART_BACK_S`. Kept, this state would hold the old run's
-        trail and clock, and send no fixed scene or calibration until the new run passed the
-        old one's time."""
-        if run and self.run:  # both stamped: the run decides (a stop may carry any time)
-            return run != self.run
-        return t_s < self.sim_time_s - RESTART_BACK_S
-
-    def continued(self, message: Any) -> ViewState:
-        """This state, or a fresh one when ``message`` begins a new run (:meth:`restarted`):
-        the one rule the live view and the export follow."""
+    def continued(self, message: Any) -> ViewState | None:
+        """This state, a fresh one when ``message`` begins a new run, or None when it is left
+        over from a run that is over (sent before the sim restarted, come late: shown, it would
+        start that old run's view again); the one rule the live view and the export follow.
+        A stamped message is judged by its run (:class:`common.runs.RunWatch`, as the services
+        judge theirs: a stop may carry any time), one without by simulated time gone back more
+        than :data:`RESTART_BACK_S`. Kept, this state would hold the old run's trail and clock,
+        and send no fixed scene or calibration until the new run passed the old one's time."""
         header = getattr(message, "header", None)
-        if header is not None and self.restarted(header.run, header.sim_time_s):
-            past = self.past_runs | {self.run} if self.run else self.past_runs
-            return ViewState(self.scenario, self.trail_max, past_runs=past)
+        if header is None:
+            return self
+        if header.run:
+            verdict = self.runs.see(header.run)
+            if verdict is RunVerdict.OVER:
+                return None
+            if verdict is RunVerdict.SAME or (self.run and verdict is RunVerdict.NEW):
+                return self if verdict is RunVerdict.SAME else self._fresh()
+        if header.sim_time_s < self.sim_time_s - RESTART_BACK_S:
+            return self._fresh()
         return self
 
-    def of_a_past_run(self, message: Any) -> bool:
-        """Whether ``message`` belongs to a run a later one has followed (sent before the sim
-        restarted, and come late): shown, it would start that old run's view again."""
-        header = getattr(message, "header", None)
-        return header is not None and header.run in self.past_runs
+    def _fresh(self) -> ViewState:
+        return ViewState(self.scenario, self.trail_max, runs=self.runs)
 
     def phase_changes(self, twist: EndEffectorTwist) -> bool:
         """Whether ``twist`` changes the controller's phase or hold reason (logged, always)."""

@@ -91,12 +91,12 @@ def _export(
             except MessageError:
                 report.rejected += 1
                 continue
-            if state.of_a_past_run(msg):  # logged late, after the sim restarted
-                report.skipped += 1
-                continue
             # A recording can span runs (the sim restarted): each gets its own view, as live,
             # and follows the one before on the timeline.
             fresh = state.continued(shifted(msg, offset_s))
+            if fresh is None:  # logged late, after the sim restarted
+                report.skipped += 1
+                continue
             if fresh is not state:
                 report.runs += 1
                 offset_s = state.sim_time_s + RUN_GAP_S - msg.header.sim_time_s

@@ -207,10 +207,10 @@ class ViewNode:
         return on_sample
 
     def on_event(self, suffix: str, message: Any) -> None:
-        if self.state.of_a_past_run(message):  # sent before the sim restarted, come late
+        state = self.state.continued(message)
+        if state is None:  # sent before the sim restarted, come late
             self.dropped[suffix] += 1
             return
-        state = self.state.continued(message)
         if state is not self.state:
             log.info("a new run of the sim (at %.2f s simulated)", message.header.sim_time_s)
             self.state = state

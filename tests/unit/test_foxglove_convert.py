@@ -25,6 +25,7 @@ from common.messages import (
     RgbFrame,
     ServiceStatus,
 )
+from common.runs import REVIVE_AFTER
 from deploy.foxglove import convert, image, topics
 from deploy.foxglove.channels import TOPICS
 from deploy.foxglove.client import protobuf_class
@@ -208,6 +209,12 @@ def test_phase_changes_are_logged_once(scenario: Scenario) -> None:
     assert tw["linear_m_s"] == [0.01, 0.0, 0.0] and tw["error_px_rms"] == 3.0
 
 
+def stamped(message, run: int, t_s: float | None = None):
+    """``message`` of the sim's run ``run`` (at ``t_s`` simulated, if given)."""
+    update = {"run": run} if t_s is None else {"run": run, "sim_time_s": t_s}
+    return message.model_copy(update={"header": message.header.model_copy(update=update)})
+
+
 def test_a_new_run_is_told_by_time_going_back_and_a_fresh_state_sends_the_fixed_scene(
     scenario: Scenario,
 ) -> None:
@@ -215,12 +222,13 @@ def test_a_new_run_is_told_by_time_going_back_and_a_fresh_state_sends_the_fixed_
     for k in range(3):
         old.on_features(features(scenario, 284.0 + k, shift_m=0.01 * k, seq=k))
     assert old.sim_time_s == 286.0 and len(old.trail_px) == 3
-    assert not old.restarted(0, 285.5)  # a message a little behind the newest: the same run
+    # A message a little behind the newest: the same run.
+    assert old.continued(features(scenario, 285.5)) is old
     assert old.fixed(286.0) != [] and old.fixed(286.5) == []  # not again within a second
-    assert old.restarted(0, 47.0)  # the sim restarted
+    new = old.continued(features(scenario, 47.0))  # the sim restarted
+    assert new is not None and new is not old and new.trail_px == []
     # Kept, the old state would send no fixed scene at 47 s; a fresh one does at once.
     assert old.fixed(47.0) == []
-    new = convert.ViewState(scenario)
     assert {o.topic for o in new.fixed(47.0)} == {topics.SCENE, topics.CALIBRATION}
 
 
@@ -228,29 +236,38 @@ def test_a_sim_restarted_early_is_told_by_its_run_not_its_time(scenario: Scenari
     """Killed at 0.8 s and restarted, the sim's time goes back less than a second: the run
     stamped on every message says it is another run all the same."""
     state = convert.ViewState(scenario)
-    first = features(scenario, 0.8, seq=24)
-    first = first.model_copy(update={"header": first.header.model_copy(update={"run": 11})})
+    first = stamped(features(scenario, 0.8, seq=24), 11)
+    assert state.continued(first) is state
     state.on_message(FEATURES, first)
     assert state.run == 11
-    assert not state.restarted(11, 0.7) and not state.restarted(0, 0.2)
-    assert state.restarted(12, 0.03)  # a new run, 0.77 s back in time
+    assert state.continued(stamped(first, 11, 0.7)) is state
+    assert state.continued(stamped(first, 0, 0.2)) is state  # unstamped, not far back
+    fresh = state.continued(stamped(first, 12, 0.03))  # a new run, 0.77 s back in time
+    assert fresh is not None and fresh is not state
 
 
-def test_a_message_of_the_same_run_earlier_in_time_is_not_a_new_run(scenario: Scenario) -> None:
+def test_runs_are_judged_as_the_services_judge_theirs(scenario: Scenario) -> None:
     """A stamped message is judged by its run alone: a stop of the run seen, stamped with an
-    earlier time (a deadman stop once carried 0 s), does not start the view afresh."""
+    earlier time (a deadman stop once carried 0 s), does not start the view afresh; one of a
+    run that a later one followed is left out, not taken for yet another run; and a stray
+    message of a run never seen does not stop the live run's view for good."""
     state = convert.ViewState(scenario)
-    later = features(scenario, 1.87, seq=56)
-    later = later.model_copy(update={"header": later.header.model_copy(update={"run": 3})})
+    later = stamped(features(scenario, 1.87, seq=56), 3)
+    assert state.continued(later) is state
     state.on_message(FEATURES, later)
-    assert not state.restarted(3, 0.0) and state.continued(later) is state
-    assert state.restarted(4, 0.0)
-    # The next run's first message starts afresh; one of run 3 come late is then of the past.
-    nxt = features(scenario, 0.03, seq=0)
-    nxt = nxt.model_copy(update={"header": nxt.header.model_copy(update={"run": 4})})
-    fresh = state.continued(nxt)
-    assert fresh is not state and fresh.past_runs == {3}
-    assert fresh.of_a_past_run(later) and not fresh.of_a_past_run(nxt)
+    assert state.continued(stamped(later, 3, 0.0)) is state
+    nxt = stamped(features(scenario, 0.03, seq=0), 4)
+    fresh = state.continued(nxt)  # the next run's first message starts afresh
+    assert fresh is not None and fresh is not state and fresh.runs is state.runs
+    fresh.on_message(FEATURES, nxt)
+    assert fresh.continued(later) is None  # run 3's, come late
+    assert fresh.continued(stamped(nxt, 4, 0.07)) is fresh
+    stray = fresh.continued(stamped(nxt, 99, 5.0))  # a run never seen takes the place...
+    assert stray is not None and stray is not fresh
+    stray.on_message(FEATURES, stamped(nxt, 99, 5.0))
+    live = [stray.continued(stamped(nxt, 4, 0.1 + k / 30)) for k in range(REVIVE_AFTER)]
+    assert live[:-1] == [None] * (REVIVE_AFTER - 1)  # ... until run 4 has kept coming
+    assert live[-1] is not None and live[-1] is not stray
 
 
 def test_status_logs_warn_of_a_silent_service() -> None:
