@@ -305,9 +305,6 @@ def cue_centre_in_marker(size_m: float) -> FloatArray:
 
 
 BASE_UP = np.array([0.0, 1.0, 0.0])  # the vertical, in the base frame
-# The table's top, in the base frame (y up): the sim builds it there, the object on it up to
-# the red marker; the pre-launch check and the live view's scene know it from here.
-TABLE_TOP_Y_M = -0.40
 
 
 def goal_marker_pose(target_pose: FloatArray, approach_height_m: float) -> FloatArray:

@@ -14,8 +14,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
 from common.camera import CameraIntrinsics
-
-N_JOINTS = 6
+from common.kinematics import N_JOINTS
 
 # Sane ranges: a value outside them is a fault, not a command to follow.
 PIXEL_LIMIT_PX = 1e4

@@ -39,12 +39,16 @@ from deploy.foxglove.style import (
 )
 from deploy.foxglove.topics import BASE, CAMERA, CAMERA_TRUE, DH_FRAMES, EE, HAND_MARKER
 from deploy.foxglove.transforms import pose, stamp
-from services.sim.urdf import TORSO_CENTRE_M, TORSO_SIZE_M
+from services.sim.urdf import (
+    TABLE_CENTRE_M,
+    TABLE_SIZE_M,
+    TORSO_CENTRE_M,
+    TORSO_SIZE_M,
+    object_block,
+)
 
 FloatArray = np.ndarray
 
-TABLE_CENTRE_M = (0.42, kin.TABLE_TOP_Y_M - 0.02, 0.0)
-TABLE_SIZE_M = (0.56, 0.04, 0.90)
 FRUSTUM_DEPTH_M = 0.6  # how far the drawn camera frustum reaches
 
 
@@ -151,12 +155,11 @@ def static_scene(scenario: Scenario, t_s: float) -> SceneUpdate:
     table = _cube(kin.homogeneous(np.eye(3), np.array(TABLE_CENTRE_M)), TABLE_SIZE_M, TABLE)
     entities.append(_entity("table", BASE, t_s, cubes=[table]))
     target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
-    top_y = float(target[1, 3])
-    if top_y - kin.TABLE_TOP_Y_M > 0.005:
-        centre = np.array([target[0, 3], (top_y + kin.TABLE_TOP_Y_M) / 2, target[2, 3]])
+    centre, height = object_block(target)  # as the sim builds it
+    if height > 0.005:
         block_pose = kin.homogeneous(target[:3, :3], centre)
         side = scenario.object_side_m
-        block = _cube(block_pose, (side, side, top_y - kin.TABLE_TOP_Y_M), BLOCK)
+        block = _cube(block_pose, (side, side, height), BLOCK)
         # The block's height is along the marker's normal (z of the target frame).
         entities.append(_entity("block", BASE, t_s, cubes=[block]))
     red = _cube(target, (size, size, 0.002), RED)

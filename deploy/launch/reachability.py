@@ -13,6 +13,7 @@ import numpy as np
 from common import kinematics as kin
 from common.camera import project
 from common.config import Scenario, ScenarioError
+from services.sim.urdf import TABLE_TOP_Y_M
 
 IMAGE_MARGIN_PX = 8.0
 # Seen more obliquely than this, the hand's square is too thin for vision to fit its corners
@@ -118,10 +119,10 @@ def check_scenario(scenario: Scenario, seeds: int | None = None) -> np.ndarray:
         joints = ", ".join(f"joint_{i + 1}" for i in outside)
         raise ScenarioError(f"robot.q0: {joints} outside the joint limits")
     size = scenario.marker.size_m
-    if scenario.target.position[1] <= kin.TABLE_TOP_Y_M:
+    if scenario.target.position[1] <= TABLE_TOP_Y_M:
         raise ScenarioError(
             f"target.position: y {scenario.target.position[1]:g} m is not above the table's top "
-            f"(y {kin.TABLE_TOP_Y_M:g} m): the red marker lies on an object on the table"
+            f"(y {TABLE_TOP_Y_M:g} m): the red marker lies on an object on the table"
         )
     target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
     if not marker_in_image(kin.marker_corners(target, size), scenario):

@@ -36,7 +36,7 @@ from pydantic import BaseModel
 
 from common import keys as data_keys
 from common.codec import DEFAULT_MAX_BYTES, MessageError, decode
-from common.config import load_scenario
+from common.config import ControllerConfig, load_scenario
 from common.messages import (
     EndEffectorTwist,
     Features,
@@ -49,7 +49,7 @@ log = logging.getLogger(__name__)
 M = TypeVar("M", bound=BaseModel)
 
 DPI = 150
-DEFAULT_CONVERGED_PX = 0.25
+DEFAULT_CONVERGED_PX: float = ControllerConfig.model_fields["converged_px"].default
 
 # Key suffixes (see common/keys.py) of the channels read; the images are deliberately absent.
 SUFFIX_FEATURES = data_keys.FEATURES

@@ -94,8 +94,6 @@ class ActuationService:
         )
         if frame_seq >= 0:
             self.last_output = command
-        if frame_seq >= 0:  # what the motors will follow
-            self.limiter = self.limiter.commanded(velocity, sim_time_s)
         elif not self.lockstep:  # a deadman stop reaches the motors: start again from rest
             self.limiter = LimiterState.at_rest()
         self.pub.put(command)
@@ -121,6 +119,7 @@ class ActuationService:
             t,
             self.camera_period_s,
         )
+        self.limiter = step.state  # what the motors will follow, as the pure step has it
         if step.joint is None:
             self.counts["hold_stops"] += 1
         else:

@@ -21,6 +21,10 @@ TORSO_COLOUR = (0.35, 0.37, 0.42, 1.0)
 # corner, 6 cm below the top; its front face (x = 0.01) carries the camera at mid-width.
 TORSO_SIZE_M = (0.14, 0.48, 0.26)
 TORSO_CENTRE_M = (-0.06, -0.14, -0.13)
+# The table, in the base frame (y up): its top, the box under it; the object stands on it.
+TABLE_TOP_Y_M = -0.40
+TABLE_SIZE_M = (0.56, 0.04, 0.90)
+TABLE_CENTRE_M = (0.42, TABLE_TOP_Y_M - TABLE_SIZE_M[1] / 2, 0.0)
 SKIN = "0.92 0.90 0.86 1"
 GREEN = "0.10 0.75 0.15 1"
 # The orientation cue on both markers (config marker.orientation_cue): a saturated blue that
@@ -134,3 +138,11 @@ def robot_urdf(marker_size_m: float, orientation_cue: bool = False) -> str:
         links.append(f'<link name="{name}">{_inertial(0.3)}{shapes[name]}</link>')
     body = "\n".join(links + joints)
     return f'<?xml version="1.0"?>\n<robot name="umay">\n{body}\n</robot>\n'
+
+
+def object_block(target_pose: np.ndarray) -> tuple[np.ndarray, float]:
+    """The object under the red marker (pose ``target_pose``, base frame): the centre of the
+    block from the table's top up to the marker's underside, and its height (m; ≤ 0: none)."""
+    top_y = float(target_pose[1, 3]) - kin.MARKER_THICKNESS_M
+    centre = np.array([target_pose[0, 3], (top_y + TABLE_TOP_Y_M) / 2, target_pose[2, 3]])
+    return centre, top_y - TABLE_TOP_Y_M

@@ -33,10 +33,13 @@ from services.sim.shapes import VisualShape, body_ids, shape_poses, visual_shape
 from services.sim.truth import MarkerView, Truth, square_pixels, truth_corners_px
 from services.sim.urdf import (
     CUE_RGBA,
+    TABLE_CENTRE_M,
+    TABLE_SIZE_M,
     TORSO_CENTRE_M,
     TORSO_COLOUR,
     TORSO_SIZE_M,
     cue_box,
+    object_block,
     robot_urdf,
 )
 
@@ -219,8 +222,7 @@ class World:
         torso, table and floor to the view (:mod:`services.sim.scenery`) saves more."""
         # The object: a box from the table top up to the red marker, which lies on its top face.
         size = self.scenario.marker.size_m
-        top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M
-        height = top_y - kin.TABLE_TOP_Y_M
+        _centre, height = object_block(self.target_pose)
         self._target_quat = self.client.getQuaternionFromEuler([0.0, self.scenario.target.yaw, 0.0])
         self.object_body: int | None = None
         if height > 0.005:
@@ -257,8 +259,10 @@ class World:
         self.torso_body = self._scenery_box(
             torso, np.array(TORSO_CENTRE_M), TORSO_COLOUR, frustum, collide=False
         )
-        table = np.array([0.42, kin.TABLE_TOP_Y_M - 0.02, 0.0])
-        self.table_body = self._scenery_box((0.28, 0.02, 0.45), table, TABLE_COLOUR, frustum)
+        half_table = tuple(side / 2 for side in TABLE_SIZE_M)
+        self.table_body = self._scenery_box(
+            half_table, np.array(TABLE_CENTRE_M), TABLE_COLOUR, frustum
+        )
         floor = np.array([0.3, FLOOR_TOP_Y_M - 0.01, 0.0])
         self.floor_body = self._scenery_box((1.5, 0.01, 1.5), floor, FLOOR_COLOUR, frustum)
 
@@ -267,10 +271,7 @@ class World:
 
     def _object_centre(self) -> FloatArray:
         """Centre of the block under the marker: straight below the marker, down to the table."""
-        top_y = self.target_pose[1, 3] - kin.MARKER_THICKNESS_M
-        return np.array(
-            [self.target_pose[0, 3], (top_y + kin.TABLE_TOP_Y_M) / 2, self.target_pose[2, 3]]
-        )
+        return object_block(self.target_pose)[0]
 
     # --- scenario events ------------------------------------------------------------------
     def update_scene(self) -> SceneState:

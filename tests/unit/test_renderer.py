@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from common.config import Scenario, load_scenario
-from common.kinematics import TABLE_TOP_Y_M
 from common.runtime import parse_overrides
 from deploy.experiments.accuracy import WHOLE, sample_postures
 from services.sim import renderers
 from services.sim.gl_renderer import GlUnavailable, depth_uniforms, pinhole_uniforms
 from services.sim.projection import opengl_projection_matrix
 from services.sim.shapes import box_mesh, cylinder_mesh
+from services.sim.urdf import TABLE_TOP_Y_M
 from services.sim.world import FLOOR_TOP_Y_M, World
 from services.vision.measurement import measure_markers
 
