@@ -37,6 +37,7 @@ def whole_frame_key(key: str) -> str:
 
 ENV_PREFIX = "UMAY_PREFIX"  # the key prefix of every command without --prefix
 ENV_ROBOT_ID = "UMAY_ROBOT_ID"  # else umay/<robot id>
+PREFIX_HELP = "Zenoh key prefix (default: $UMAY_PREFIX, else umay/$UMAY_ROBOT_ID, else umay/umay1)"
 
 
 def default_prefix() -> str:

@@ -14,7 +14,7 @@ from typing import Any
 import zenoh
 
 from common.config import Scenario, ScenarioError, load_scenario
-from common.keys import Keys, check_prefix, default_prefix
+from common.keys import PREFIX_HELP, Keys, check_prefix, default_prefix
 from common.node import setup_logging
 from common.processes import ProcessEnd
 from common.session import ZenohConfigError, check_endpoints, open_session
@@ -54,9 +54,7 @@ def endpoint_argument(value: str) -> str:
 def service_arguments(service: str, argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog=f"umay service {service}")
     parser.add_argument("--scenario", default=None, help="scenario TOML (default: default.toml)")
-    parser.add_argument(
-        "--prefix", type=prefix_argument, help="Zenoh key prefix (default: umay/<id>)"
-    )
+    parser.add_argument("--prefix", type=prefix_argument, help=PREFIX_HELP)
     parser.add_argument(
         "--connect",
         type=endpoints_argument,

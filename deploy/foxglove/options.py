@@ -16,10 +16,11 @@ def view_arguments(argv: list[str] | None) -> argparse.Namespace:
 
 def add_view_arguments(p: argparse.ArgumentParser) -> None:
     """Every option of ``umay view`` (also the ``view`` subcommand of ``umay``)."""
+    from common.keys import PREFIX_HELP
     from common.runtime import endpoints_argument, prefix_argument
 
     add_view_options(p)
-    p.add_argument("--prefix", type=prefix_argument, help="Zenoh key prefix (default: umay/<id>)")
+    p.add_argument("--prefix", type=prefix_argument, help=PREFIX_HELP)
     p.add_argument(
         "--connect", type=endpoints_argument, default=None, help="Zenoh endpoint(s) of the system"
     )

@@ -17,7 +17,7 @@ from pathlib import Path
 import zenoh
 
 from common.config import ClockMode, JacobianMode, Scenario, ScenarioError
-from common.keys import SERVICES, Keys, default_prefix
+from common.keys import PREFIX_HELP, SERVICES, Keys, default_prefix
 from common.runtime import endpoint_argument, endpoints_argument, prefix_argument
 from common.session import (
     DEFAULT_ENDPOINT,
@@ -43,7 +43,7 @@ def _scenario_options(p: argparse.ArgumentParser, clock_default: str) -> None:
         "--mode", default=None, help="Jacobian strategy: constant|dynamic|pmj|mpj|points3d"
     )
     p.add_argument("--clock", default=clock_default, help="lockstep|realtime")
-    p.add_argument("--prefix", type=prefix_argument, help="Zenoh key prefix (default: umay/<id>)")
+    p.add_argument("--prefix", type=prefix_argument, help=PREFIX_HELP)
     p.add_argument(
         "--listen",
         type=endpoint_argument,
@@ -106,12 +106,15 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         return cmd_run_inprocess(args, scenario)
     record = Path(args.record) if args.record else None
+    record_frames = not args.record_without_frames
     if args.result:
         check_output_file("--result", args.result)
     if args.plot:
         check_output_dir("--plot", args.plot)
-        if record is None:  # plotting needs a recording: one beside the figures
+        if record is None:  # plotting needs a recording: one beside the figures, and no
+            # camera frames in it (the figures draw none; with them it weighs tens of MB)
             record = check_output_file("--plot", Path(args.plot) / "run.mcap")
+            record_frames = False
     if args.record:
         check_output_file("--record", args.record)
     check_output_dir("--log-dir", args.log_dir)
@@ -136,7 +139,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             listen=listen,
             quiet=args.quiet,
             record=record,
-            record_frames=not args.record_without_frames,
+            record_frames=record_frames,
             stop=stop,
         )
     if args.quiet:
@@ -256,7 +259,15 @@ def cmd_logs(args: argparse.Namespace) -> int:
         print(f"umay logs: -n {args.lines}: a number of lines, 0 or more", file=sys.stderr)
         return EXIT_BAD_INPUT
     if not path.exists():
-        print(f"umay logs: no log for {args.name} in {args.log_dir}", file=sys.stderr)
+        started_by = (
+            "`umay up --view` or `umay run --view` starts it"
+            if args.name == "view"
+            else "`umay run` and `umay up` write the services' logs there"
+        )
+        print(
+            f"umay logs: no log for {args.name} in {args.log_dir} ({started_by})",
+            file=sys.stderr,
+        )
         return EXIT_BAD_INPUT
     lines = path.read_text(errors="replace").splitlines()
     if args.lines:  # lines[-0:] would be all of them
@@ -333,10 +344,16 @@ def add_run_parser(sub: argparse._SubParsersAction) -> None:
         "Exit 0 converged, 1 not converged, 2 bad input (nothing launched), 130 interrupted.",
     )
     _scenario_options(p, clock_default=None)
-    p.add_argument("--timeout", type=float, default=None, help="simulated seconds")
+    p.add_argument("--timeout", type=positive_seconds, default=None, help="simulated seconds")
     p.add_argument("--result", default=None, help="write the result JSON here")
     p.add_argument("--quiet", action="store_true", help="no live progress line")
-    p.add_argument("--plot", default=None, metavar="DIR", help="write the run's figures here")
+    p.add_argument(
+        "--plot",
+        default=None,
+        metavar="DIR",
+        help="write the run's figures here (and, without --record, the recording they are "
+        "drawn from, DIR/run.mcap, without camera frames)",
+    )
     p.add_argument("--record", default=None, metavar="OUT.mcap", help="record the run to MCAP")
     p.add_argument(
         "--record-without-frames",
@@ -416,7 +433,7 @@ def add_service_parser(sub: argparse._SubParsersAction) -> None:
 def add_status_parser(sub: argparse._SubParsersAction) -> None:
     """``umay status``: every service's status."""
     p = sub.add_parser("status", help="ask every service for its status over Zenoh")
-    p.add_argument("--prefix", type=prefix_argument)
+    p.add_argument("--prefix", type=prefix_argument, help=PREFIX_HELP)
     p.add_argument(
         "--connect",
         type=endpoints_argument,

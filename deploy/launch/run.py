@@ -201,7 +201,8 @@ def run_once(
         for s in subs:
             s.undeclare()
         session.close()
-        if live is not None:
+        if live is not None:  # the last frame's line, not the one of half a second before
+            live.update(progress_line(monitor, scenario, time.monotonic() - started))
             live.stop()
             if not live.console.is_terminal:  # a log or a pipe: its last line ends here
                 live.console.line()

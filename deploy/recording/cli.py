@@ -12,7 +12,7 @@ from pathlib import Path
 import zenoh
 
 from common.config import ScenarioError, load_scenario
-from common.keys import Keys, default_prefix
+from common.keys import PREFIX_HELP, Keys, default_prefix
 from common.runtime import endpoints_argument, parse_overrides, prefix_argument
 from common.session import open_session, where_connecting, zenoh_reason
 from deploy.arguments import NOTHING_RUNNING_THERE, positive_seconds
@@ -51,10 +51,11 @@ def cmd_record(args: argparse.Namespace) -> int:
             counts = recorder.message_counts()
         finally:
             session.close()
-    for key, n in sorted(counts.items()):
-        print(f"{n:8d}  {key}")
     total = sum(counts.values())
-    print(f"{total:8d}  messages in {args.out}")
+    if total:
+        for key, n in sorted(counts.items()):
+            print(f"{n:8d}  {key}")
+        print(f"{total:8d}  messages in {args.out}")
     if recorder.lost:
         print(f"{recorder.lost:8d}  frames lost (last: {recorder.last_loss})")
     if not total:  # the recorder made no file (nor emptied one there): no folder either
@@ -177,7 +178,11 @@ def add_plot_parser(sub: argparse._SubParsersAction) -> None:
     """``umay plot``: the figures of a recording."""
     p = sub.add_parser("plot", help="figures of a recorded run (PNG)")
     p.add_argument("file", help="an MCAP recording (umay run --record / umay record)")
-    p.add_argument("--out", default="out/plots", help="output folder")
+    p.add_argument(
+        "--out",
+        default="out/plots",
+        help="output folder (out/plots; figures of the same name there are replaced)",
+    )
     p.set_defaults(func=cmd_plot)
 
 
@@ -194,7 +199,7 @@ def add_record_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--duration", type=positive_seconds, default=None, help="seconds (default: Ctrl-C)"
     )
-    p.add_argument("--prefix", type=prefix_argument)
+    p.add_argument("--prefix", type=prefix_argument, help=PREFIX_HELP)
     p.add_argument(
         "--connect",
         type=endpoints_argument,

@@ -61,6 +61,7 @@ class VisionService:
         self.depth_age_s: float | None = None
         self.states: dict[str, str] = {"hand": "lost", "target": "lost"}
         self.reasons: dict[str, str] = {"hand": "", "target": ""}
+        self.hidden: set[str] = set()  # markers not usable because something is in front
 
     def new_run(self) -> None:
         """Forget what belongs to the sim's run before (a restarted sim starts again from
@@ -105,7 +106,12 @@ class VisionService:
         )
 
     def degraded(self) -> str:
-        lost = [f"{n}: {self.states[n]}, {r}" for n, r in self.reasons.items() if r]
+        lost = [
+            f"{n}: {self.states[n]}, {r}"
+            + (", hidden by something in front" if n in self.hidden else "")
+            for n, r in self.reasons.items()
+            if r
+        ]
         return "marker not usable (" + "; ".join(lost) + ")" if lost else ""
 
     def on_frame(self, frame: RgbFrame) -> None:
@@ -145,6 +151,8 @@ class VisionService:
         self.tracker = step.tracker
         for name, m in step.measured.items():
             self.states[name], self.reasons[name] = m.state, m.reason
+        # Hidden rather than gone (the hand over the target at the goal, a panel): said so.
+        self.hidden = {name for name, m in step.measured.items() if m.occluded}
         seq = frame.header.frame_seq
         header = self.node.header(frame.header.sim_time_s, seq, run=frame.header.run)
         features = step.features(header, frame.intrinsics)

@@ -381,3 +381,20 @@ def test_a_recording_without_frames_is_small_and_plots(tmp_path: Path) -> None:
     plotted = umay("plot", str(out), "--out", str(tmp_path / "plots"))
     assert plotted.returncode == 0, plotted.stderr
     assert len(list((tmp_path / "plots").glob("*.png"))) == 4
+
+
+def test_run_plot_keeps_the_recording_it_drew_from_without_camera_frames(tmp_path: Path) -> None:
+    """``umay run --plot DIR`` without ``--record``: the four figures, and the recording they
+    were drawn from beside them, without the camera frames the figures do not use."""
+    plots, prefix = tmp_path / "plots", unique_prefix()
+    sets = [a for item in SMALL_RUN for a in ("--set", item)]
+    proc = umay(
+        "run", "--quiet", "--plot", str(plots), *sets,
+        "--prefix", prefix, "--listen", free_tcp_endpoint(), "--log-dir", str(tmp_path / "logs"),
+    )  # fmt: skip
+    assert proc.returncode == 1, proc.stderr  # the short timeout, as in the fixture's run
+    assert len(list(plots.glob("*.png"))) == 4
+    info = read_info(plots / "run.mcap")
+    keys = Keys(prefix)
+    assert keys.rgb not in {c.topic for c in info.channels} and info.message_count > 0
+    assert info.metadata["umay"]["frames"] == "left out"
