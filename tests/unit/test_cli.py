@@ -50,7 +50,7 @@ REFUSED = [
     # The folders the checks before it made (--plot's, --result's) removed again.
     case(*RUN, "--plot", "p/q", "--result", "r/s.json", "--log-dir", FILE, says="--log-dir file"),
     case("run", "--listen", "tcp/a:1,tcp/b:2", says="one endpoint, not a list"),
-    case(*RUN, "--timeout", "-5", says="run.timeout_s: Input should be greater than 0"),
+    case(*RUN, "--timeout", "-5", says="argument --timeout: '-5': seconds, a finite number"),
     case("up", "--scenario", "nope.toml", says="umay up: nope.toml: no such scenario file"),
     case("up", "--set", "controller.gain=-1", "--log-dir", "logs", says="controller.gain"),
     case("up", "--scenario", ".", "--log-dir", "logs", says="umay up: .: cannot read it"),
