@@ -47,16 +47,22 @@ def umay(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run([*UMAY, *args], capture_output=True, text=True, timeout=timeout)
 
 
+def small_run(prefix: str, log_dir: Path, *args: str) -> subprocess.CompletedProcess:
+    """``umay run --quiet`` of the short :data:`SMALL_RUN` under ``prefix``, with ``args``;
+    it stops at its short timeout (exit 1)."""
+    sets = [a for item in SMALL_RUN for a in ("--set", item)]
+    return umay(
+        "run", "--quiet", *args, *sets,
+        "--prefix", prefix, "--listen", free_tcp_endpoint(), "--log-dir", str(log_dir),
+    )  # fmt: skip
+
+
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     """A short real run recorded to MCAP: (file, prefix)."""
     tmp = tmp_path_factory.mktemp("recording")
     out, prefix = tmp / "r.mcap", unique_prefix()
-    sets = [a for item in SMALL_RUN for a in ("--set", item)]
-    proc = umay(
-        "run", "--quiet", "--record", str(out), *sets,
-        "--prefix", prefix, "--listen", free_tcp_endpoint(), "--log-dir", str(tmp / "logs"),
-    )  # fmt: skip
+    proc = small_run(prefix, tmp / "logs", "--record", str(out))
     # The run stops at its (short) timeout: not converged, exit 1.
     assert proc.returncode == 1, f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
     assert out.exists(), proc.stderr
@@ -365,11 +371,7 @@ def test_a_recording_without_frames_is_small_and_plots(tmp_path: Path) -> None:
     """``--record-without-frames``: every data key but the camera frames, the metadata says
     so, and ``umay plot`` draws its four figures from it."""
     out, prefix = tmp_path / "small.mcap", unique_prefix()
-    sets = [a for item in SMALL_RUN for a in ("--set", item)]
-    proc = umay(
-        "run", "--quiet", "--record", str(out), "--record-without-frames", *sets,
-        "--prefix", prefix, "--listen", free_tcp_endpoint(), "--log-dir", str(tmp_path / "logs"),
-    )  # fmt: skip
+    proc = small_run(prefix, tmp_path / "logs", "--record", str(out), "--record-without-frames")
     assert proc.returncode == 1, proc.stderr  # the short timeout, as in the fixture's run
     keys = Keys(prefix)
     info = read_info(out)
@@ -387,11 +389,7 @@ def test_run_plot_keeps_the_recording_it_drew_from_without_camera_frames(tmp_pat
     """``umay run --plot DIR`` without ``--record``: the four figures, and the recording they
     were drawn from beside them, without the camera frames the figures do not use."""
     plots, prefix = tmp_path / "plots", unique_prefix()
-    sets = [a for item in SMALL_RUN for a in ("--set", item)]
-    proc = umay(
-        "run", "--quiet", "--plot", str(plots), *sets,
-        "--prefix", prefix, "--listen", free_tcp_endpoint(), "--log-dir", str(tmp_path / "logs"),
-    )  # fmt: skip
+    proc = small_run(prefix, tmp_path / "logs", "--plot", str(plots))
     assert proc.returncode == 1, proc.stderr  # the short timeout, as in the fixture's run
     assert len(list(plots.glob("*.png"))) == 4
     info = read_info(plots / "run.mcap")
