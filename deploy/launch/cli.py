@@ -148,7 +148,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         Console().print(result_table(result))
     if args.result:
         write_result(result, args.result)
-    if args.plot:
+    if args.plot and record is not None and not record.exists():  # the recorder heard nothing
+        print(f"umay run: no figures: nothing was recorded to {record}", file=sys.stderr)
+    elif args.plot and record is not None:
         from deploy.recording.plots import plot_recording
 
         for path in plot_recording(record, Path(args.plot), scenario.controller.converged_px):
