@@ -45,7 +45,7 @@ from common.runs import new_run
 from common.runtime import ServiceContext
 from common.session import ENV_SHM
 from services.sim.motors import bounded_at_angles, motor_velocities
-from services.sim.schedule import DepthSchedule, frames_missed
+from services.sim.schedule import DepthSchedule, FrameClock
 from services.sim.status import SimStatus
 from services.sim.truth import truth_message
 from services.sim.world import World
@@ -58,9 +58,6 @@ class SimService:
         self.ctx = ctx
         self.scenario = ctx.scenario
         self.world = World(ctx.scenario)
-        # The camera period in whole physics steps, as lockstep and the depth schedule have it
-        # (1/rgb_hz would put realtime frames off the depth ticks' grid).
-        self.period_s = ctx.scenario.frame_period_s
         self.substeps = substeps_per_frame(ctx.scenario.camera.rgb_hz, self.world.physics_dt_s)
         self.frame_seq = 0
         self.run_id = new_run()  # on every message: a restarted sim is a new run (common.runs)
@@ -320,7 +317,7 @@ class SimService:
         be received before the render ends: without the wait every command would reach the
         motors one render late (docs/performance.md has the figures)."""
         started = time.monotonic()
-        next_frame_s = 0.0
+        clock = FrameClock.of(self.scenario)
         wait_s = self.scenario.sim.realtime_command_wait_s
         awaited: int | None = None  # the frame whose command the next render waits for
         awaited_since = 0.0
@@ -355,13 +352,13 @@ class SimService:
                 if behind > 0:
                     apply_commands(0.0)
             waiting = awaited is not None and time.monotonic() - awaited_since < wait_s
-            missed = frames_missed(self.world.sim_time_s, next_frame_s, self.period_s)
+            missed = clock.missed(self.world.sim_time_s)
             if missed is not None and not waiting:
                 self.dropped_frames += missed
                 self.publish_frame()
                 awaited, awaited_since = self.frame_seq, time.monotonic()
                 self.frame_seq += 1
-                next_frame_s += (missed + 1) * self.period_s
+                clock = clock.after_frame(missed)
             # Until the next physics step is due (rendering may already have overrun it).
             elapsed_s = time.monotonic() - started - wall_s
             timeout_s = max(0.0, self.world.physics_dt_s - elapsed_s)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from common.config import CameraConfig
+from common.config import CameraConfig, Scenario
 from services.sim.events import TIME_EPSILON_S
 
 
@@ -50,14 +50,29 @@ class DepthSchedule:
         )
 
 
-def frames_missed(t_s: float, next_frame_s: float, period_s: float) -> int | None:
-    """Realtime: is a colour frame due at sim time ``t_s``, the next one on the camera's grid
-    being at ``next_frame_s`` (``period_s`` apart)? None if not yet; else how many ticks of
-    the grid went by without a frame (0: none missed). Compared within
-    :data:`TIME_EPSILON_S`: physics steps summed one by one fall a hair short of the frame
-    times they meet (8 × 1/240 s < 1/30 s in floating point), which would send every frame
-    a physics step late."""
-    late_s = t_s + TIME_EPSILON_S - next_frame_s
-    if late_s < 0:
-        return None
-    return int(late_s // period_s)
+@dataclass(frozen=True)
+class FrameClock:
+    """Realtime: when the next colour frame is due. Its ticks lie on the camera's grid in
+    whole physics steps (:attr:`Scenario.frame_period_s`), as lockstep's frames and the depth
+    schedule's ticks do (1/rgb_hz would put frames off the depth ticks)."""
+
+    period_s: float
+    next_frame_s: float = 0.0
+
+    @classmethod
+    def of(cls, scenario: Scenario) -> FrameClock:
+        return cls(scenario.frame_period_s)
+
+    def missed(self, t_s: float) -> int | None:
+        """Is a frame due at sim time ``t_s``? None if not yet; else how many ticks went by
+        without a frame (0: none missed). Compared within :data:`TIME_EPSILON_S`: physics
+        steps summed one by one fall a hair short of the frame times they meet (8 × 1/240 s
+        < 1/30 s in floating point), which would send every frame a physics step late."""
+        late_s = t_s + TIME_EPSILON_S - self.next_frame_s
+        if late_s < 0:
+            return None
+        return int(late_s // self.period_s)
+
+    def after_frame(self, missed: int) -> FrameClock:
+        """The clock once a frame went out, ``missed`` ticks after the one it was due at."""
+        return replace(self, next_frame_s=self.next_frame_s + (missed + 1) * self.period_s)

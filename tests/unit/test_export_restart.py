@@ -5,9 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
-from deploy.foxglove import topics
+from common.config import ScenarioError
+from deploy.foxglove import convert, topics
 from deploy.foxglove.export import RUN_GAP_S, export_foxglove
 from tests.unit.test_plots import write_recording
 
@@ -64,11 +66,30 @@ def test_stamped_runs_follow_one_another_on_the_timeline(tmp_path: Path) -> None
 
 
 def test_unreadable_overrides_in_a_recordings_metadata_are_refused_by_name(tmp_path: Path) -> None:
-    import pytest
-
-    from common.config import ScenarioError
-
     odd = write_recording(tmp_path / "odd.mcap", metadata={"overrides_json": "not json"})
     with pytest.raises(ScenarioError, match="its metadata's overrides_json"):
         export_foxglove(odd, tmp_path / "odd_fox.mcap")
     assert not (tmp_path / "odd_fox.mcap").exists()
+
+
+def test_an_export_cut_short_leaves_the_earlier_one_and_nothing_half_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An export interrupted partway (Ctrl-C, an error) leaves what was at OUT as it was and
+    no partial file beside it."""
+    calls = {"n": 0}
+    original = convert.ViewState.on_message
+
+    def fails_at_the_tenth(self, suffix, message, jpeg_quality=85):
+        calls["n"] += 1
+        if calls["n"] == 10:
+            raise KeyboardInterrupt
+        return original(self, suffix, message, jpeg_quality)
+
+    monkeypatch.setattr(convert.ViewState, "on_message", fails_at_the_tenth)
+    out = tmp_path / "out.mcap"
+    out.write_bytes(b"an earlier export")
+    with pytest.raises(KeyboardInterrupt):
+        export_foxglove(write_recording(tmp_path / "run.mcap"), out)
+    assert out.read_bytes() == b"an earlier export"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mcap", "run.mcap"]

@@ -80,11 +80,11 @@ def header(k: int, frame_seq: int | None = None) -> Header:
     )
 
 
-def fake_run(k: int) -> dict[str, bytes]:
+def fake_run(k: int, gain: float = GAIN) -> dict[str, bytes]:
     """Payloads per key suffix of frame k: the hand's corners approach the target's as
     exp(-GAIN t); the target is hidden by the hand for the last frames."""
     t = k * PERIOD_S
-    decay = np.exp(-GAIN * t)
+    decay = np.exp(-gain * t)
     hand = TARGET + (START - TARGET) * decay
     hand_seen = k not in (7, 8)  # a short dropout: no dot there
     target_seen = k < N_FRAMES - 8
@@ -141,11 +141,12 @@ def write_recording(
     runs: int = 1,
     metadata: dict[str, str] | None = None,
     stamp_runs: bool = False,
+    run_gains: tuple[float, ...] = (),
 ) -> Path:
     """``runs`` copies of the run one after the other, as a sim restarted within one
     recording (simulated time back to 0, log time going on; ``stamp_runs``: each copy's
-    messages stamped with its own run, 1, 2, ..., as the sim's are); ``metadata``: the
-    recorder's."""
+    messages stamped with its own run, 1, 2, ..., as the sim's are; ``run_gains``: each
+    copy's own gain, to tell them apart); ``metadata``: the recorder's."""
     with path.open("wb") as f:
         writer = Writer(f)
         writer.start(profile="", library="test_plots")
@@ -155,7 +156,7 @@ def write_recording(
         channels: dict[str, int] = {}
         for n in range(runs * N_FRAMES):
             k = n % N_FRAMES
-            payloads = fake_run(k)
+            payloads = fake_run(k, run_gains[n // N_FRAMES] if run_gains else GAIN)
             if k == N_FRAMES // 2:  # the deadman fired once: must not be plotted
                 payloads["actuation/joint_command"] = encode(
                     JointVelocityCommand(
@@ -224,11 +225,14 @@ def test_recording_without_wanted_channels_writes_nothing(tmp_path: Path) -> Non
 def test_a_recording_of_two_runs_is_drawn_by_its_last(tmp_path: Path) -> None:
     """A sim restarted mid-recording begins its time again at 0: drawn together, the two
     runs' series would interleave. The last run is drawn, and the series says there were two."""
-    one = load_series(write_recording(tmp_path / "one.mcap", stamp_runs=True))
-    two = load_series(write_recording(tmp_path / "two.mcap", runs=2, stamp_runs=True))
+    first, last = GAIN, 2 * GAIN  # the runs told apart by how fast their error falls
+    one = load_series(write_recording(tmp_path / "one.mcap", stamp_runs=True, run_gains=(last,)))
+    two = load_series(
+        write_recording(tmp_path / "two.mcap", runs=2, stamp_runs=True, run_gains=(first, last))
+    )
     assert (one.runs, two.runs) == (1, 2)
     assert two.feat_t_s.shape == two.twist_t_s.shape == (N_FRAMES,)
-    np.testing.assert_array_equal(two.error_px_rms, one.error_px_rms)
+    np.testing.assert_array_equal(two.error_px_rms, one.error_px_rms)  # the last run's
     assert np.all(np.diff(two.twist_t_s) > 0)
 
 
