@@ -30,7 +30,7 @@ import numpy as np
 from common.camera import CameraIntrinsics, back_project, pixel_to_normalized, project
 from common.config import VisionConfig
 from common.marker import Marker
-from common.messages import usable_depths
+from common.messages import PIXEL_LIMIT_PX, usable_depths
 from common.motion import MarkerMotion
 from services.vision.cue import cue_mask, label_corners
 from services.vision.depth import (
@@ -315,11 +315,20 @@ def _fit_on_plane(
     else:
         return None
     xy = pixel_to_normalized(fit.corners_px, k)
+    depths_m, points_m = plane.depths_m(xy), fit.square.corners_m()
+    # A square cut by the border near the camera can be fitted right and still have a hidden
+    # corner too near, or too far out, for a usable marker on the wire: not fitted, then.
+    if not (
+        usable_depths(depths_m)
+        and usable_depths(points_m[:, 2])
+        and np.all(np.abs(fit.corners_px) <= PIXEL_LIMIT_PX)
+    ):
+        return None
     return _PartialFit(
         fit.corners_px,
-        plane.depths_m(xy),
+        depths_m,
         plane.depth_sigmas_m(xy),
-        fit.square.corners_m(),
+        points_m,
         plane,
         bool(np.any(occluder)),
     )
