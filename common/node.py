@@ -12,13 +12,14 @@ Frames by reference: :mod:`common.publishers`.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import socket
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
 import zenoh
@@ -218,33 +219,34 @@ class Node:
     def next_event(self, timeout_s: float | None) -> tuple[str, Any] | None:
         """The next ``(key, message)``, or None after ``timeout_s`` or when closed."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        with self._cond:
-            self._loop_waiting = True
-            try:
-                while not self._inbox and not self._closed:
-                    remaining = None if deadline is None else deadline - time.monotonic()
-                    if remaining is not None and remaining <= 0:
-                        return None
-                    self._cond.wait(remaining)
-                if not self._inbox:
+        with self._cond, self._loop_waits():
+            while not self._inbox and not self._closed:
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
                     return None
-                key, message, self.event_recv_time_s = self._inbox.popleft()
-                return key, message
-            finally:
-                self._loop_waiting = False
-                self._loop_left_s = time.monotonic()
+                self._cond.wait(remaining)
+            if not self._inbox:
+                return None
+            key, message, self.event_recv_time_s = self._inbox.popleft()
+            return key, message
 
     def wait_idle(self, seconds: float) -> None:
         """Wait ``seconds`` (less once closed) as the event loop waits for input, taking no
         event: a wait before the loop's first event (the sim's for its peers) is then not
         taken for a start that hangs (the status's ``loop_busy_s`` is 0, not None)."""
-        with self._cond:
-            self._loop_waiting = True
-            try:
-                self._cond.wait_for(lambda: self._closed, seconds)
-            finally:
-                self._loop_waiting = False
-                self._loop_left_s = time.monotonic()
+        with self._cond, self._loop_waits():
+            self._cond.wait_for(lambda: self._closed, seconds)
+
+    @contextlib.contextmanager
+    def _loop_waits(self) -> Iterator[None]:
+        """The event loop waiting for input (with the lock held): ``loop_busy_s`` is 0 inside,
+        and counts from when it leaves."""
+        self._loop_waiting = True
+        try:
+            yield
+        finally:
+            self._loop_waiting = False
+            self._loop_left_s = time.monotonic()
 
     def reject(self, key: str, reason: str) -> None:
         """Count a message on ``key`` the service could not use (a frame whose ring slot was

@@ -166,8 +166,12 @@ class ViewState:
     last_phase: tuple[str, str] | None = None
     static_sent_s: float | None = None
     sim_time_s: float = 0.0
-    run: int = 0  # the sim's run of the messages seen (Header.run; 0: none stamped)
     runs: RunWatch = field(default_factory=RunWatch)  # the sim's runs seen, kept across runs
+
+    @property
+    def run(self) -> int:
+        """The sim's run in progress (Header.run; 0: none stamped seen)."""
+        return self.runs.current or 0
 
     @property
     def oriented(self) -> bool:
@@ -186,11 +190,14 @@ class ViewState:
         if header is None:
             return self
         if header.run:
+            followed = self.runs.current is not None  # a run seen before this one's message
             verdict = self.runs.see(header.run)
             if verdict is RunVerdict.OVER:
                 return None
-            if verdict is RunVerdict.SAME or (self.run and verdict is RunVerdict.NEW):
-                return self if verdict is RunVerdict.SAME else self._fresh()
+            if verdict is RunVerdict.SAME:
+                return self
+            if followed:  # a new run after another
+                return self._fresh()
         if header.sim_time_s < self.sim_time_s - RESTART_BACK_S:
             return self._fresh()
         return self
@@ -333,9 +340,6 @@ class ViewState:
     def on_message(self, suffix: str, message: Any, jpeg_quality: int = 85) -> list[Out]:
         """Route a message by its key relative to the prefix (``sim/rgb``, ...); keys the
         view does not show (``sim/timing``) give nothing."""
-        header = getattr(message, "header", None)
-        if header is not None and header.run:
-            self.run = header.run
         if suffix == keys.RGB:
             return self.on_rgb(message, jpeg_quality)
         handler = self._handlers().get(suffix)

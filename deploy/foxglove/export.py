@@ -93,15 +93,16 @@ def _export(
                 continue
             # A recording can span runs (the sim restarted): each gets its own view, as live,
             # and follows the one before on the timeline.
-            fresh = state.continued(shifted(msg, offset_s))
+            moved = shifted(msg, offset_s)
+            fresh = state.continued(moved)
             if fresh is None:  # logged late, after the sim restarted
                 report.skipped += 1
                 continue
             if fresh is not state:
                 report.runs += 1
                 offset_s = state.sim_time_s + RUN_GAP_S - msg.header.sim_time_s
-                state = fresh
-            for o in state.on_message(suffix, shifted(msg, offset_s), jpeg_quality):
+                moved, state = shifted(msg, offset_s), fresh
+            for o in state.on_message(suffix, moved, jpeg_quality):
                 channels.log(o)
                 report.written[o.topic] = report.written.get(o.topic, 0) + 1
     channels.close()

@@ -26,15 +26,19 @@ import time
 from collections import OrderedDict
 
 from common.codec import FRAME_MAX_BYTES
+from common.marker import Marker
 from common.messages import DepthFrame, Features, RgbFrame
 from common.node import Node
 from common.runs import RunWatch
 from common.runtime import ServiceContext
 from services.vision.depth_wait import DepthWait
+from services.vision.segmentation import MARKERS
 from services.vision.status import VisionStatus
 from services.vision.step import depth_for, depth_image, vision_step
 from services.vision.tracking import TrackerState
 from services.vision.warmup import warm_up
+
+NOT_SEEN_YET = Marker.unseen("lost", "")  # a marker before the first frame: no reason to give
 
 log = logging.getLogger("umay.vision")
 
@@ -59,9 +63,9 @@ class VisionService:
         self.new_run()
         self.frames_overwritten = 0  # measurements dropped: a ring slot changed while read
         self.depth_age_s: float | None = None
-        self.states: dict[str, str] = {"hand": "lost", "target": "lost"}
-        self.reasons: dict[str, str] = {"hand": "", "target": ""}
-        self.hidden: set[str] = set()  # markers not usable because something is in front
+        # Each marker as the last frame measured it (replaced whole: status reads it on a
+        # Zenoh thread); none yet: lost, for no reason given.
+        self.seen: dict[str, Marker] = {}
 
     def new_run(self) -> None:
         """Forget what belongs to the sim's run before (a restarted sim starts again from
@@ -94,8 +98,8 @@ class VisionService:
     def status_fields(self) -> VisionStatus:
         frames = self.node.received.values()
         return VisionStatus(
-            markers=dict(self.states),
-            lost_reasons=dict(self.reasons),
+            markers={n: m.state for n, m in self._last_seen()},
+            lost_reasons={n: m.reason for n, m in self._last_seen()},
             depth_age_s=self.depth_age_s,
             depth_waits=self.depth_wait.waits,
             depth_missed=self.depth_wait.missed,
@@ -105,12 +109,16 @@ class VisionService:
             frames_overwritten=self.frames_overwritten,
         )
 
+    def _last_seen(self) -> list[tuple[str, Marker]]:
+        seen = self.seen
+        return [(n, seen.get(n) or NOT_SEEN_YET) for n in MARKERS]
+
     def degraded(self) -> str:
+        # Hidden rather than gone (the hand over the target at the goal, a panel): said so.
         lost = [
-            f"{n}: {self.states[n]}, {r}"
-            + (", hidden by something in front" if n in self.hidden else "")
-            for n, r in self.reasons.items()
-            if r
+            f"{n}: {m.state}, {m.reason}" + (", hidden by something in front" if m.occluded else "")
+            for n, m in self._last_seen()
+            if m.reason
         ]
         return "marker not usable (" + "; ".join(lost) + ")" if lost else ""
 
@@ -149,10 +157,7 @@ class VisionService:
                 )
             return
         self.tracker = step.tracker
-        for name, m in step.measured.items():
-            self.states[name], self.reasons[name] = m.state, m.reason
-        # Hidden rather than gone (the hand over the target at the goal, a panel): said so.
-        self.hidden = {name for name, m in step.measured.items() if m.occluded}
+        self.seen = dict(step.measured)
         seq = frame.header.frame_seq
         header = self.node.header(frame.header.sim_time_s, seq, run=frame.header.run)
         features = step.features(header, frame.intrinsics)
