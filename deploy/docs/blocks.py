@@ -102,7 +102,7 @@ BLOCKS: dict[str, Block] = {
     "campaign-goals": Block(campaign_goals, f"{CAMPAIGN_SOURCES}, {RESULTS_JSON}"),
     "campaign-calibration": Block(campaign_calibration, f"{CALIBRATION_DIR}/*/results.json"),
     "vision-accuracy": Block(vision_accuracy, ACCURACY_JSON),
-    "scenario-fields": Block(scenario_fields, "common/config.py"),
+    "scenario-fields": Block(scenario_fields, "common/config/*.py"),
     "status-fields": Block(status_fields, "services/*/status.py, the supervisor's and the view's"),
     "domains-summary": Block(domains_summary, DOMAINS_JSON),
     "domains-bands": Block(domains_bands, DOMAINS_JSON),
