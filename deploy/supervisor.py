@@ -39,10 +39,10 @@ from common.config import RestartPolicy, SupervisorConfig
 from common.frame_ring import remove_segments_of
 from common.keys import SERVICES, Keys
 from common.messages import StatusFields
-from common.queries import status_from_reply
 from common.runtime import ENV_SUPERVISOR_PID
 from common.session import ENV_CONFIG, ENV_CONNECT
 from deploy.cpu_latency import CpuWakeupLatency
+from deploy.queries import status_from_reply
 from deploy.service_process import ForkUnavailable, ServiceProcess, exec_service, fork_service
 
 log = logging.getLogger("umay.supervisor")

@@ -12,11 +12,12 @@ import zenoh
 
 from common.keys import Keys
 from common.publishers import STAMPS_KEPT
-from common.queries import alive_services, query_stamps, query_status
+from common.queries import alive_services
 from deploy.bench import BenchError
 from deploy.bench.report import KeyCounts, Machine, ServiceCounters, ServiceUsage
 from deploy.bench.stages import PIPELINE
 from deploy.bench.trace import Trace
+from deploy.queries import query_stamps, query_status
 from deploy.supervisor import Supervisor
 
 # How often a long run collects the services' stamps while it runs, in frames (a stamp a frame

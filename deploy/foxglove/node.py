@@ -44,7 +44,6 @@ from common.config import Scenario
 from common.keys import DEPTH, JOINT_STATE, RGB, TWIST, Keys
 from common.node import Node
 from common.publishers import decode_or_fetch
-from common.queries import query_status
 from deploy.arguments import NOTHING_RUNNING_THERE
 from deploy.exit_codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from deploy.foxglove import convert, topics, transforms
@@ -53,6 +52,7 @@ from deploy.foxglove.options import DEFAULT_HOST, check_view_options, view_argum
 from deploy.foxglove.rate import RateGate
 from deploy.foxglove.status import ViewStatus
 from deploy.interrupts import stop_requested
+from deploy.queries import query_status
 
 log = logging.getLogger("umay.view")
 

@@ -14,8 +14,9 @@ from rich.text import Text
 
 from common.keys import SERVICES, Keys
 from common.messages import ServiceStatus
-from common.queries import alive_services, query_status
+from common.queries import alive_services
 from deploy.arguments import NOTHING_RUNNING_THERE
+from deploy.queries import query_status
 
 
 @dataclass(frozen=True)

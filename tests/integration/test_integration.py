@@ -22,10 +22,10 @@ from common.codec import encode
 from common.config import load_scenario
 from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, Header, JointState, MarkerFeatures
-from common.queries import query_status
 from common.session import ENV_SHM, free_tcp_endpoint, open_session
 from deploy.launch.evaluate import RunResult
 from deploy.launch.run_inprocess import run_scenario_inprocess
+from deploy.queries import query_status
 from tests.conftest import launch_umay_up, views_once_controller
 
 UMAY = [sys.executable, "-m", "deploy"]

@@ -12,8 +12,8 @@ from common.keys import Keys
 from common.messages import Header, JointVelocityCommand, ServiceStatus
 from common.node import Node
 from common.publishers import STAMPS_KEPT
-from common.queries import query_stamps
 from common.session import free_tcp_endpoint, open_session
+from deploy.queries import query_stamps
 
 
 def command(frame_seq: int, send_s: float, recv_s: float) -> JointVelocityCommand:
@@ -55,7 +55,7 @@ def test_a_status_whose_fields_fail_still_answers_degraded_saying_why() -> None:
     the service for hung and kill it."""
     from pydantic import ValidationError
 
-    from common.queries import query_status
+    from deploy.queries import query_status
     from services.actuation.status import ActuationStatus
 
     def broken() -> ActuationStatus:

@@ -24,7 +24,7 @@ import pytest
 from common.codec import DEFAULT_MAX_BYTES, decode
 from common.keys import Keys
 from common.messages import EndEffectorTwist
-from common.queries import query_status
+from deploy.queries import query_status
 from tests.router_deployment import (
     SMALL_IMAGE,
     start_router,
