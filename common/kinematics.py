@@ -103,6 +103,38 @@ def homogeneous(rotation: FloatArray, translation: FloatArray) -> FloatArray:
     return t
 
 
+def quaternion_xyzw(rotation: FloatArray) -> tuple[float, float, float, float]:
+    """Quaternion (x, y, z, w), pybullet's and Foxglove's order, of a 3×3 rotation matrix
+    (Shepperd's method: the largest of the trace and the diagonal picks the branch, so no
+    division by a small number). Unit up to rounding; its sign is the branch's."""
+    m = np.asarray(rotation, dtype=float)
+    trace = np.trace(m)
+    if trace > 0:
+        s = 2.0 * np.sqrt(trace + 1.0)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
+        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
+        q[i] = s / 4
+        q[j] = (m[j, i] + m[i, j]) / s
+        q[k] = (m[k, i] + m[i, k]) / s
+    x, y, z, w = (float(v) for v in q)
+    return x, y, z, w
+
+
+def rotation_from_quaternion(x: float, y: float, z: float, w: float) -> FloatArray:
+    """3×3 rotation of a unit quaternion (x, y, z, w): the inverse of :func:`quaternion_xyzw`."""
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
 def dh_link_transform(row: DHRow, q_rad: float) -> FloatArray:
     """``T(i-1, i) = Rx(alpha) · Tx(a) · Rz(theta) · Tz(d)`` as a 4×4 matrix.
 

@@ -25,35 +25,15 @@ def stamp(sim_time_s: float) -> Timestamp:
 
 
 def quaternion_xyzw(rotation: FloatArray) -> tuple[float, float, float, float]:
-    """Unit quaternion (x, y, z, w) of a 3×3 rotation matrix (Shepperd's method, w ≥ 0)."""
-    r = np.asarray(rotation, dtype=float)
-    trace = r[0, 0] + r[1, 1] + r[2, 2]
-    if trace > 0.0:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        q = ((r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, s / 4)
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = (s / 4, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s)
-    elif r[1, 1] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = ((r[0, 1] + r[1, 0]) / s, s / 4, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s)
-    else:
-        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = ((r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, s / 4, (r[1, 0] - r[0, 1]) / s)
+    """Unit quaternion (x, y, z, w) of a 3×3 rotation matrix, w ≥ 0 (one of its two signs, so
+    that a still frame's quaternion does not flip between messages)."""
+    q = kin.quaternion_xyzw(rotation)
     n = math.sqrt(sum(c * c for c in q))
     x, y, z, w = (c / n for c in q)
     return (-x, -y, -z, -w) if w < 0 else (x, y, z, w)
 
 
-def rotation_from_quaternion(x: float, y: float, z: float, w: float) -> FloatArray:
-    """3×3 rotation of a unit quaternion (the inverse of :func:`quaternion_xyzw`)."""
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+rotation_from_quaternion = kin.rotation_from_quaternion
 
 
 def pose(transform: FloatArray) -> Pose:

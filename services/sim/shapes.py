@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.kinematics import homogeneous, rotation_from_quaternion
 from services.sim.bullet import BulletClient, pybullet
 
 FloatArray = np.ndarray
@@ -44,18 +45,7 @@ class VisualShape:
 
 def pose_matrix(position: tuple[float, ...], quaternion_xyzw: tuple[float, ...]) -> FloatArray:
     """4×4 homogeneous transform of a pybullet (position, quaternion x y z w)."""
-    x, y, z, w = quaternion_xyzw
-    rot = np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-    pose = np.eye(4)
-    pose[:3, :3] = rot
-    pose[:3, 3] = position
-    return pose
+    return homogeneous(rotation_from_quaternion(*quaternion_xyzw), np.asarray(position, float))
 
 
 def body_ids(client: BulletClient) -> tuple[int, ...]:

@@ -58,24 +58,6 @@ HIDDEN_POSITION_M = (0.0, -50.0, 0.0)  # where a hidden body is parked (far belo
 MOTOR_FORCE_N_M = 200.0
 
 
-def quaternion_from_rotation(rot: FloatArray) -> list[float]:
-    """pybullet (x, y, z, w) quaternion of a 3×3 rotation matrix (Shepperd's method)."""
-    m = np.asarray(rot, dtype=float)
-    trace = np.trace(m)
-    if trace > 0:
-        s = 2.0 * np.sqrt(trace + 1.0)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
-        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
-        q[i] = s / 4
-        q[j] = (m[j, i] + m[i, j]) / s
-        q[k] = (m[k, i] + m[i, k]) / s
-    return [float(v) for v in q]
-
-
 class DirectClient(BulletClient):
     """A headless (DIRECT) pybullet client. ``BulletClient(pybullet.DIRECT)`` connects with
     ``options=""``, for which pybullet prints a stray ``argv[0]=`` line on stdout, once per
@@ -329,7 +311,7 @@ class World:
             baseMass=0.0,
             baseVisualShapeIndex=visual,
             basePosition=(marker - OCCLUDER_GAP_M * along).tolist(),
-            baseOrientation=quaternion_from_rotation(rot),
+            baseOrientation=kin.quaternion_xyzw(rot),
         )
 
     # --- state ----------------------------------------------------------------------------

@@ -71,3 +71,20 @@ def test_cross_is_np_cross_bit_for_bit() -> None:
         b = rng.normal(size=3) * 10 ** rng.uniform(-6, 6)
         assert np.array_equal(kin.cross(a, b), np.cross(a, b))
     assert np.array_equal(kin.cross(np.array([1.0, 0, 0]), np.array([0, 1.0, 0])), [0, 0, 1.0])
+
+
+def test_quaternion_round_trip_in_every_branch_and_agrees_with_pybullet() -> None:
+    # A turn of 0.3 rad has a positive trace; turns of π - 0.2 about axes near x, y and z make
+    # the largest diagonal entry pick each of the three other branches of Shepperd's method.
+    rng = np.random.default_rng(4)
+    near_axes = [np.eye(3)[i] + 0.3 * rng.normal(size=3) for i in range(3)]
+    turns = [(rng.normal(size=3), 0.3)] + [(axis, np.pi - 0.2) for axis in near_axes]
+    for axis, angle in turns:
+        axis = axis / np.linalg.norm(axis)
+        k = kin.skew(axis)
+        r = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k  # Rodrigues
+        q = kin.quaternion_xyzw(r)
+        assert abs(np.linalg.norm(q) - 1.0) < 1e-12
+        assert np.allclose(kin.rotation_from_quaternion(*q), r, atol=1e-12)
+        m = np.array(pybullet.getMatrixFromQuaternion(q)).reshape(3, 3)
+        assert np.allclose(m, r, atol=1e-12)
