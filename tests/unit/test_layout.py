@@ -25,6 +25,7 @@ DEPLOY_LAYERS: list[set[str]] = [
         "consoles",
         "cpu_latency",
         "service_process",
+        "queries",
     },
     {"supervisor"},
     {"recording"},
