@@ -165,14 +165,26 @@ def marker_masks(
 ) -> list[tuple[np.ndarray, Roi]]:
     """Each marker's :func:`marker_mask`, its blob looked for in its tracking window when it was
     seen last frame (the same region as from the whole image when the blob is well inside the
-    window; the whole image's colour conversion is then skipped), else in the whole image."""
+    window; the whole image's colour conversion is then skipped), else in the whole image.
+
+    When a marker has no window the whole image is converted first, and the other's window
+    cut from it (of an even-sized image, a window's coarse pixels are the whole image's)."""
+    windows = [tracking_window(previous.get(name), rgb.shape) for name in MARKERS]
     whole: np.ndarray | None = None  # the whole image's coarse pixels, made when first needed
+    if None in windows and rgb.shape[0] % COARSE_STEP == 0 and rgb.shape[1] % COARSE_STEP == 0:
+        whole = coarse_image(rgb, cfg)
     masks = []
-    for name, color in MARKERS.items():
-        window = tracking_window(previous.get(name), rgb.shape)
+    for color, window in zip(MARKERS.values(), windows, strict=True):
         region = None
         if window is not None:
-            coarse = coarse_image(rgb[window], cfg)
+            if whole is None:
+                coarse = coarse_image(rgb[window], cfg)
+            else:
+                rows, cols = window
+                coarse = whole[
+                    rows.start // COARSE_STEP : rows.stop // COARSE_STEP,
+                    cols.start // COARSE_STEP : cols.stop // COARSE_STEP,
+                ]
             region = blob_region(coarse, color, cfg, rgb.shape, window)
         if region is None:
             whole = coarse_image(rgb, cfg) if whole is None else whole
