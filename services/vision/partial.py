@@ -176,19 +176,19 @@ def _sides(corners_px: list[list[float]], d_corners: list[list[list[float]]]) ->
     )
 
 
-def _assign(sides: _Sides, points_h: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Each point's residual against the side it lies along (the nearest side whose extent it
-    falls in), and that side's index; -1 (residual 0) for points near a corner, left out
-    (corners are rounded). ``points_h`` (N, 3): pixels (u, v, 1)."""
+def _assign(sides: _Sides, points_h: FloatArray) -> tuple[FloatArray, np.ndarray, np.ndarray]:
+    """The points that lie along a side (the nearest side whose extent they fall in) away from
+    its corners (corners are rounded): their residuals against that side, its index, and
+    which of the points they are (N,). ``points_h`` (N, 3): pixels (u, v, 1)."""
     dist = points_h @ sides.distance  # (N, 4)
     t = points_h @ sides.along
     within = (t > -0.25) & (t < 1.25)  # a side's neighbourhood, corners included
-    side = np.argmin(np.where(within, np.abs(dist), np.inf), axis=1)
+    side = np.where(within, np.abs(dist), np.inf).argmin(axis=1)
     rows = np.arange(len(points_h))
     margin = CORNER_CLEARANCE_PX / sides.lengths[side]
     t_side = t[rows, side]
     keep = within[rows, side] & (t_side > margin) & (t_side < 1.0 - margin)
-    return np.where(keep, dist[rows, side], 0.0), np.where(keep, side, -1)
+    return dist[rows, side][keep], side[keep], keep
 
 
 @dataclass(frozen=True)
@@ -225,23 +225,36 @@ def _corners_and_jacobian(
     """The corners (4 × (u, v), px) of ``square.moved(*params)`` and their derivatives
     (4 × (d/dp of u, d/dp of v)) with respect to the parameters (slide along u, slide along
     v, turn). Plain Python, as :func:`_sides`."""
-    moved = square.moved(*(float(p) for p in params))
+    du_m, dv_m, turn_rad = np.asarray(params, dtype=float).tolist()
     axis_u, axis_v = square.axis_u.tolist(), square.axis_v.tolist()
-    u, v, centre = moved.axis_u.tolist(), moved.axis_v.tolist(), moved.centre_m.tolist()
+    # square.moved(du_m, dv_m, turn_rad), the same operations on plain floats
+    c, s = math.cos(turn_rad), math.sin(turn_rad)
+    u = [c * a + s * b for a, b in zip(axis_u, axis_v, strict=True)]
+    v = [-s * a + c * b for a, b in zip(axis_u, axis_v, strict=True)]
+    centre = [
+        m + du_m * a + dv_m * b
+        for m, a, b in zip(square.centre_m.tolist(), axis_u, axis_v, strict=True)
+    ]
+    (mx, my, mz), (ux, uy, uz), (vx, vy, vz) = centre, u, v
+    (aux, auy, auz), (avx, avy, avz) = axis_u, axis_v
     h = square.size_m / 2.0
     fx, fy, cx, cy = k.fx_px, k.fy_px, k.cx_px, k.cy_px
     corners, d_corners = [], []
     for su, sv in _SIGNS:
-        x, y, z = (m + h * (su * a + sv * b) for m, a, b in zip(centre, u, v, strict=True))
+        x, y, z = (
+            mx + h * (su * ux + sv * vx),
+            my + h * (su * uy + sv * vy),
+            mz + h * (su * uz + sv * vz),
+        )
         # d(point)/d(turn); the slides move every corner by axis_u, axis_v
-        d_turn = [h * (su * b - sv * a) for a, b in zip(u, v, strict=True)]
+        tx, ty, tz = h * (su * vx - sv * ux), h * (su * vy - sv * uy), h * (su * vz - sv * uz)
         x_n, y_n = x / z, y / z
         corners.append([fx * x_n + cx, fy * y_n + cy])
         # d(f·X/Z) = f·(dX − (X/Z)·dZ)/Z
         d_corners.append(
             [
-                [fx * (d[0] - x_n * d[2]) / z for d in (axis_u, axis_v, d_turn)],
-                [fy * (d[1] - y_n * d[2]) / z for d in (axis_u, axis_v, d_turn)],
+                [fx * (aux - x_n * auz) / z, fx * (avx - x_n * avz) / z, fx * (tx - x_n * tz) / z],
+                [fy * (auy - y_n * auz) / z, fy * (avy - y_n * avz) / z, fy * (ty - y_n * tz) / z],
             ]
         )
     return corners, d_corners
@@ -264,13 +277,11 @@ def fit_square(
         """The sides at ``p``, the used points' residuals and their Jacobian (N, 3); None
         with too few points away from the corners."""
         sides = _sides(*_corners_and_jacobian(square, p, k))
-        r, side = _assign(sides, points_h)
-        used = side >= 0
-        if np.count_nonzero(used) < MIN_POINTS:
+        r, side, used = _assign(sides, points_h)
+        if len(side) < MIN_POINTS:
             return None
-        side = side[used]
         d_all = (points_h[used] @ sides.d_distance).reshape(-1, 4, 3)
-        return sides, r[used], d_all[np.arange(len(side)), side]
+        return sides, r, d_all[np.arange(len(side)), side]
 
     for _ in range(ITERATIONS):
         now = linearised(params)
