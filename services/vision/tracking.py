@@ -38,7 +38,6 @@ from services.vision.depth import (
     PlaneFit,
     marker_surface,
     plane_depth_image,
-    to_depth_pixels,
 )
 from services.vision.measurement import (
     MarkerMeasurement,
@@ -158,12 +157,14 @@ def _depth_under(
     """The depth image's pixel under each colour pixel of ``bounds`` (row0, row1, col0, col1)
     of the colour image: registered images, the same rays."""
     r0, r1, c0, c1 = bounds
-    columns = np.column_stack([np.arange(c0, c1, dtype=float), np.full(c1 - c0, float(r0))])
-    rows = np.column_stack([np.full(r1 - r0, float(c0)), np.arange(r0, r1, dtype=float)])
-    du = np.rint(to_depth_pixels(columns, k, depth.intrinsics)[:, 0]).astype(int)
-    dv = np.rint(to_depth_pixels(rows, k, depth.intrinsics)[:, 1]).astype(int)
+    kd = depth.intrinsics
+    # to_depth_pixels of the columns and of the rows, each coordinate on its own
+    u = kd.fx_px * ((np.arange(c0, c1, dtype=float) - k.cx_px) / k.fx_px) + kd.cx_px
+    v = kd.fy_px * ((np.arange(r0, r1, dtype=float) - k.cy_px) / k.fy_px) + kd.cy_px
     h, w = depth.depth_m.shape
-    return depth.depth_m[np.clip(dv, 0, h - 1)[:, None], np.clip(du, 0, w - 1)[None, :]]
+    du, dv = np.clip(np.rint(u).astype(int), 0, w - 1), np.clip(np.rint(v).astype(int), 0, h - 1)
+    # depth_m[dv[:, None], du[None, :]], gathered one axis at a time (several times faster)
+    return depth.depth_m.take(dv, axis=0).take(du, axis=1)
 
 
 def _hidden_in_depth(
