@@ -11,6 +11,7 @@ starting at the top-left corner, or following the previous frame's order when on
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -236,8 +237,9 @@ def _outside_neighbours(
     steps = np.where(dominant_u[:, None], [[1, 0]], [[0, 1]]) * np.sign(normals).astype(np.int32)
     outside = points + steps[side].astype(np.int32)
     keep = mask[outside[:, 1], outside[:, 0]] == 0
-    kept_side = side[keep]
-    return np.split(outside[keep], np.searchsorted(kept_side, np.arange(1, len(normals))))
+    kept, kept_side = outside[keep], side[keep]
+    ends = [0, *np.searchsorted(kept_side, np.arange(1, len(normals))).tolist(), len(kept)]
+    return [kept[a:b] for a, b in itertools.pairwise(ends)]  # np.split's parts
 
 
 def _padded_hulls(point_sets: list[np.ndarray]) -> np.ndarray:
@@ -252,11 +254,10 @@ def _padded_hulls(point_sets: list[np.ndarray]) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _pair_indices(n: int) -> np.ndarray:
-    """Flat indices into an n×n matrix of its n·(n-1)/2 entries above the diagonal
+def _pair_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the n·(n-1)/2 entries above the diagonal of an n×n matrix
     (memoised: pure, and np.triu_indices is slow for its size)."""
-    i, j = np.triu_indices(n, 1)
-    return i * n + j
+    return np.triu_indices(n, 1)
 
 
 def _preimage_centroids(inside: np.ndarray, outside: np.ndarray) -> tuple[FloatArray, ...]:
@@ -277,32 +278,38 @@ def _preimage_centroids(inside: np.ndarray, outside: np.ndarray) -> tuple[FloatA
     edge, or a renderer that does not sample at pixel centres) or unbounded.
     """
     n_edges, limit = len(inside), PREIMAGE_MAX_SLOPE
-    both = np.concatenate([inside, outside], axis=1)
-    n = both.shape[1]
-    diff = (both[:, :, None, :] - both[:, None, :, :]).reshape(n_edges, n * n, 2)
-    ds, dt = diff[:, _pair_indices(n), 0], diff[:, _pair_indices(n), 1]
+    s_in, t_in, s_out, t_out = inside[..., 0], inside[..., 1], outside[..., 0], outside[..., 1]
+    s_both, t_both = np.concatenate([s_in, s_out], axis=1), np.concatenate([t_in, t_out], axis=1)
+    i, j = _pair_indices(s_both.shape[1])  # every pair of points once
+    ds, dt = s_both[:, i] - s_both[:, j], t_both[:, i] - t_both[:, j]
     valid = np.abs(dt) < limit * np.abs(ds)  # |slope| < limit, and ds ≠ 0
-    alphas = np.empty((n_edges, ds.shape[1] + 2))
-    alphas[:, :-2] = np.where(valid, dt / np.where(valid, ds, 1.0), limit)  # repeats harmless
-    alphas[:, -2:] = (-limit, limit)
+    alphas = np.full((n_edges, len(i) + 2), limit)  # repeats harmless
+    alphas[:, -2] = -limit
+    np.divide(dt, ds, out=alphas[:, :-2], where=valid)
     alphas.sort(axis=1)
-    lower = np.maximum.reduce(inside[:, :, 1:2] - inside[:, :, 0:1] * alphas[:, None, :], axis=1)
-    upper = np.minimum.reduce(outside[:, :, 1:2] - outside[:, :, 0:1] * alphas[:, None, :], axis=1)
+    lower = np.maximum.reduce(t_in[:, :, None] - s_in[:, :, None] * alphas[:, None, :], axis=1)
+    upper = np.minimum.reduce(t_out[:, :, None] - s_out[:, :, None] * alphas[:, None, :], axis=1)
     gap = upper - lower
     feasible = gap >= -1e-9  # U − L is concave: the feasible α form an interval
-    lo = np.minimum.reduce(np.where(feasible, alphas, np.inf), axis=1)
-    hi = np.maximum.reduce(np.where(feasible, alphas, -np.inf), axis=1)
+    lo = np.where(feasible, alphas, np.inf).min(axis=1)
+    hi = np.where(feasible, alphas, -np.inf).max(axis=1)
     span = (alphas >= lo[:, None]) & (alphas <= hi[:, None])
     # width; a tiny floor keeps a zero-width preimage (a segment of lines) well defined
     w = np.where(span, np.maximum(gap, 0.0) + 1e-12, 0.0)
-    f = np.stack([np.ones_like(alphas), alphas, 0.5 * (upper + lower)])  # 1, α, middle β
-    da = np.diff(alphas, axis=1) * (span[:, 1:] & span[:, :-1])
-    f0, f1, w0, w1 = f[..., :-1], f[..., 1:], w[:, :-1], w[:, 1:]
-    # ∫ f·w dα, exact for f and w linear between breakpoints (×6)
-    moments = np.add.reduce(da * ((2 * f0 + f1) * w0 + (f0 + 2 * f1) * w1), axis=-1)
-    ok = (lo > -limit) & (hi < limit) & (moments[0] > 0)  # bounded, non-empty, not a point
-    area = np.where(ok, moments[0], 1.0)
-    return moments[1] / area, moments[2] / area, ok
+    w0, w1 = w[:, :-1], w[:, 1:]
+    da = (alphas[:, 1:] - alphas[:, :-1]) * (span[:, 1:] & span[:, :-1])
+
+    def integral(f0: FloatArray | float, f1: FloatArray | float) -> FloatArray:
+        """∫ f·w dα (×6), exact for f and w linear between breakpoints (f0, f1: f at each
+        interval's ends)."""
+        return np.add.reduce(da * ((2 * f0 + f1) * w0 + (f0 + 2 * f1) * w1), axis=-1)
+
+    middle = 0.5 * (upper + lower)  # β of the region's middle line at each α
+    area = integral(1.0, 1.0)
+    ok = (lo > -limit) & (hi < limit) & (area > 0)  # bounded, non-empty, not a point
+    area = np.where(ok, area, 1.0)
+    alpha = integral(alphas[:, :-1], alphas[:, 1:]) / area
+    return alpha, integral(middle[:, :-1], middle[:, 1:]) / area, ok
 
 
 @dataclass(frozen=True)
