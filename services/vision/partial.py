@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized
 from common.kinematics import cross
+from services.vision.occlusion import square_kernel
 
 FloatArray = NDArray[np.float64]
 
@@ -86,7 +87,7 @@ def outline(
         return np.zeros((0, 2)), np.zeros(0, bool)
     points = max(contours, key=cv2.contourArea).reshape(-1, 2)
     size = 2 * EDGE_CLEARANCE_PX + 1
-    near_occluder = cv2.dilate((occluder > 0).astype(np.uint8), np.ones((size, size), np.uint8))
+    near_occluder = cv2.dilate((occluder > 0).astype(np.uint8), square_kernel(size))
     h, w = mask.shape
     keep = near_occluder[points[:, 1], points[:, 0]] == 0
     keep &= (
@@ -321,5 +322,5 @@ def stray_fraction(mask: np.ndarray, corners_px: FloatArray, offset_px: tuple[in
     square = np.zeros(mask.shape, np.uint8)
     local = (corners_px - np.asarray(offset_px, dtype=float)) * 16
     cv2.fillConvexPoly(square, np.round(local).astype(np.int32), 1, cv2.LINE_8, 4)
-    square = cv2.dilate(square, np.ones((3, 3), np.uint8))
+    square = cv2.dilate(square, square_kernel(3))
     return float(np.count_nonzero(blob & (square == 0)) / n)
