@@ -29,6 +29,15 @@ DEPTH_GATE_MIN_M = 0.01  # depths this close to the median are never gross outli
 MAD_TO_SIGMA = 1.4826  # median absolute deviation → standard deviation for Gaussian noise
 
 
+def rays_of(xy: FloatArray) -> FloatArray:
+    """(N, 3) rays ``(x, y, 1)`` of N normalized coordinates (N, 2)."""
+    xy = np.asarray(xy, dtype=float)
+    rays = np.empty((len(xy), 3))  # filled in place: np.column_stack costs more here
+    rays[:, :2] = xy
+    rays[:, 2] = 1.0
+    return rays
+
+
 @dataclass(frozen=True)
 class PlaneFit:
     """A plane seen by the depth camera, as inverse depth linear in normalized coordinates:
@@ -39,8 +48,7 @@ class PlaneFit:
     covariance: FloatArray  # (3, 3) in 1/m²
 
     def depths_m(self, xy: FloatArray) -> FloatArray:
-        rays = np.column_stack([np.asarray(xy, dtype=float), np.ones(len(xy))])
-        return 1.0 / (rays @ self.coefficients)
+        return 1.0 / (rays_of(xy) @ self.coefficients)
 
     def shifted(self, shift_m: FloatArray) -> PlaneFit:
         """The same plane translated by ``shift_m`` (camera frame): ``n·P = d`` becomes
@@ -51,9 +59,9 @@ class PlaneFit:
 
     def depth_sigmas_m(self, xy: FloatArray) -> FloatArray:
         """1-σ of the plane's depth along each ray: σ(1/Z)·Z², σ(1/Z)² = φᵀ·C·φ."""
-        rays = np.column_stack([np.asarray(xy, dtype=float), np.ones(len(xy))])
+        rays = rays_of(xy)
         inverse_var = np.einsum("ij,jk,ik->i", rays, self.covariance, rays)
-        return np.sqrt(np.maximum(inverse_var, 0.0)) * self.depths_m(xy) ** 2
+        return np.sqrt(np.maximum(inverse_var, 0.0)) * (1.0 / (rays @ self.coefficients)) ** 2
 
 
 def bounding_box(
@@ -104,7 +112,8 @@ def _marker_depth_pixels(
         if step == 1 or len(vv) >= DEPTH_MIN_PLANE_PIXELS:
             break
         step = 1
-    uv = np.column_stack([uu * step + c0, vv * step + r0]).astype(float)
+    uv = np.empty((len(uu), 2))
+    uv[:, 0], uv[:, 1] = uu * step + c0, vv * step + r0
     return uv, z[vv, uu].astype(float)
 
 
@@ -121,9 +130,10 @@ def median(values: FloatArray) -> float:
     return float(np.partition(values, k)[k])
 
 
-def _outlier_threshold(values: FloatArray, floor: float) -> float:
-    """max(3 robust σ (from the median absolute deviation), floor)."""
-    sigma = MAD_TO_SIGMA * median(np.abs(values - median(values)))
+def _outlier_threshold(deviations: FloatArray, floor: float) -> float:
+    """max(3 robust σ, floor), from values' absolute ``deviations`` from their median (the
+    median absolute deviation)."""
+    sigma = MAD_TO_SIGMA * median(deviations)
     return max(DEPTH_OUTLIER_SIGMAS * sigma, floor)
 
 
@@ -138,17 +148,19 @@ def fit_inverse_depth_plane(xy: FloatArray, z_m: FloatArray) -> PlaneFit | None:
     lateral jitter as they are). None with fewer than :data:`DEPTH_MIN_PLANE_PIXELS` samples or
     a plane seen edge-on.
     """
-    near = np.abs(z_m - median(z_m)) <= _outlier_threshold(z_m, DEPTH_GATE_MIN_M)
+    deviations = np.abs(z_m - median(z_m))
+    near = deviations <= _outlier_threshold(deviations, DEPTH_GATE_MIN_M)
     if np.count_nonzero(near) >= DEPTH_MIN_PLANE_PIXELS:
         xy, z_m = xy[near], z_m[near]
     if len(z_m) < DEPTH_MIN_PLANE_PIXELS:
         return None
-    rays = np.column_stack([xy, np.ones(len(xy))])
+    rays = rays_of(xy)
     fit = _least_squares_plane(rays, 1.0 / z_m)
     if fit is None:
         return None
     residuals_m = z_m - 1.0 / (rays @ fit[0])
-    inliers = np.abs(residuals_m) <= _outlier_threshold(residuals_m, DEPTH_OUTLIER_MIN_M)
+    deviations = np.abs(residuals_m - median(residuals_m))
+    inliers = np.abs(residuals_m) <= _outlier_threshold(deviations, DEPTH_OUTLIER_MIN_M)
     if np.count_nonzero(inliers) >= DEPTH_MIN_PLANE_PIXELS:
         rays, z_m = rays[inliers], z_m[inliers]
         fit = _least_squares_plane(rays, 1.0 / z_m)
@@ -215,9 +227,10 @@ def registered_mask(
 def to_depth_pixels(corners_px: FloatArray, k: CameraIntrinsics, k_depth: CameraIntrinsics):
     """Colour-image pixels → the registered depth image's pixels (same rays)."""
     xy = pixel_to_normalized(corners_px, k)
-    return np.column_stack(
-        [k_depth.fx_px * xy[:, 0] + k_depth.cx_px, k_depth.fy_px * xy[:, 1] + k_depth.cy_px]
-    )
+    uv = np.empty_like(xy)  # filled column by column: np.column_stack costs more here
+    uv[:, 0] = k_depth.fx_px * xy[:, 0] + k_depth.cx_px
+    uv[:, 1] = k_depth.fy_px * xy[:, 1] + k_depth.cy_px
+    return uv
 
 
 def corner_depths(
