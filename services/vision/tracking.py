@@ -133,14 +133,17 @@ def hand_over(hand_corners_px: FloatArray | None, target_corners_px: FloatArray)
 
 
 def side_lengths_m(points_m: FloatArray) -> FloatArray:
-    return np.linalg.norm(points_m - np.roll(points_m, -1, axis=0), axis=1)
+    """Lengths of a polygon's sides, point i to point i+1 (np.linalg.norm's operations along
+    axis 1, without its checks)."""
+    sides = points_m - np.concatenate([points_m[1:], points_m[:1]])
+    return np.sqrt(np.add.reduce(sides * sides, axis=1))
 
 
 def marker_sized(points_m: FloatArray, marker_size_m: float) -> bool:
     """Whether a quadrilateral's 3-D sides are all the marker's, to :data:`SIZE_TOLERANCE`:
     the whole square, not a part of it cut off by something in front, nor another shape."""
     sides = side_lengths_m(points_m)
-    return bool(np.max(np.abs(sides / marker_size_m - 1.0)) <= SIZE_TOLERANCE)
+    return bool(np.abs(sides / marker_size_m - 1.0).max() <= SIZE_TOLERANCE)
 
 
 def _region_mask(corners_px: FloatArray, shape: tuple[int, ...]) -> np.ndarray:
