@@ -219,11 +219,11 @@ def _fit_edges_tls(
     )
     theta = 0.5 * np.arctan2(2.0 * suv, suu - svv)  # direction of largest spread: the edge
     normals = np.column_stack([-np.sin(theta), np.cos(theta)])
-    normals *= np.sign(np.sum(normals * (centres - inward_px), axis=1) + 1e-300)[:, None]
+    normals *= np.sign(np.add.reduce(normals * (centres - inward_px), axis=1) + 1e-300)[:, None]
     residuals = np.abs(du * normals[side, 0] + dv * normals[side, 1])
     max_residual_px = np.maximum.reduceat(residuals, starts)
-    half_step_px = 0.5 * np.max(np.abs(normals), axis=1)
-    offsets = np.sum(normals * centres, axis=1) + half_step_px
+    half_step_px = 0.5 * np.abs(normals).max(axis=1)
+    offsets = np.add.reduce(normals * centres, axis=1) + half_step_px
     return _EdgeFits(normals, offsets, centres, max_residual_px)
 
 
@@ -233,13 +233,19 @@ def _outside_neighbours(
     """Per side, the 4-neighbours one step out along the normal's dominant axis of its
     boundary pixels (outside the blob for a straight edge), keeping those the mask says
     are outside."""
-    dominant_u = np.abs(normals[:, 0]) >= np.abs(normals[:, 1])
-    steps = np.where(dominant_u[:, None], [[1, 0]], [[0, 1]]) * np.sign(normals).astype(np.int32)
-    outside = points + steps[side].astype(np.int32)
+    steps = [  # one pixel along the normal's dominant axis, outwards
+        (_sign(nu), 0) if abs(nu) >= abs(nv) else (0, _sign(nv)) for nu, nv in normals.tolist()
+    ]
+    outside = points + np.array(steps, np.int32)[side]
     keep = mask[outside[:, 1], outside[:, 0]] == 0
     kept, kept_side = outside[keep], side[keep]
     ends = [0, *np.searchsorted(kept_side, np.arange(1, len(normals))).tolist(), len(kept)]
     return [kept[a:b] for a, b in itertools.pairwise(ends)]  # np.split's parts
+
+
+def _sign(x: float) -> int:
+    """-1, 0 or 1 as np.sign gives them, of a plain float."""
+    return (x > 0.0) - (x < 0.0)
 
 
 def _padded_hulls(point_sets: list[np.ndarray]) -> np.ndarray:
@@ -361,25 +367,29 @@ def _edge_lines(blobs: list[_Blob]) -> tuple[FloatArray, FloatArray, FloatArray]
     return normals, offsets, fits.max_residual_px
 
 
-def _intersect_lines(n1: FloatArray, c1: float, n2: FloatArray, c2: float) -> FloatArray | None:
+def _intersect_lines(
+    n1: list[float], c1: float, n2: list[float], c2: float
+) -> tuple[float, float] | None:
     det = n1[0] * n2[1] - n1[1] * n2[0]
     if abs(det) < math.sin(MIN_CORNER_ANGLE_RAD / 2.0):  # near-parallel sides
         return None
-    return np.array([(c1 * n2[1] - c2 * n1[1]) / det, (n1[0] * c2 - n2[0] * c1) / det])
+    return (c1 * n2[1] - c2 * n1[1]) / det, (n1[0] * c2 - n2[0] * c1) / det
 
 
 def _corners_from_lines(
     normals: FloatArray, offsets: list[float], rough_px: FloatArray
 ) -> FloatArray | None:
     """Corner i = side (i-1) ∩ side i; None if two sides are nearly parallel or meet far from
-    the rough corner (the fit went wrong)."""
-    corners = np.empty((4, 2))
+    the rough corner (the fit went wrong). On plain floats: four corners, where numpy's
+    per-call overhead would be the whole cost."""
+    n, rough = normals.tolist(), rough_px.tolist()
+    corners = []
     for i in range(4):
-        p = _intersect_lines(normals[i - 1], offsets[i - 1], normals[i], offsets[i])
-        if p is None or math.dist(p, rough_px[i]) > MAX_CORNER_SHIFT_PX:
+        p = _intersect_lines(n[i - 1], offsets[i - 1], n[i], offsets[i])
+        if p is None or math.dist(p, rough[i]) > MAX_CORNER_SHIFT_PX:
             return None
-        corners[i] = p
-    return corners
+        corners.append(p)
+    return np.array(corners)
 
 
 def _blob_candidate(mask: np.ndarray, min_area_px: int, roi: Roi | None) -> _Blob | _QuadResult:
