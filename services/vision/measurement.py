@@ -48,7 +48,14 @@ from services.vision.depth import (
 )
 from services.vision.occlusion import is_occluded
 from services.vision.quad import find_quads, order_corners
-from services.vision.segmentation import MARKERS, MORPH_KERNEL, check_rgb, marker_masks, mask_bounds
+from services.vision.segmentation import (
+    MARKERS,
+    MORPH_KERNEL,
+    Roi,
+    check_rgb,
+    marker_masks,
+    mask_bounds,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -155,12 +162,14 @@ def _check_frame(rgb: np.ndarray, depth_m: np.ndarray, k_depth: CameraIntrinsics
 
 @dataclass(frozen=True)
 class MarkerQuad:
-    """A marker found in colour alone: corners (canonical order) or why not, and its mask."""
+    """A marker found in colour alone: corners (canonical order) or why not, its mask, and
+    the region of it that can be non-zero (None: anywhere)."""
 
     corners_px: FloatArray | None
     reason: str
     area_px: float
     mask: np.ndarray
+    region: Roi | None = None
 
 
 def find_marker_quads(
@@ -184,14 +193,14 @@ def find_marker_quads(
     masks = marker_masks(rgb, cfg, previous if windows is None else windows)
     quads = find_quads(masks, cfg.min_area_px)  # both markers' sides refined in one batch
     out = {}
-    for name, quad, (mask, _) in zip(MARKERS, quads, masks, strict=True):
+    for name, quad, (mask, region) in zip(MARKERS, quads, masks, strict=True):
         corners, reason = None, quad.reason
         if quad.corners_px is not None and orientation_cue:
             corners = label_corners(rgb, quad.corners_px, previous.get(name), cfg)
             reason = CUE_HIDDEN if corners is None else ""
         elif quad.corners_px is not None:
             corners = order_corners(quad.corners_px, previous.get(name))
-        out[name] = MarkerQuad(corners, reason, quad.area_px, mask)
+        out[name] = MarkerQuad(corners, reason, quad.area_px, mask, region)
     return out
 
 

@@ -185,11 +185,11 @@ def _assign(sides: _Sides, points_h: FloatArray) -> tuple[FloatArray, np.ndarray
     t = points_h @ sides.along
     within = (t > -0.25) & (t < 1.25)  # a side's neighbourhood, corners included
     side = np.where(within, np.abs(dist), np.inf).argmin(axis=1)
-    rows = np.arange(len(points_h))
+    at = np.arange(0, 4 * len(points_h), 4) + side  # [rows, side] as indices into the raveled
     margin = CORNER_CLEARANCE_PX / sides.lengths[side]
-    t_side = t[rows, side]
-    keep = within[rows, side] & (t_side > margin) & (t_side < 1.0 - margin)
-    return dist[rows, side][keep], side[keep], keep
+    t_side = t.take(at)
+    keep = within.take(at) & (t_side > margin) & (t_side < 1.0 - margin)
+    return dist.take(at)[keep], side[keep], keep
 
 
 @dataclass(frozen=True)
@@ -281,8 +281,8 @@ def fit_square(
         r, side, used = _assign(sides, points_h)
         if len(side) < MIN_POINTS:
             return None
-        d_all = (points_h[used] @ sides.d_distance).reshape(-1, 4, 3)
-        return sides, r, d_all[np.arange(len(side)), side]
+        d_all = (points_h[used] @ sides.d_distance).reshape(-1, 3)  # 4 sides' rows per point
+        return sides, r, d_all.take(np.arange(0, 4 * len(side), 4) + side, axis=0)
 
     for _ in range(ITERATIONS):
         now = linearised(params)

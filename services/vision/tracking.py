@@ -297,7 +297,7 @@ def _fit_on_plane(
     the marker's. The cue is a hole in the colour's mask; where something in front cuts
     through it, the hole opens into the blob's outline, and its sides are not the square's."""
     reach_px = dropout_reach_px(cfg.occlusion_ring_px, k, depth.intrinsics)
-    bounds = mask_bounds(quad.mask, 2 * reach_px + 2)
+    bounds = mask_bounds(quad.mask, 2 * reach_px + 2, quad.region)
     if bounds is None:
         return None
     r0, r1, c0, c1 = bounds
