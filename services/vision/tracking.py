@@ -22,6 +22,8 @@ when most of its marker shows (its own forearm bordering it), since it is what i
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -403,7 +405,7 @@ def _labelled(
 def _fit(
     name: str,
     quad: MarkerQuad,
-    memory: MarkerMemory | None,
+    memory: Callable[[], MarkerMemory | None],
     previous_px: FloatArray | None,
     rgb: np.ndarray,
     k: CameraIntrinsics,
@@ -414,10 +416,12 @@ def _fit(
 ) -> _PartialFit | None:
     """A partly hidden marker (one of :data:`FITTED`) fitted from its visible edges: on the
     target's remembered plane when it has one, else on the plane of its own depth in this
-    frame, which for the hand must show most of its marker (:data:`HAND_MIN_SEEN_FRACTION`)."""
+    frame, which for the hand must show most of its marker (:data:`HAND_MIN_SEEN_FRACTION`).
+    ``memory``: gives the marker's last view with depth carried to now (see _measure_fresh)."""
     cue_rgb = rgb if orientation_cue else None
-    if name == "target" and memory is not None and memory.plane is not None:
-        fit = _fit_partial(quad, memory, k, depth, cfg, marker_size_m, cue_rgb)
+    last = memory() if name == "target" else None  # only the target's plane is remembered
+    if last is not None and last.plane is not None:
+        fit = _fit_partial(quad, last, k, depth, cfg, marker_size_m, cue_rgb)
         if fit is not None and orientation_cue and previous_px is None:
             # Its labels come from its last whole view, not from the frame before (it was
             # lost since, and may have turned): with the cue, the cue must tell them.
@@ -435,7 +439,7 @@ def _fit(
 def _measure_fresh(
     name: str,
     quad: MarkerQuad,
-    memory: MarkerMemory | None,
+    memory: Callable[[], MarkerMemory | None],
     previous_px: FloatArray | None,
     rgb: np.ndarray,
     k: CameraIntrinsics,
@@ -445,7 +449,9 @@ def _measure_fresh(
     orientation_cue: bool = False,
 ) -> MarkerMeasurement:
     """A marker in a colour frame taken with the depth image: measured in full, and fitted
-    from its visible edges when only part of it shows (a marker in :data:`FITTED`)."""
+    from its visible edges when only part of it shows (a marker in :data:`FITTED`).
+    ``memory``: gives the marker's last view with depth carried to now, made only when it is
+    needed (a marker seen whole never asks for it)."""
     fit: _PartialFit | None = None
     fit_first = name in FITTED and quad.corners_px is None  # no quadrilateral: partly hidden
     args = (name, quad, memory, previous_px, rgb, k, depth, cfg, marker_size_m, orientation_cue)
@@ -461,7 +467,7 @@ def _measure_fresh(
         # nearer than the Kinect's range, dark, or flush with it), or not the marker at all.
         m = not_visible("not the marker's size")
     seen = m.marker
-    if not (seen.visible or seen.occluded) and _hidden_in_depth(name, memory, rgb, k, depth, cfg):
+    if not (seen.visible or seen.occluded) and _hidden_in_depth(name, memory(), rgb, k, depth, cfg):
         m = not_visible(seen.reason, occluded=True)
     if name in FITTED and m.marker.state == "partial":
         if not fit_first:  # a quadrilateral, but something in front of it in depth
@@ -492,12 +498,18 @@ def observe(
     fresh = depth is not None and depth.age_s == 0.0
     usable = depth is not None and depth.age_s <= cfg.max_depth_age_s
     measured: dict[str, MarkerMeasurement] = {}
-    expected = {name: state.expected(name, t_s, k) for name in quads}
+
+    @functools.cache
+    def expected(name: str) -> MarkerMemory | None:
+        """The marker's last view with depth carried to ``t_s``: made when first asked for
+        (in a frame with depth, a marker seen whole does not ask)."""
+        return state.expected(name, t_s, k)
+
     for name, quad in quads.items():
-        memory = expected[name]
         if fresh:
             assert depth is not None
             previous = state.previous_corners.get(name)
+            memory = functools.partial(expected, name)
             m = _measure_fresh(
                 name, quad, memory, previous, rgb, k, depth, cfg, marker_size_m, orientation_cue
             )
@@ -506,10 +518,10 @@ def observe(
         elif not usable:
             m = not_visible("no depth image" if depth is None else "depth image too old")
         else:
-            m = _held(name, quad, memory, k, marker_size_m, t_s - cfg.max_depth_age_s)
+            m = _held(name, quad, expected(name), k, marker_size_m, t_s - cfg.max_depth_age_s)
         measured[name] = m
     if not fresh:  # no depth to tell: the hand over the target's last place is what hides it
-        target, last = measured["target"], expected["target"]
+        target, last = measured["target"], expected("target")
         if (
             not target.marker.visible
             and last is not None
@@ -517,7 +529,7 @@ def observe(
         ):
             measured["target"] = not_visible(target.marker.reason, occluded=True)
     for name, m in measured.items():
-        if m.marker.state == "lost" and not m.marker.occluded and expected[name] is None:
+        if m.marker.state == "lost" and not m.marker.occluded and expected(name) is None:
             # Nothing seen of it, and no view of it to look in front of (none measured with a
             # depth image since this vision started): hidden or gone, it cannot tell.
             measured[name] = replace(m, marker=replace(m.marker, occluded=None))
