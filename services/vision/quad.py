@@ -74,8 +74,8 @@ def order_corners(corners_px: np.ndarray, previous_px: np.ndarray | None = None)
 
 
 # --- quadrilateral checks ----------------------------------------------------------------------
-def _interior_angles_rad(quad_px: FloatArray) -> list[float]:
-    q = np.asarray(quad_px, dtype=float).tolist()
+def _interior_angles_rad(quad_px: FloatArray | list[list[float]]) -> list[float]:
+    q = quad_px if isinstance(quad_px, list) else np.asarray(quad_px, dtype=float).tolist()
     angles = []
     for i in range(4):
         (pu, pv), (u, v), (nu, nv) = q[i - 1], q[i], q[(i + 1) % 4]
@@ -169,13 +169,15 @@ def _side_runs(
     def offsets(index: list[int]) -> list[int]:
         return [(i - index[0]) % n for i in index]
 
-    if not offsets(corner_index)[1] < offsets(corner_index)[2] < offsets(corner_index)[3]:
+    along = offsets(corner_index)
+    if not along[1] < along[2] < along[3]:
         contour = contour[::-1]  # the contour runs the other way round: walk it backwards
         corner_index = [n - 1 - i for i in corner_index]
-        if not offsets(corner_index)[1] < offsets(corner_index)[2] < offsets(corner_index)[3]:
+        along = offsets(corner_index)
+        if not along[1] < along[2] < along[3]:
             return None
     twice = np.concatenate([contour, contour])  # so that the last side need not wrap
-    ends = [corner_index[0] + r for r in [*offsets(corner_index), n]]
+    ends = [corner_index[0] + r for r in [*along, n]]
     runs = []
     for i in range(4):
         first = ends[i] + math.ceil(radius_px[i] * dominant[i])
