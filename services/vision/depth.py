@@ -95,7 +95,7 @@ def _marker_depth_pixels(
         return np.zeros((0, 2)), np.zeros(0)
     quad = np.zeros((r1 - r0, c1 - c0), np.uint8)
     shift_bits = 4  # sub-pixel vertices for fillConvexPoly, 1/16 px
-    vertices = np.round((corners_px - (c0, r0)) * (1 << shift_bits)).astype(np.int32)
+    vertices = ((corners_px - (c0, r0)) * (1 << shift_bits)).round().astype(np.int32)
     cv2.fillConvexPoly(quad, vertices, 255, cv2.LINE_8, shift_bits)
     inner = cv2.erode(
         cv2.bitwise_and(quad, registered_mask(mask, depth_m.shape, (r0, r1, c0, c1))),
@@ -108,7 +108,7 @@ def _marker_depth_pixels(
     step = grid_step(int(side_px * side_px))
     while True:
         z = depth_m[r0:r1:step, c0:c1:step]
-        vv, uu = np.nonzero((inner[::step, ::step] > 0) & (z > 0) & (z < np.inf))  # NaN: neither
+        vv, uu = ((inner[::step, ::step] > 0) & (z > 0) & (z < np.inf)).nonzero()  # NaN: neither
         if step == 1 or len(vv) >= DEPTH_MIN_PLANE_PIXELS:
             break
         step = 1
@@ -124,10 +124,12 @@ def grid_step(pixel_count: int) -> int:
 
 
 def median(values: FloatArray) -> float:
-    """Median (upper median for even sizes); np.partition is several times faster than
-    np.median on these small arrays."""
+    """Median (upper median for even sizes); partitioning (a copy, as np.partition does) is
+    several times faster than np.median on these small arrays."""
     k = len(values) // 2
-    return float(np.partition(values, k)[k])
+    partitioned = values.copy()
+    partitioned.partition(k)
+    return float(partitioned[k])
 
 
 def _outlier_threshold(deviations: FloatArray, floor: float) -> float:

@@ -57,7 +57,7 @@ class SquareOnPlane:
         v = c[3] - c[0] + c[2] - c[1]
         v -= (v @ u) * u
         v /= np.linalg.norm(v)
-        return cls(c.mean(axis=0), u, v, size_m)
+        return cls(c.sum(axis=0) / len(c), u, v, size_m)  # the mean, as np.mean makes it
 
     def moved(self, du_m: float, dv_m: float, turn_rad: float) -> SquareOnPlane:
         """Slid by (du, dv) along its axes and turned about its normal."""
@@ -308,7 +308,7 @@ def fit_square(
     if now is None:
         return None
     sides, r, jac = now
-    rms = float(np.sqrt(np.mean(r**2)))
+    rms = float(np.sqrt((r**2).sum() / len(r)))  # np.mean's operations
     if rms > MAX_RMS_PX or abs(params[2]) > MAX_TURN_RAD:
         return None
     information = jac.T @ jac
@@ -329,6 +329,6 @@ def stray_fraction(mask: np.ndarray, corners_px: FloatArray, offset_px: tuple[in
         return 1.0
     square = np.zeros(mask.shape, np.uint8)
     local = (corners_px - np.asarray(offset_px, dtype=float)) * 16
-    cv2.fillConvexPoly(square, np.round(local).astype(np.int32), 1, cv2.LINE_8, 4)
+    cv2.fillConvexPoly(square, local.round().astype(np.int32), 1, cv2.LINE_8, 4)
     square = cv2.dilate(square, square_kernel(3))
     return float(np.count_nonzero(blob & (square == 0)) / n)

@@ -96,7 +96,7 @@ class MarkerMemory:
 
     def carried(self, shift_m: FloatArray, k: CameraIntrinsics) -> MarkerMemory:
         """Where this view is by now if the marker slid by ``shift_m`` (camera frame)."""
-        if not np.any(shift_m):
+        if not shift_m.any():
             return self
         points = back_project(self.corners_px, self.depth_m, k) + shift_m
         plane = None if self.plane is None else self.plane.shifted(shift_m)
@@ -167,7 +167,8 @@ def _depth_under(
     u = kd.fx_px * ((np.arange(c0, c1, dtype=float) - k.cx_px) / k.fx_px) + kd.cx_px
     v = kd.fy_px * ((np.arange(r0, r1, dtype=float) - k.cy_px) / k.fy_px) + kd.cy_px
     h, w = depth.depth_m.shape
-    du, dv = np.clip(np.rint(u).astype(int), 0, w - 1), np.clip(np.rint(v).astype(int), 0, h - 1)
+    du = np.minimum(np.maximum(np.rint(u).astype(int), 0), w - 1)  # clipped to the image
+    dv = np.minimum(np.maximum(np.rint(v).astype(int), 0), h - 1)
     # depth_m[dv[:, None], du[None, :]], gathered one axis at a time (several times faster)
     return depth.depth_m.take(dv, axis=0).take(du, axis=1)
 
@@ -327,7 +328,7 @@ def _fit_on_plane(
     if not (
         usable_depths(depths_m)
         and usable_depths(points_m[:, 2])
-        and np.all(np.abs(fit.corners_px) <= PIXEL_LIMIT_PX)
+        and (np.abs(fit.corners_px) <= PIXEL_LIMIT_PX).all()
     ):
         return None
     return _PartialFit(
@@ -336,7 +337,7 @@ def _fit_on_plane(
         plane.depth_sigmas_m(xy),
         points_m,
         plane,
-        bool(np.any(occluder)),
+        bool(occluder.any()),
     )
 
 
