@@ -96,8 +96,8 @@ def tracking_window(corners_px: FloatArray | None, shape: tuple[int, ...]) -> Ro
     cv2.resize samples an odd one slightly differently). None: no corners, or none inside."""
     if corners_px is None:
         return None
-    low, high = corners_px.min(axis=0), corners_px.max(axis=0)
-    margin = max(TRACK_MARGIN_MIN_PX, TRACK_MARGIN_FRACTION * float(np.max(high - low)))
+    (u0, v0), (u1, v1) = corners_px.min(axis=0).tolist(), corners_px.max(axis=0).tolist()
+    margin = max(TRACK_MARGIN_MIN_PX, TRACK_MARGIN_FRACTION * max(u1 - u0, v1 - v0))
 
     def span(lo: float, hi: float, size: int) -> slice:
         """[lo - margin, hi + margin] out to the coarse grid, clipped to its whole steps."""
@@ -106,7 +106,7 @@ def tracking_window(corners_px: FloatArray | None, shape: tuple[int, ...]) -> Ro
         stop = min(max(math.ceil((hi + margin) / COARSE_STEP) * COARSE_STEP, start), usable)
         return slice(start, stop)
 
-    rows, cols = span(low[1], high[1], shape[0]), span(low[0], high[0], shape[1])
+    rows, cols = span(v0, v1, shape[0]), span(u0, u1, shape[1])
     return (rows, cols) if rows.stop > rows.start and cols.stop > cols.start else None
 
 
