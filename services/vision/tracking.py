@@ -420,7 +420,7 @@ def _fit(
     frame, which for the hand must show most of its marker (:data:`HAND_MIN_SEEN_FRACTION`).
     ``memory``: gives the marker's last view with depth carried to now (see _measure_fresh)."""
     cue_rgb = rgb if orientation_cue else None
-    last = memory() if name == "target" else None  # only the target's plane is remembered
+    last = memory() if name == "target" else None  # not the hand's: it moves
     if last is not None and last.plane is not None:
         fit = _fit_partial(quad, last, k, depth, cfg, marker_size_m, cue_rgb)
         if fit is not None and orientation_cue and previous_px is None:
