@@ -152,7 +152,7 @@ def fit_inverse_depth_plane(xy: FloatArray, z_m: FloatArray) -> PlaneFit | None:
     """
     deviations = np.abs(z_m - median(z_m))
     near = deviations <= _outlier_threshold(deviations, DEPTH_GATE_MIN_M)
-    if np.count_nonzero(near) >= DEPTH_MIN_PLANE_PIXELS:
+    if DEPTH_MIN_PLANE_PIXELS <= np.count_nonzero(near) < len(z_m):  # all near: no copy
         xy, z_m = xy[near], z_m[near]
     if len(z_m) < DEPTH_MIN_PLANE_PIXELS:
         return None
