@@ -169,8 +169,10 @@ def _depth_under(
     h, w = depth.depth_m.shape
     du = np.minimum(np.maximum(np.rint(u).astype(int), 0), w - 1)  # clipped to the image
     dv = np.minimum(np.maximum(np.rint(v).astype(int), 0), h - 1)
-    # depth_m[dv[:, None], du[None, :]], gathered one axis at a time (several times faster)
-    return depth.depth_m.take(dv, axis=0).take(du, axis=1)
+    # depth_m[dv[:, None], du[None, :]], gathered one axis at a time (several times faster):
+    # the columns of the rows it spans, then its rows
+    top, bottom = int(dv.min()), int(dv.max())
+    return depth.depth_m[top : bottom + 1].take(du, axis=1).take(dv - top, axis=0)
 
 
 def _hidden_in_depth(
