@@ -15,6 +15,7 @@ from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
 from common.messages import usable_depths
 from services.vision.occlusion import RING_WIDTH_PX
 from services.vision.quad import quad_area_px2
+from services.vision.segmentation import Roi
 
 FloatArray = NDArray[np.float64]
 
@@ -224,6 +225,24 @@ def registered_mask(
     else:
         small = cv2.resize(mask, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)[r0:r1, c0:c1]
     return cv2.threshold(small, 127, 255, cv2.THRESH_BINARY)[1]  # ≥ 128: at least half
+
+
+def registered_region_mask(
+    mask: np.ndarray, shape: tuple[int, ...], region: Roi | None
+) -> np.ndarray:
+    """:func:`registered_mask` of the whole of a mask that is zero outside ``region`` (its
+    rows and columns; None: anywhere): when the colour image is a whole multiple of the depth
+    one only the depth pixels over the region are resampled, the others being zero."""
+    sy, sx = mask.shape[0] // shape[0], mask.shape[1] // shape[1]
+    if region is None or not (sy and sx) or (sy * shape[0], sx * shape[1]) != mask.shape[:2]:
+        return registered_mask(mask, shape)
+    rows, cols = region
+    r0, r1 = rows.start // sy, -(-rows.stop // sy)  # the depth pixels covering the region
+    c0, c1 = cols.start // sx, -(-cols.stop // sx)
+    small = np.zeros(shape[:2], np.uint8)
+    if r1 > r0 and c1 > c0:
+        small[r0:r1, c0:c1] = registered_mask(mask, shape, (r0, r1, c0, c1))
+    return small
 
 
 def to_depth_pixels(corners_px: FloatArray, k: CameraIntrinsics, k_depth: CameraIntrinsics):

@@ -44,6 +44,7 @@ from services.vision.depth import (
     marker_surface,
     plane_depth_image,
     registered_mask,
+    registered_region_mask,
     to_depth_pixels,
 )
 from services.vision.occlusion import is_occluded
@@ -101,7 +102,9 @@ def _measure(
     """Depths and occlusion check of a marker whose corners are in their final order."""
     ring_px = depth_ring_px(ring_px, k, k_depth)
     if quad.corners_px is None:
-        occluded = quad.area_px > 0 and _blob_occluded(quad.mask, depth_m, k_depth or k, ring_px)
+        occluded = quad.area_px > 0 and _blob_occluded(
+            quad.mask, depth_m, k_depth or k, ring_px, quad.region
+        )
         return not_visible(quad.reason, occluded)
     corners, mask = quad.corners_px, quad.mask
     depth = corner_depths(depth_m, mask, corners, k, k_depth)
@@ -126,12 +129,16 @@ def _measure(
 
 
 def _blob_occluded(
-    mask: np.ndarray, depth_m: np.ndarray, k_depth: CameraIntrinsics, ring_px: int
+    mask: np.ndarray,
+    depth_m: np.ndarray,
+    k_depth: CameraIntrinsics,
+    ring_px: int,
+    region: Roi | None = None,
 ) -> bool:
     """Is something in front of a blob that did not make a whole square? The ring around it
     against the plane of its own depth (else its nearest depth: a tilted marker spans
-    centimetres)."""
-    small = registered_mask(mask, depth_m.shape)
+    centimetres). ``region``: where ``mask`` can be non-zero (None: anywhere)."""
+    small = registered_region_mask(mask, depth_m.shape, region)
     bounds = mask_bounds(small, ring_px + 3)
     if bounds is None:
         return False
