@@ -272,7 +272,7 @@ def _fit_own(
     :func:`_fit_partial`."""
     if quad.area_px <= 0:
         return None
-    plane = blob_plane(quad.mask, depth.depth_m, k, depth.intrinsics)
+    plane = blob_plane(quad.mask, depth.depth_m, k, depth.intrinsics, quad.region)
     if plane is None:
         return None
     guesses = []
