@@ -59,22 +59,28 @@ class CameraIntrinsics(BaseModel):
 def project(points_cam_m: FloatArray, k: CameraIntrinsics) -> FloatArray:
     """Project N×3 points in the optical frame to N×2 pixel coordinates."""
     p = np.atleast_2d(np.asarray(points_cam_m, dtype=float))
-    x = p[:, 0] / p[:, 2]
-    y = p[:, 1] / p[:, 2]
-    return np.column_stack([k.fx_px * x + k.cx_px, k.fy_px * y + k.cy_px])
+    uv = np.empty((len(p), 2))
+    uv[:, 0] = k.fx_px * (p[:, 0] / p[:, 2]) + k.cx_px
+    uv[:, 1] = k.fy_px * (p[:, 1] / p[:, 2]) + k.cy_px
+    return uv
 
 
 def pixel_to_normalized(uv_px: FloatArray, k: CameraIntrinsics) -> FloatArray:
     """N×2 pixels to N×2 normalized coordinates ``(x, y) = (X/Z, Y/Z)``."""
     uv = np.atleast_2d(np.asarray(uv_px, dtype=float))
-    return np.column_stack([(uv[:, 0] - k.cx_px) / k.fx_px, (uv[:, 1] - k.cy_px) / k.fy_px])
+    xy = np.empty((len(uv), 2))  # filled column by column: np.column_stack costs more here
+    xy[:, 0] = (uv[:, 0] - k.cx_px) / k.fx_px
+    xy[:, 1] = (uv[:, 1] - k.cy_px) / k.fy_px
+    return xy
 
 
 def back_project(uv_px: FloatArray, depth_m: FloatArray, k: CameraIntrinsics) -> FloatArray:
     """N pixels with depths Z (m) to N×3 points in the optical frame."""
     xy = pixel_to_normalized(uv_px, k)
     z = np.asarray(depth_m, dtype=float).reshape(-1)
-    return np.column_stack([xy[:, 0] * z, xy[:, 1] * z, z])
+    points = np.empty((len(z), 3))
+    points[:, 0], points[:, 1], points[:, 2] = xy[:, 0] * z, xy[:, 1] * z, z
+    return points
 
 
 def look_at_rotation(eye_m: FloatArray, target_m: FloatArray, up: FloatArray) -> FloatArray:

@@ -15,6 +15,7 @@ from common.camera import CameraIntrinsics, back_project, pixel_to_normalized
 from common.messages import usable_depths
 from services.vision.occlusion import RING_WIDTH_PX
 from services.vision.quad import quad_area_px2
+from services.vision.segmentation import Roi
 
 FloatArray = NDArray[np.float64]
 
@@ -29,6 +30,15 @@ DEPTH_GATE_MIN_M = 0.01  # depths this close to the median are never gross outli
 MAD_TO_SIGMA = 1.4826  # median absolute deviation → standard deviation for Gaussian noise
 
 
+def rays_of(xy: FloatArray) -> FloatArray:
+    """(N, 3) rays ``(x, y, 1)`` of N normalized coordinates (N, 2)."""
+    xy = np.asarray(xy, dtype=float)
+    rays = np.empty((len(xy), 3))  # filled in place: np.column_stack costs more here
+    rays[:, :2] = xy
+    rays[:, 2] = 1.0
+    return rays
+
+
 @dataclass(frozen=True)
 class PlaneFit:
     """A plane seen by the depth camera, as inverse depth linear in normalized coordinates:
@@ -39,8 +49,7 @@ class PlaneFit:
     covariance: FloatArray  # (3, 3) in 1/m²
 
     def depths_m(self, xy: FloatArray) -> FloatArray:
-        rays = np.column_stack([np.asarray(xy, dtype=float), np.ones(len(xy))])
-        return 1.0 / (rays @ self.coefficients)
+        return 1.0 / (rays_of(xy) @ self.coefficients)
 
     def shifted(self, shift_m: FloatArray) -> PlaneFit:
         """The same plane translated by ``shift_m`` (camera frame): ``n·P = d`` becomes
@@ -51,9 +60,9 @@ class PlaneFit:
 
     def depth_sigmas_m(self, xy: FloatArray) -> FloatArray:
         """1-σ of the plane's depth along each ray: σ(1/Z)·Z², σ(1/Z)² = φᵀ·C·φ."""
-        rays = np.column_stack([np.asarray(xy, dtype=float), np.ones(len(xy))])
+        rays = rays_of(xy)
         inverse_var = np.einsum("ij,jk,ik->i", rays, self.covariance, rays)
-        return np.sqrt(np.maximum(inverse_var, 0.0)) * self.depths_m(xy) ** 2
+        return np.sqrt(np.maximum(inverse_var, 0.0)) * (1.0 / (rays @ self.coefficients)) ** 2
 
 
 def bounding_box(
@@ -87,7 +96,7 @@ def _marker_depth_pixels(
         return np.zeros((0, 2)), np.zeros(0)
     quad = np.zeros((r1 - r0, c1 - c0), np.uint8)
     shift_bits = 4  # sub-pixel vertices for fillConvexPoly, 1/16 px
-    vertices = np.round((corners_px - (c0, r0)) * (1 << shift_bits)).astype(np.int32)
+    vertices = ((corners_px - (c0, r0)) * (1 << shift_bits)).round().astype(np.int32)
     cv2.fillConvexPoly(quad, vertices, 255, cv2.LINE_8, shift_bits)
     inner = cv2.erode(
         cv2.bitwise_and(quad, registered_mask(mask, depth_m.shape, (r0, r1, c0, c1))),
@@ -100,11 +109,12 @@ def _marker_depth_pixels(
     step = grid_step(int(side_px * side_px))
     while True:
         z = depth_m[r0:r1:step, c0:c1:step]
-        vv, uu = np.nonzero((inner[::step, ::step] > 0) & (z > 0) & (z < np.inf))  # NaN: neither
+        vv, uu = ((inner[::step, ::step] > 0) & (z > 0) & (z < np.inf)).nonzero()  # NaN: neither
         if step == 1 or len(vv) >= DEPTH_MIN_PLANE_PIXELS:
             break
         step = 1
-    uv = np.column_stack([uu * step + c0, vv * step + r0]).astype(float)
+    uv = np.empty((len(uu), 2))
+    uv[:, 0], uv[:, 1] = uu * step + c0, vv * step + r0
     return uv, z[vv, uu].astype(float)
 
 
@@ -115,15 +125,18 @@ def grid_step(pixel_count: int) -> int:
 
 
 def median(values: FloatArray) -> float:
-    """Median (upper median for even sizes); np.partition is several times faster than
-    np.median on these small arrays."""
+    """Median (upper median for even sizes); partitioning (a copy, as np.partition does) is
+    several times faster than np.median on these small arrays."""
     k = len(values) // 2
-    return float(np.partition(values, k)[k])
+    partitioned = values.copy()
+    partitioned.partition(k)
+    return float(partitioned[k])
 
 
-def _outlier_threshold(values: FloatArray, floor: float) -> float:
-    """max(3 robust σ (from the median absolute deviation), floor)."""
-    sigma = MAD_TO_SIGMA * median(np.abs(values - median(values)))
+def _outlier_threshold(deviations: FloatArray, floor: float) -> float:
+    """max(3 robust σ, floor), from values' absolute ``deviations`` from their median (the
+    median absolute deviation)."""
+    sigma = MAD_TO_SIGMA * median(deviations)
     return max(DEPTH_OUTLIER_SIGMAS * sigma, floor)
 
 
@@ -138,17 +151,19 @@ def fit_inverse_depth_plane(xy: FloatArray, z_m: FloatArray) -> PlaneFit | None:
     lateral jitter as they are). None with fewer than :data:`DEPTH_MIN_PLANE_PIXELS` samples or
     a plane seen edge-on.
     """
-    near = np.abs(z_m - median(z_m)) <= _outlier_threshold(z_m, DEPTH_GATE_MIN_M)
-    if np.count_nonzero(near) >= DEPTH_MIN_PLANE_PIXELS:
+    deviations = np.abs(z_m - median(z_m))
+    near = deviations <= _outlier_threshold(deviations, DEPTH_GATE_MIN_M)
+    if DEPTH_MIN_PLANE_PIXELS <= np.count_nonzero(near) < len(z_m):  # all near: no copy
         xy, z_m = xy[near], z_m[near]
     if len(z_m) < DEPTH_MIN_PLANE_PIXELS:
         return None
-    rays = np.column_stack([xy, np.ones(len(xy))])
+    rays = rays_of(xy)
     fit = _least_squares_plane(rays, 1.0 / z_m)
     if fit is None:
         return None
     residuals_m = z_m - 1.0 / (rays @ fit[0])
-    inliers = np.abs(residuals_m) <= _outlier_threshold(residuals_m, DEPTH_OUTLIER_MIN_M)
+    deviations = np.abs(residuals_m - median(residuals_m))
+    inliers = np.abs(residuals_m) <= _outlier_threshold(deviations, DEPTH_OUTLIER_MIN_M)
     if np.count_nonzero(inliers) >= DEPTH_MIN_PLANE_PIXELS:
         rays, z_m = rays[inliers], z_m[inliers]
         fit = _least_squares_plane(rays, 1.0 / z_m)
@@ -212,12 +227,31 @@ def registered_mask(
     return cv2.threshold(small, 127, 255, cv2.THRESH_BINARY)[1]  # ≥ 128: at least half
 
 
+def registered_region_mask(
+    mask: np.ndarray, shape: tuple[int, ...], region: Roi | None
+) -> np.ndarray:
+    """:func:`registered_mask` of the whole of a mask that is zero outside ``region`` (its
+    rows and columns; None: anywhere): when the colour image is a whole multiple of the depth
+    one only the depth pixels over the region are resampled, the others being zero."""
+    sy, sx = mask.shape[0] // shape[0], mask.shape[1] // shape[1]
+    if region is None or not (sy and sx) or (sy * shape[0], sx * shape[1]) != mask.shape[:2]:
+        return registered_mask(mask, shape)
+    rows, cols = region
+    r0, r1 = rows.start // sy, -(-rows.stop // sy)  # the depth pixels covering the region
+    c0, c1 = cols.start // sx, -(-cols.stop // sx)
+    small = np.zeros(shape[:2], np.uint8)
+    if r1 > r0 and c1 > c0:
+        small[r0:r1, c0:c1] = registered_mask(mask, shape, (r0, r1, c0, c1))
+    return small
+
+
 def to_depth_pixels(corners_px: FloatArray, k: CameraIntrinsics, k_depth: CameraIntrinsics):
     """Colour-image pixels → the registered depth image's pixels (same rays)."""
     xy = pixel_to_normalized(corners_px, k)
-    return np.column_stack(
-        [k_depth.fx_px * xy[:, 0] + k_depth.cx_px, k_depth.fy_px * xy[:, 1] + k_depth.cy_px]
-    )
+    uv = np.empty_like(xy)  # filled column by column: np.column_stack costs more here
+    uv[:, 0] = k_depth.fx_px * xy[:, 0] + k_depth.cx_px
+    uv[:, 1] = k_depth.fy_px * xy[:, 1] + k_depth.cy_px
+    return uv
 
 
 def corner_depths(

@@ -44,11 +44,19 @@ from services.vision.depth import (
     marker_surface,
     plane_depth_image,
     registered_mask,
+    registered_region_mask,
     to_depth_pixels,
 )
 from services.vision.occlusion import is_occluded
 from services.vision.quad import find_quads, order_corners
-from services.vision.segmentation import MARKERS, MORPH_KERNEL, check_rgb, marker_masks, mask_bounds
+from services.vision.segmentation import (
+    MARKERS,
+    MORPH_KERNEL,
+    Roi,
+    check_rgb,
+    marker_masks,
+    mask_bounds,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -94,7 +102,9 @@ def _measure(
     """Depths and occlusion check of a marker whose corners are in their final order."""
     ring_px = depth_ring_px(ring_px, k, k_depth)
     if quad.corners_px is None:
-        occluded = quad.area_px > 0 and _blob_occluded(quad.mask, depth_m, k_depth or k, ring_px)
+        occluded = quad.area_px > 0 and _blob_occluded(
+            quad.mask, depth_m, k_depth or k, ring_px, quad.region
+        )
         return not_visible(quad.reason, occluded)
     corners, mask = quad.corners_px, quad.mask
     depth = corner_depths(depth_m, mask, corners, k, k_depth)
@@ -119,12 +129,16 @@ def _measure(
 
 
 def _blob_occluded(
-    mask: np.ndarray, depth_m: np.ndarray, k_depth: CameraIntrinsics, ring_px: int
+    mask: np.ndarray,
+    depth_m: np.ndarray,
+    k_depth: CameraIntrinsics,
+    ring_px: int,
+    region: Roi | None = None,
 ) -> bool:
     """Is something in front of a blob that did not make a whole square? The ring around it
     against the plane of its own depth (else its nearest depth: a tilted marker spans
-    centimetres)."""
-    small = registered_mask(mask, depth_m.shape)
+    centimetres). ``region``: where ``mask`` can be non-zero (None: anywhere)."""
+    small = registered_region_mask(mask, depth_m.shape, region)
     bounds = mask_bounds(small, ring_px + 3)
     if bounds is None:
         return False
@@ -155,12 +169,14 @@ def _check_frame(rgb: np.ndarray, depth_m: np.ndarray, k_depth: CameraIntrinsics
 
 @dataclass(frozen=True)
 class MarkerQuad:
-    """A marker found in colour alone: corners (canonical order) or why not, and its mask."""
+    """A marker found in colour alone: corners (canonical order) or why not, its mask, and
+    the region of it that can be non-zero (None: anywhere)."""
 
     corners_px: FloatArray | None
     reason: str
     area_px: float
     mask: np.ndarray
+    region: Roi | None = None
 
 
 def find_marker_quads(
@@ -184,14 +200,14 @@ def find_marker_quads(
     masks = marker_masks(rgb, cfg, previous if windows is None else windows)
     quads = find_quads(masks, cfg.min_area_px)  # both markers' sides refined in one batch
     out = {}
-    for name, quad, (mask, _) in zip(MARKERS, quads, masks, strict=True):
+    for name, quad, (mask, region) in zip(MARKERS, quads, masks, strict=True):
         corners, reason = None, quad.reason
         if quad.corners_px is not None and orientation_cue:
             corners = label_corners(rgb, quad.corners_px, previous.get(name), cfg)
             reason = CUE_HIDDEN if corners is None else ""
         elif quad.corners_px is not None:
             corners = order_corners(quad.corners_px, previous.get(name))
-        out[name] = MarkerQuad(corners, reason, quad.area_px, mask)
+        out[name] = MarkerQuad(corners, reason, quad.area_px, mask, region)
     return out
 
 

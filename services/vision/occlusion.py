@@ -8,6 +8,8 @@ marker and its corners cannot be trusted.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -36,34 +38,46 @@ def occluder_fraction(
     left out (too close, too far, shiny: nothing is known there); a closer object near the
     marker but not touching it leaves valid background in the ring and does not count.
     """
-    x, y, w, h = cv2.boundingRect((mask > 0).astype(np.uint8))
+    binary = mask if mask.dtype == np.uint8 else (mask > 0).astype(np.uint8)  # non-zero: in it
+    x, y, w, h = cv2.boundingRect(binary)
     if w == 0 or h == 0:
         return 0.0
     pad = max(ring_px, reach_px) + 2
     y0, y1 = max(0, y - pad), min(mask.shape[0], y + h + pad)
     x0, x1 = max(0, x - pad), min(mask.shape[1], x + w + pad)
-    roi = (mask[y0:y1, x0:x1] > 0).astype(np.uint8)
-    outer = cv2.dilate(roi, np.ones((2 * ring_px + 3, 2 * ring_px + 3), np.uint8))
-    inner = cv2.dilate(roi, np.ones((3, 3), np.uint8))
+    roi = binary[y0:y1, x0:x1]
+    outer = cv2.dilate(roi, square_kernel(2 * ring_px + 3))
+    inner = cv2.dilate(roi, square_kernel(3))
     ring = (outer > 0) & (inner == 0)
     depth = depth_m[y0:y1, x0:x1]
     surface = surface_m[y0:y1, x0:x1] if isinstance(surface_m, np.ndarray) else surface_m
     valid = np.isfinite(depth) & (depth > 0)
-    occluder = occluder_map(depth, surface, reach_px)
+    occluder = _occluder_map(depth, valid, surface, reach_px)
     known = np.count_nonzero(ring & (valid | occluder))
     if known == 0:
         return 0.0
     return float(np.count_nonzero(ring & occluder) / known)
 
 
+@functools.lru_cache(maxsize=32)
+def square_kernel(size_px: int) -> np.ndarray:
+    """A square structuring element of ones, ``size_px`` wide (memoised; not to be written)."""
+    return np.ones((size_px, size_px), np.uint8)
+
+
 def occluder_map(depth_m: np.ndarray, surface_m: np.ndarray | float, reach_px: int) -> np.ndarray:
     """Pixels taken by something in front of a surface: valid depth closer than ``surface_m``
     by :data:`CLOSER_MARGIN_M`, and invalid depth within ``reach_px`` of such (a depth
     camera's dropout along an occluder's edge)."""
-    valid = np.isfinite(depth_m) & (depth_m > 0)
+    return _occluder_map(depth_m, np.isfinite(depth_m) & (depth_m > 0), surface_m, reach_px)
+
+
+def _occluder_map(
+    depth_m: np.ndarray, valid: np.ndarray, surface_m: np.ndarray | float, reach_px: int
+) -> np.ndarray:
+    """:func:`occluder_map`, given which depth pixels are ``valid`` (finite, positive)."""
     closer = valid & (depth_m < surface_m - CLOSER_MARGIN_M)
-    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
-    near_closer = cv2.dilate(closer.astype(np.uint8), kernel) > 0
+    near_closer = cv2.dilate(closer.astype(np.uint8), square_kernel(2 * reach_px + 1)) > 0
     return closer | (~valid & near_closer)
 
 

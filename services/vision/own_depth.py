@@ -35,6 +35,7 @@ from services.vision.depth import (
     to_depth_pixels,
 )
 from services.vision.partial import SquareOnPlane
+from services.vision.segmentation import Roi, mask_bounds
 
 TANGENT_STEP_PX = 3  # an edge's direction: from the outline point this far behind to ahead
 # The edge directions must agree (mean resultant length of their quarter-turn-folded angles):
@@ -44,17 +45,23 @@ SIDE_BAND = 0.1  # of the marker's size: outline points this close to an extreme
 
 
 def blob_plane(
-    mask: np.ndarray, depth_m: np.ndarray, k: CameraIntrinsics, k_depth: CameraIntrinsics
+    mask: np.ndarray,
+    depth_m: np.ndarray,
+    k: CameraIntrinsics,
+    k_depth: CameraIntrinsics,
+    region: Roi | None = None,
 ) -> PlaneFit | None:
     """The plane of a marker from the depth of its visible blob (``mask``, 0/255 at the
     colour resolution ``k``; ``depth_m`` registered to it at ``k_depth``): the blob eroded by
     as much as a whole view's depth samples are (a tenth of its side, at least 2 depth
     pixels), so that neither its outline nor what borders it counts. None with too few
-    samples left."""
-    ys, xs = np.nonzero(mask)
-    if len(xs) == 0:
+    samples left. ``region``: where ``mask`` can be non-zero (None: anywhere)."""
+    binary = mask if mask.dtype == np.uint8 else (mask != 0).astype(np.uint8)
+    found = mask_bounds(binary, 0, region)  # its non-zero pixels' box
+    if found is None:
         return None
-    corners = np.array([[xs.min(), ys.min()], [xs.max() + 1.0, ys.max() + 1.0]])
+    top, bottom, left, right = found
+    corners = np.array([[left, top], [right, bottom]], dtype=float)
     box = corners if k_depth == k else to_depth_pixels(corners, k, k_depth)
     h, w = depth_m.shape
     r0, r1 = max(math.floor(box[0, 1]) - 1, 0), min(math.ceil(box[1, 1]) + 1, h)

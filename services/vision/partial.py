@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized
 from common.kinematics import cross
+from services.vision.occlusion import square_kernel
 
 FloatArray = NDArray[np.float64]
 
@@ -56,7 +57,7 @@ class SquareOnPlane:
         v = c[3] - c[0] + c[2] - c[1]
         v -= (v @ u) * u
         v /= np.linalg.norm(v)
-        return cls(c.mean(axis=0), u, v, size_m)
+        return cls(c.sum(axis=0) / len(c), u, v, size_m)  # the mean, as np.mean makes it
 
     def moved(self, du_m: float, dv_m: float, turn_rad: float) -> SquareOnPlane:
         """Slid by (du, dv) along its axes and turned about its normal."""
@@ -79,20 +80,28 @@ def outline(
     image, ``offset_px`` = (column, row) of the crop), and which of its points are the
     marker's true edge (N,): bordering no ``occluder`` pixel (0/1 or 0/255 arrays of the
     same size), nor the crop's border."""
-    contours, _ = cv2.findContours(
-        (mask > 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
-    )
+    contours, _ = cv2.findContours(_binary(mask), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return np.zeros((0, 2)), np.zeros(0, bool)
     points = max(contours, key=cv2.contourArea).reshape(-1, 2)
     size = 2 * EDGE_CLEARANCE_PX + 1
-    near_occluder = cv2.dilate((occluder > 0).astype(np.uint8), np.ones((size, size), np.uint8))
+    near_occluder = cv2.dilate(_binary(occluder), square_kernel(size))
     h, w = mask.shape
     keep = near_occluder[points[:, 1], points[:, 0]] == 0
     keep &= (
         (points[:, 0] > 0) & (points[:, 1] > 0) & (points[:, 0] < w - 1) & (points[:, 1] < h - 1)
     )
     return points.astype(float) + np.asarray(offset_px, dtype=float), keep
+
+
+def _binary(mask: np.ndarray) -> np.ndarray:
+    """A uint8 array non-zero where ``mask`` is: itself when uint8, a bool array's bytes, else
+    ``mask > 0`` converted (what OpenCV's contours and morphology take)."""
+    if mask.dtype == np.uint8:
+        return mask
+    if mask.dtype == np.bool_:
+        return mask.view(np.uint8)
+    return (mask > 0).astype(np.uint8)
 
 
 def true_edge_points(
@@ -176,19 +185,19 @@ def _sides(corners_px: list[list[float]], d_corners: list[list[list[float]]]) ->
     )
 
 
-def _assign(sides: _Sides, points_h: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Each point's residual against the side it lies along (the nearest side whose extent it
-    falls in), and that side's index; -1 (residual 0) for points near a corner, left out
-    (corners are rounded). ``points_h`` (N, 3): pixels (u, v, 1)."""
+def _assign(sides: _Sides, points_h: FloatArray) -> tuple[FloatArray, np.ndarray, np.ndarray]:
+    """The points that lie along a side (the nearest side whose extent they fall in) away from
+    its corners (corners are rounded): their residuals against that side, its index, and
+    which of the points they are (N,). ``points_h`` (N, 3): pixels (u, v, 1)."""
     dist = points_h @ sides.distance  # (N, 4)
     t = points_h @ sides.along
     within = (t > -0.25) & (t < 1.25)  # a side's neighbourhood, corners included
-    side = np.argmin(np.where(within, np.abs(dist), np.inf), axis=1)
-    rows = np.arange(len(points_h))
+    side = np.where(within, np.abs(dist), np.inf).argmin(axis=1)
+    at = np.arange(0, 4 * len(points_h), 4) + side  # [rows, side] as indices into the raveled
     margin = CORNER_CLEARANCE_PX / sides.lengths[side]
-    t_side = t[rows, side]
-    keep = within[rows, side] & (t_side > margin) & (t_side < 1.0 - margin)
-    return np.where(keep, dist[rows, side], 0.0), np.where(keep, side, -1)
+    t_side = t.take(at)
+    keep = within.take(at) & (t_side > margin) & (t_side < 1.0 - margin)
+    return dist.take(at)[keep], side[keep], keep
 
 
 @dataclass(frozen=True)
@@ -225,23 +234,36 @@ def _corners_and_jacobian(
     """The corners (4 × (u, v), px) of ``square.moved(*params)`` and their derivatives
     (4 × (d/dp of u, d/dp of v)) with respect to the parameters (slide along u, slide along
     v, turn). Plain Python, as :func:`_sides`."""
-    moved = square.moved(*(float(p) for p in params))
+    du_m, dv_m, turn_rad = np.asarray(params, dtype=float).tolist()
     axis_u, axis_v = square.axis_u.tolist(), square.axis_v.tolist()
-    u, v, centre = moved.axis_u.tolist(), moved.axis_v.tolist(), moved.centre_m.tolist()
+    # square.moved(du_m, dv_m, turn_rad), the same operations on plain floats
+    c, s = math.cos(turn_rad), math.sin(turn_rad)
+    u = [c * a + s * b for a, b in zip(axis_u, axis_v, strict=True)]
+    v = [-s * a + c * b for a, b in zip(axis_u, axis_v, strict=True)]
+    centre = [
+        m + du_m * a + dv_m * b
+        for m, a, b in zip(square.centre_m.tolist(), axis_u, axis_v, strict=True)
+    ]
+    (mx, my, mz), (ux, uy, uz), (vx, vy, vz) = centre, u, v
+    (aux, auy, auz), (avx, avy, avz) = axis_u, axis_v
     h = square.size_m / 2.0
     fx, fy, cx, cy = k.fx_px, k.fy_px, k.cx_px, k.cy_px
     corners, d_corners = [], []
     for su, sv in _SIGNS:
-        x, y, z = (m + h * (su * a + sv * b) for m, a, b in zip(centre, u, v, strict=True))
+        x, y, z = (
+            mx + h * (su * ux + sv * vx),
+            my + h * (su * uy + sv * vy),
+            mz + h * (su * uz + sv * vz),
+        )
         # d(point)/d(turn); the slides move every corner by axis_u, axis_v
-        d_turn = [h * (su * b - sv * a) for a, b in zip(u, v, strict=True)]
+        tx, ty, tz = h * (su * vx - sv * ux), h * (su * vy - sv * uy), h * (su * vz - sv * uz)
         x_n, y_n = x / z, y / z
         corners.append([fx * x_n + cx, fy * y_n + cy])
         # d(f·X/Z) = f·(dX − (X/Z)·dZ)/Z
         d_corners.append(
             [
-                [fx * (d[0] - x_n * d[2]) / z for d in (axis_u, axis_v, d_turn)],
-                [fy * (d[1] - y_n * d[2]) / z for d in (axis_u, axis_v, d_turn)],
+                [fx * (aux - x_n * auz) / z, fx * (avx - x_n * avz) / z, fx * (tx - x_n * tz) / z],
+                [fy * (auy - y_n * auz) / z, fy * (avy - y_n * avz) / z, fy * (ty - y_n * tz) / z],
             ]
         )
     return corners, d_corners
@@ -264,13 +286,11 @@ def fit_square(
         """The sides at ``p``, the used points' residuals and their Jacobian (N, 3); None
         with too few points away from the corners."""
         sides = _sides(*_corners_and_jacobian(square, p, k))
-        r, side = _assign(sides, points_h)
-        used = side >= 0
-        if np.count_nonzero(used) < MIN_POINTS:
+        r, side, used = _assign(sides, points_h)
+        if len(side) < MIN_POINTS:
             return None
-        side = side[used]
-        d_all = (points_h[used] @ sides.d_distance).reshape(-1, 4, 3)
-        return sides, r[used], d_all[np.arange(len(side)), side]
+        d_all = (points_h[used] @ sides.d_distance).reshape(-1, 3)  # 4 sides' rows per point
+        return sides, r, d_all.take(np.arange(0, 4 * len(side), 4) + side, axis=0)
 
     for _ in range(ITERATIONS):
         now = linearised(params)
@@ -288,7 +308,7 @@ def fit_square(
     if now is None:
         return None
     sides, r, jac = now
-    rms = float(np.sqrt(np.mean(r**2)))
+    rms = float(np.sqrt((r**2).sum() / len(r)))  # np.mean's operations
     if rms > MAX_RMS_PX or abs(params[2]) > MAX_TURN_RAD:
         return None
     information = jac.T @ jac
@@ -309,6 +329,6 @@ def stray_fraction(mask: np.ndarray, corners_px: FloatArray, offset_px: tuple[in
         return 1.0
     square = np.zeros(mask.shape, np.uint8)
     local = (corners_px - np.asarray(offset_px, dtype=float)) * 16
-    cv2.fillConvexPoly(square, np.round(local).astype(np.int32), 1, cv2.LINE_8, 4)
-    square = cv2.dilate(square, np.ones((3, 3), np.uint8))
+    cv2.fillConvexPoly(square, local.round().astype(np.int32), 1, cv2.LINE_8, 4)
+    square = cv2.dilate(square, square_kernel(3))
     return float(np.count_nonzero(blob & (square == 0)) / n)

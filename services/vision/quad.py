@@ -11,6 +11,7 @@ starting at the top-left corner, or following the previous frame's order when on
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -73,8 +74,8 @@ def order_corners(corners_px: np.ndarray, previous_px: np.ndarray | None = None)
 
 
 # --- quadrilateral checks ----------------------------------------------------------------------
-def _interior_angles_rad(quad_px: FloatArray) -> list[float]:
-    q = np.asarray(quad_px, dtype=float).tolist()
+def _interior_angles_rad(quad_px: FloatArray | list[list[float]]) -> list[float]:
+    q = quad_px if isinstance(quad_px, list) else np.asarray(quad_px, dtype=float).tolist()
     angles = []
     for i in range(4):
         (pu, pv), (u, v), (nu, nv) = q[i - 1], q[i], q[(i + 1) % 4]
@@ -168,13 +169,15 @@ def _side_runs(
     def offsets(index: list[int]) -> list[int]:
         return [(i - index[0]) % n for i in index]
 
-    if not offsets(corner_index)[1] < offsets(corner_index)[2] < offsets(corner_index)[3]:
+    along = offsets(corner_index)
+    if not along[1] < along[2] < along[3]:
         contour = contour[::-1]  # the contour runs the other way round: walk it backwards
         corner_index = [n - 1 - i for i in corner_index]
-        if not offsets(corner_index)[1] < offsets(corner_index)[2] < offsets(corner_index)[3]:
+        along = offsets(corner_index)
+        if not along[1] < along[2] < along[3]:
             return None
     twice = np.concatenate([contour, contour])  # so that the last side need not wrap
-    ends = [corner_index[0] + r for r in [*offsets(corner_index), n]]
+    ends = [corner_index[0] + r for r in [*along, n]]
     runs = []
     for i in range(4):
         first = ends[i] + math.ceil(radius_px[i] * dominant[i])
@@ -218,11 +221,11 @@ def _fit_edges_tls(
     )
     theta = 0.5 * np.arctan2(2.0 * suv, suu - svv)  # direction of largest spread: the edge
     normals = np.column_stack([-np.sin(theta), np.cos(theta)])
-    normals *= np.sign(np.sum(normals * (centres - inward_px), axis=1) + 1e-300)[:, None]
+    normals *= np.sign(np.add.reduce(normals * (centres - inward_px), axis=1) + 1e-300)[:, None]
     residuals = np.abs(du * normals[side, 0] + dv * normals[side, 1])
     max_residual_px = np.maximum.reduceat(residuals, starts)
-    half_step_px = 0.5 * np.max(np.abs(normals), axis=1)
-    offsets = np.sum(normals * centres, axis=1) + half_step_px
+    half_step_px = 0.5 * np.abs(normals).max(axis=1)
+    offsets = np.add.reduce(normals * centres, axis=1) + half_step_px
     return _EdgeFits(normals, offsets, centres, max_residual_px)
 
 
@@ -232,12 +235,19 @@ def _outside_neighbours(
     """Per side, the 4-neighbours one step out along the normal's dominant axis of its
     boundary pixels (outside the blob for a straight edge), keeping those the mask says
     are outside."""
-    dominant_u = np.abs(normals[:, 0]) >= np.abs(normals[:, 1])
-    steps = np.where(dominant_u[:, None], [[1, 0]], [[0, 1]]) * np.sign(normals).astype(np.int32)
-    outside = points + steps[side].astype(np.int32)
+    steps = [  # one pixel along the normal's dominant axis, outwards
+        (_sign(nu), 0) if abs(nu) >= abs(nv) else (0, _sign(nv)) for nu, nv in normals.tolist()
+    ]
+    outside = points + np.array(steps, np.int32)[side]
     keep = mask[outside[:, 1], outside[:, 0]] == 0
-    kept_side = side[keep]
-    return np.split(outside[keep], np.searchsorted(kept_side, np.arange(1, len(normals))))
+    kept, kept_side = outside[keep], side[keep]
+    ends = [0, *np.searchsorted(kept_side, np.arange(1, len(normals))).tolist(), len(kept)]
+    return [kept[a:b] for a, b in itertools.pairwise(ends)]  # np.split's parts
+
+
+def _sign(x: float) -> int:
+    """-1, 0 or 1 as np.sign gives them, of a plain float."""
+    return (x > 0.0) - (x < 0.0)
 
 
 def _padded_hulls(point_sets: list[np.ndarray]) -> np.ndarray:
@@ -252,11 +262,10 @@ def _padded_hulls(point_sets: list[np.ndarray]) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _pair_indices(n: int) -> np.ndarray:
-    """Flat indices into an n×n matrix of its n·(n-1)/2 entries above the diagonal
+def _pair_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the n·(n-1)/2 entries above the diagonal of an n×n matrix
     (memoised: pure, and np.triu_indices is slow for its size)."""
-    i, j = np.triu_indices(n, 1)
-    return i * n + j
+    return np.triu_indices(n, 1)
 
 
 def _preimage_centroids(inside: np.ndarray, outside: np.ndarray) -> tuple[FloatArray, ...]:
@@ -277,32 +286,38 @@ def _preimage_centroids(inside: np.ndarray, outside: np.ndarray) -> tuple[FloatA
     edge, or a renderer that does not sample at pixel centres) or unbounded.
     """
     n_edges, limit = len(inside), PREIMAGE_MAX_SLOPE
-    both = np.concatenate([inside, outside], axis=1)
-    n = both.shape[1]
-    diff = (both[:, :, None, :] - both[:, None, :, :]).reshape(n_edges, n * n, 2)
-    ds, dt = diff[:, _pair_indices(n), 0], diff[:, _pair_indices(n), 1]
+    s_in, t_in, s_out, t_out = inside[..., 0], inside[..., 1], outside[..., 0], outside[..., 1]
+    s_both, t_both = np.concatenate([s_in, s_out], axis=1), np.concatenate([t_in, t_out], axis=1)
+    i, j = _pair_indices(s_both.shape[1])  # every pair of points once
+    ds, dt = s_both[:, i] - s_both[:, j], t_both[:, i] - t_both[:, j]
     valid = np.abs(dt) < limit * np.abs(ds)  # |slope| < limit, and ds ≠ 0
-    alphas = np.empty((n_edges, ds.shape[1] + 2))
-    alphas[:, :-2] = np.where(valid, dt / np.where(valid, ds, 1.0), limit)  # repeats harmless
-    alphas[:, -2:] = (-limit, limit)
+    alphas = np.full((n_edges, len(i) + 2), limit)  # repeats harmless
+    alphas[:, -2] = -limit
+    np.divide(dt, ds, out=alphas[:, :-2], where=valid)
     alphas.sort(axis=1)
-    lower = np.maximum.reduce(inside[:, :, 1:2] - inside[:, :, 0:1] * alphas[:, None, :], axis=1)
-    upper = np.minimum.reduce(outside[:, :, 1:2] - outside[:, :, 0:1] * alphas[:, None, :], axis=1)
+    lower = np.maximum.reduce(t_in[:, :, None] - s_in[:, :, None] * alphas[:, None, :], axis=1)
+    upper = np.minimum.reduce(t_out[:, :, None] - s_out[:, :, None] * alphas[:, None, :], axis=1)
     gap = upper - lower
     feasible = gap >= -1e-9  # U − L is concave: the feasible α form an interval
-    lo = np.minimum.reduce(np.where(feasible, alphas, np.inf), axis=1)
-    hi = np.maximum.reduce(np.where(feasible, alphas, -np.inf), axis=1)
+    lo = np.where(feasible, alphas, np.inf).min(axis=1)
+    hi = np.where(feasible, alphas, -np.inf).max(axis=1)
     span = (alphas >= lo[:, None]) & (alphas <= hi[:, None])
     # width; a tiny floor keeps a zero-width preimage (a segment of lines) well defined
     w = np.where(span, np.maximum(gap, 0.0) + 1e-12, 0.0)
-    f = np.stack([np.ones_like(alphas), alphas, 0.5 * (upper + lower)])  # 1, α, middle β
-    da = np.diff(alphas, axis=1) * (span[:, 1:] & span[:, :-1])
-    f0, f1, w0, w1 = f[..., :-1], f[..., 1:], w[:, :-1], w[:, 1:]
-    # ∫ f·w dα, exact for f and w linear between breakpoints (×6)
-    moments = np.add.reduce(da * ((2 * f0 + f1) * w0 + (f0 + 2 * f1) * w1), axis=-1)
-    ok = (lo > -limit) & (hi < limit) & (moments[0] > 0)  # bounded, non-empty, not a point
-    area = np.where(ok, moments[0], 1.0)
-    return moments[1] / area, moments[2] / area, ok
+    w0, w1 = w[:, :-1], w[:, 1:]
+    da = (alphas[:, 1:] - alphas[:, :-1]) * (span[:, 1:] & span[:, :-1])
+
+    def integral(f0: FloatArray | float, f1: FloatArray | float) -> FloatArray:
+        """∫ f·w dα (×6), exact for f and w linear between breakpoints (f0, f1: f at each
+        interval's ends)."""
+        return np.add.reduce(da * ((2 * f0 + f1) * w0 + (f0 + 2 * f1) * w1), axis=-1)
+
+    middle = 0.5 * (upper + lower)  # β of the region's middle line at each α
+    area = integral(1.0, 1.0)
+    ok = (lo > -limit) & (hi < limit) & (area > 0)  # bounded, non-empty, not a point
+    area = np.where(ok, area, 1.0)
+    alpha = integral(alphas[:, :-1], alphas[:, 1:]) / area
+    return alpha, integral(middle[:, :-1], middle[:, 1:]) / area, ok
 
 
 @dataclass(frozen=True)
@@ -328,7 +343,7 @@ def _edge_lines(blobs: list[_Blob]) -> tuple[FloatArray, FloatArray, FloatArray]
     points = np.concatenate(runs)
     side = np.repeat(np.arange(len(runs)), counts)
     starts = np.cumsum([0, *counts[:-1]])
-    inward = np.repeat([blob.rough_px.mean(axis=0) for blob in blobs], 4, axis=0)
+    inward = np.repeat([blob.rough_px.sum(axis=0) / 4 for blob in blobs], 4, axis=0)  # means
     fits = _fit_edges_tls(points, side, starts, inward)
     outside_runs = []
     for b, blob in enumerate(blobs):  # each blob has its own mask
@@ -354,25 +369,29 @@ def _edge_lines(blobs: list[_Blob]) -> tuple[FloatArray, FloatArray, FloatArray]
     return normals, offsets, fits.max_residual_px
 
 
-def _intersect_lines(n1: FloatArray, c1: float, n2: FloatArray, c2: float) -> FloatArray | None:
+def _intersect_lines(
+    n1: list[float], c1: float, n2: list[float], c2: float
+) -> tuple[float, float] | None:
     det = n1[0] * n2[1] - n1[1] * n2[0]
     if abs(det) < math.sin(MIN_CORNER_ANGLE_RAD / 2.0):  # near-parallel sides
         return None
-    return np.array([(c1 * n2[1] - c2 * n1[1]) / det, (n1[0] * c2 - n2[0] * c1) / det])
+    return (c1 * n2[1] - c2 * n1[1]) / det, (n1[0] * c2 - n2[0] * c1) / det
 
 
 def _corners_from_lines(
     normals: FloatArray, offsets: list[float], rough_px: FloatArray
 ) -> FloatArray | None:
     """Corner i = side (i-1) ∩ side i; None if two sides are nearly parallel or meet far from
-    the rough corner (the fit went wrong)."""
-    corners = np.empty((4, 2))
+    the rough corner (the fit went wrong). On plain floats: four corners, where numpy's
+    per-call overhead would be the whole cost."""
+    n, rough = normals.tolist(), rough_px.tolist()
+    corners = []
     for i in range(4):
-        p = _intersect_lines(normals[i - 1], offsets[i - 1], normals[i], offsets[i])
-        if p is None or math.dist(p, rough_px[i]) > MAX_CORNER_SHIFT_PX:
+        p = _intersect_lines(n[i - 1], offsets[i - 1], n[i], offsets[i])
+        if p is None or math.dist(p, rough[i]) > MAX_CORNER_SHIFT_PX:
             return None
-        corners[i] = p
-    return corners
+        corners.append(p)
+    return np.array(corners)
 
 
 def _blob_candidate(mask: np.ndarray, min_area_px: int, roi: Roi | None) -> _Blob | _QuadResult:

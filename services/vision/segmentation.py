@@ -96,8 +96,8 @@ def tracking_window(corners_px: FloatArray | None, shape: tuple[int, ...]) -> Ro
     cv2.resize samples an odd one slightly differently). None: no corners, or none inside."""
     if corners_px is None:
         return None
-    low, high = corners_px.min(axis=0), corners_px.max(axis=0)
-    margin = max(TRACK_MARGIN_MIN_PX, TRACK_MARGIN_FRACTION * float(np.max(high - low)))
+    (u0, v0), (u1, v1) = corners_px.min(axis=0).tolist(), corners_px.max(axis=0).tolist()
+    margin = max(TRACK_MARGIN_MIN_PX, TRACK_MARGIN_FRACTION * max(u1 - u0, v1 - v0))
 
     def span(lo: float, hi: float, size: int) -> slice:
         """[lo - margin, hi + margin] out to the coarse grid, clipped to its whole steps."""
@@ -106,7 +106,7 @@ def tracking_window(corners_px: FloatArray | None, shape: tuple[int, ...]) -> Ro
         stop = min(max(math.ceil((hi + margin) / COARSE_STEP) * COARSE_STEP, start), usable)
         return slice(start, stop)
 
-    rows, cols = span(low[1], high[1], shape[0]), span(low[0], high[0], shape[1])
+    rows, cols = span(v0, v1, shape[0]), span(u0, u1, shape[1])
     return (rows, cols) if rows.stop > rows.start and cols.stop > cols.start else None
 
 
@@ -165,14 +165,26 @@ def marker_masks(
 ) -> list[tuple[np.ndarray, Roi]]:
     """Each marker's :func:`marker_mask`, its blob looked for in its tracking window when it was
     seen last frame (the same region as from the whole image when the blob is well inside the
-    window; the whole image's colour conversion is then skipped), else in the whole image."""
+    window; the whole image's colour conversion is then skipped), else in the whole image.
+
+    When a marker has no window the whole image is converted first, and the other's window
+    cut from it (of an even-sized image, a window's coarse pixels are the whole image's)."""
+    windows = [tracking_window(previous.get(name), rgb.shape) for name in MARKERS]
     whole: np.ndarray | None = None  # the whole image's coarse pixels, made when first needed
+    if None in windows and rgb.shape[0] % COARSE_STEP == 0 and rgb.shape[1] % COARSE_STEP == 0:
+        whole = coarse_image(rgb, cfg)
     masks = []
-    for name, color in MARKERS.items():
-        window = tracking_window(previous.get(name), rgb.shape)
+    for color, window in zip(MARKERS.values(), windows, strict=True):
         region = None
         if window is not None:
-            coarse = coarse_image(rgb[window], cfg)
+            if whole is None:
+                coarse = coarse_image(rgb[window], cfg)
+            else:
+                rows, cols = window
+                coarse = whole[
+                    rows.start // COARSE_STEP : rows.stop // COARSE_STEP,
+                    cols.start // COARSE_STEP : cols.stop // COARSE_STEP,
+                ]
             region = blob_region(coarse, color, cfg, rgb.shape, window)
         if region is None:
             whole = coarse_image(rgb, cfg) if whole is None else whole
@@ -181,10 +193,18 @@ def marker_masks(
     return masks
 
 
-def mask_bounds(mask: np.ndarray, pad_px: int) -> tuple[int, int, int, int] | None:
+def mask_bounds(
+    mask: np.ndarray, pad_px: int, region: Roi | None = None
+) -> tuple[int, int, int, int] | None:
     """(row0, row1, col0, col1) of the non-zero pixels of ``mask`` grown by ``pad_px`` and
-    clipped to it; None for an empty mask (cv2.boundingRect: far faster than np.nonzero)."""
-    x, y, w, h = cv2.boundingRect(mask)
+    clipped to it; None for an empty mask (cv2.boundingRect: far faster than np.nonzero).
+    ``region``: the part of the mask that can be non-zero (searched alone, for speed)."""
+    if region is None:
+        x, y, w, h = cv2.boundingRect(mask)
+    else:
+        rows, cols = region
+        x, y, w, h = cv2.boundingRect(mask[rows, cols])
+        x, y = x + cols.start, y + rows.start
     if w == 0 or h == 0:
         return None
     rows, cols = mask.shape[:2]
