@@ -61,13 +61,19 @@ def project(points_cam_m: FloatArray, k: CameraIntrinsics) -> FloatArray:
     p = np.atleast_2d(np.asarray(points_cam_m, dtype=float))
     x = p[:, 0] / p[:, 2]
     y = p[:, 1] / p[:, 2]
-    return np.column_stack([k.fx_px * x + k.cx_px, k.fy_px * y + k.cy_px])
+    uv = np.empty((len(p), 2))  # filled in place: np.column_stack's overhead, not its values
+    uv[:, 0] = k.fx_px * x + k.cx_px
+    uv[:, 1] = k.fy_px * y + k.cy_px
+    return uv
 
 
 def pixel_to_normalized(uv_px: FloatArray, k: CameraIntrinsics) -> FloatArray:
     """N×2 pixels to N×2 normalized coordinates ``(x, y) = (X/Z, Y/Z)``."""
     uv = np.atleast_2d(np.asarray(uv_px, dtype=float))
-    return np.column_stack([(uv[:, 0] - k.cx_px) / k.fx_px, (uv[:, 1] - k.cy_px) / k.fy_px])
+    xy = np.empty((len(uv), 2))
+    xy[:, 0] = (uv[:, 0] - k.cx_px) / k.fx_px
+    xy[:, 1] = (uv[:, 1] - k.cy_px) / k.fy_px
+    return xy
 
 
 def back_project(uv_px: FloatArray, depth_m: FloatArray, k: CameraIntrinsics) -> FloatArray:

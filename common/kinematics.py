@@ -199,6 +199,12 @@ def cross(a: FloatArray, b: FloatArray) -> FloatArray:
     )
 
 
+def centroid(points: FloatArray) -> FloatArray:
+    """``points.mean(axis=0)`` of a float array, bit for bit (the same sum, divided by the same
+    count), without its generic per-call overhead."""
+    return np.add.reduce(points, axis=0) / len(points)
+
+
 def norm(v: FloatArray) -> float:
     """``np.linalg.norm(v)`` of a float vector, bit for bit (the square root of its dot with
     itself, as that computes it), without its generic per-call overhead."""

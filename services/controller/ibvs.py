@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from common import kinematics as kin
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode, Scenario
 from common.kinematics import BASE_UP
@@ -260,9 +261,9 @@ class IbvsController:
         servoed and again once the goal has moved by :data:`REACH_RECHECK_M`; once vision sees
         the hand after it lost it, the verdicts are carried over to the pairings' indices
         as its corners are labelled now (:attr:`reach_stale`)."""
-        centroid = goal.points_m.mean(axis=0)
+        centroid = kin.centroid(goal.points_m)
         last = self.reachable_for_m
-        moved = last is None or np.linalg.norm(centroid - last) >= REACH_RECHECK_M
+        moved = last is None or kin.norm(centroid - last) >= REACH_RECHECK_M
         if not (moved or self.reach_stale):
             return
         poses = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee)
@@ -283,8 +284,8 @@ class IbvsController:
         k, postures, last = self.pairing, self.reach_postures, self.posture_for_m
         if k is None or postures is None or last is None:
             return
-        centroid = goal.points_m.mean(axis=0)
-        if np.linalg.norm(centroid - last) < POSTURE_RESOLVE_M:
+        centroid = kin.centroid(goal.points_m)
+        if kin.norm(centroid - last) < POSTURE_RESOLVE_M:
             return
         pose = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee)[k]
         q_goal, reached = goal_posture(pose, postures[k])
@@ -370,9 +371,9 @@ class IbvsController:
             error, m = self._points3d_law(hand, target)
             target_rate = np.tile(velocity, len(target.points_m))
         else:
-            error, m = self._image_law(hand, target, k)
-            xy = pixel_to_normalized(target.corners_px, k)
-            target_rate = image_feature_rate(xy, target.depth_m, velocity)
+            s_star = pixel_to_normalized(target.corners_px, k)  # the law's and the rate's
+            error, m = self._image_law(hand, target, s_star, k)
+            target_rate = image_feature_rate(s_star, target.depth_m, velocity)
         # ė = ṡ − ṡ* = −λe, with ṡ* the goal's own motion fed forward (zero for a still target).
         twist_cam = m @ (self.config.gain * error - target_rate)
         twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, arm.p_ee_base_m)
@@ -483,12 +484,11 @@ class IbvsController:
         return ControlOutput(twist, True, 0.0, False, False, reason, ACQUIRING)
 
     def _image_law(
-        self, hand: Marker, target: Marker, k: CameraIntrinsics
+        self, hand: Marker, target: Marker, s_star: FloatArray, k: CameraIntrinsics
     ) -> tuple[FloatArray, FloatArray]:
         """``(e, M)`` on the normalized image points (constant, dynamic, pmj, mpj); ``target``
-        already paired with the hand's corners."""
+        already paired with the hand's corners, ``s_star`` its normalized points."""
         s = pixel_to_normalized(hand.corners_px, k)
-        s_star = pixel_to_normalized(target.corners_px, k)
         error = (s - s_star).reshape(-1)
         mode = self.config.mode
         # Only the matrices this strategy uses (the controller's share of the loop's latency).

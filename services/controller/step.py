@@ -68,7 +68,7 @@ def above_the_target(
         return out
     least_change = cfg.clearance_correction is ClearanceCorrection.LEAST_FEATURE_CHANGE
     if least_change and out.control_matrix is not None:  # the law's twist: its W, only now
-        w_cam = np.linalg.pinv(out.control_matrix)
+        w_cam = kin.pinv(out.control_matrix)
         w_base = w_cam @ twist_matrix_base_ee_to_cam(controller.t_base_cam, arm.p_ee_base_m)
         twist, _ = least_feature_change(twist, rows, bounds, w_base)
     # What the sweeps left short, or the whole correction of a twist not the law's.
