@@ -83,23 +83,35 @@ def top_face(plane: Plane, corners_base_m: FloatArray, side_m: float) -> TopFace
     return TopFace(plane.point_m, u, kin.cross(n, u), n, side_m / 2)
 
 
+def _in_face_axes(points_m: FloatArray, face: TopFace) -> FloatArray:
+    """Each point (k×3) from the face's centre, in its axes ``u``, ``w``, ``normal`` (k×3)."""
+    d = np.atleast_2d(np.asarray(points_m, dtype=float)) - face.centre_m
+    out = np.empty((len(d), 3))
+    out[:, 0], out[:, 1], out[:, 2] = d @ face.u, d @ face.w, d @ face.normal
+    return out
+
+
 def gaps_to_object(points_m: FloatArray, face: TopFace) -> FloatArray:
     """For each point (k×3), how far it lies beyond the object along the face's sides and its
     normal (k×3, in ``u``, ``w``, ``normal``; 0 where it lies within): the vector from the
     object's nearest point, in the face's axes."""
-    d = np.atleast_2d(np.asarray(points_m, dtype=float)) - face.centre_m
-    gaps = np.empty((len(d), 3))
-    for column, side in enumerate((face.u, face.w)):
-        x = d @ side
-        gaps[:, column] = np.sign(x) * np.maximum(np.abs(x) - face.half_side_m, 0.0)
-    gaps[:, 2] = np.maximum(d @ face.normal, 0.0)
+    gaps = _in_face_axes(points_m, face)
+    sides = gaps[:, :2]  # a view: both sides at once
+    sides[...] = np.sign(sides) * np.maximum(np.abs(sides) - face.half_side_m, 0.0)
+    np.maximum(gaps[:, 2], 0.0, out=gaps[:, 2])
     return gaps
 
 
 def distances_to_object(points_m: FloatArray, face: TopFace) -> FloatArray:
     """The distance (m) from each point (k×3) to the object, the prism under its top face
-    (down without end)."""
-    return np.sqrt(np.sum(gaps_to_object(points_m, face) ** 2, axis=1))
+    (down without end): the length of :func:`gaps_to_object`, whose signs its squares do not
+    need (a side's gap is 0 where its sign is: the face's half side is positive)."""
+    gaps = _in_face_axes(points_m, face)
+    sides = gaps[:, :2]
+    np.abs(sides, out=sides)
+    sides -= face.half_side_m
+    np.maximum(gaps, 0.0, out=gaps)
+    return np.sqrt(np.add.reduce(gaps**2, axis=1))
 
 
 def distance_to_object(point_m: FloatArray, face: TopFace) -> tuple[float, FloatArray]:
@@ -179,13 +191,14 @@ def margin_near_goal(
     flat = np.zeros(3)
     if goal_q_rad is None:
         return min_distance_m, flat
-    goal_frames = _frames_at(np.asarray(goal_q_rad, dtype=float).tobytes())
+    q_key = np.asarray(goal_q_rad, dtype=float).tobytes()
+    goal_frames = _frames_at(q_key)
     away = frames[WRIST_FRAME][:3, 3] - goal_frames[WRIST_FRAME][:3, 3]
     off_m = kin.norm(away)
     radius_m = funnel_radius_m(min_distance_m)
     if off_m >= radius_m:  # outside the funnel, whatever the goal's clearance
         return min_distance_m, flat
-    at_goal = max(forearm_distance_m(goal_frames, face) - GOAL_SLACK_M, kin.LIMB_RADIUS_M)
+    at_goal = max(_goal_distance_m(q_key, *_face_key(face)) - GOAL_SLACK_M, kin.LIMB_RADIUS_M)
     if at_goal >= min_distance_m:
         return min_distance_m, flat
     slope = (min_distance_m - at_goal) / radius_m
@@ -200,6 +213,24 @@ def _frames_at(q_rad: bytes) -> tuple[FloatArray, ...]:
     for frame in frames:
         frame.setflags(write=False)
     return tuple(frames)
+
+
+def _face_key(face: TopFace) -> tuple[bytes, bytes, bytes, bytes, float]:
+    """The face as :func:`_goal_distance_m` takes it: its vectors' float64 bytes, its half side."""
+    vectors = (face.centre_m, face.u, face.w, face.normal)
+    centre, u, w, normal = (np.asarray(v, dtype=float).tobytes() for v in vectors)
+    return centre, u, w, normal, face.half_side_m
+
+
+@functools.lru_cache(maxsize=8)
+def _goal_distance_m(
+    q_rad: bytes, centre: bytes, u: bytes, w: bytes, normal: bytes, half_side_m: float
+) -> float:
+    """:func:`forearm_distance_m` at the joint angles ``q_rad`` from the face of
+    :func:`_face_key`: the goal posture and the face vision measures stay the same, to the
+    bit, over many frames (a still target), and the search need not be redone."""
+    vectors = (np.frombuffer(b, dtype=float) for b in (centre, u, w, normal))
+    return forearm_distance_m(_frames_at(q_rad), TopFace(*vectors, half_side_m))
 
 
 def funnel_radius_m(min_distance_m: float) -> float:
