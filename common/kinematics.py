@@ -220,9 +220,12 @@ def pinv(a: FloatArray) -> FloatArray:
     """``np.linalg.pinv(a)`` of a real 2-D matrix, bit for bit (the same SVD and the same
     operations on it), without its generic per-call overhead: for the per-frame laws."""
     u, s, vt = np.linalg.svd(a.conjugate(), full_matrices=False)
-    large = s > PINV_RCOND * np.max(s)
-    s = np.divide(1, s, where=large, out=s)
-    s[~large] = 0
+    large = s > PINV_RCOND * np.maximum.reduce(s)
+    if large.all():  # full rank: every singular value inverted
+        s = np.divide(1, s, out=s)
+    else:
+        s = np.divide(1, s, where=large, out=s)
+        s[~large] = 0
     return np.matmul(np.transpose(vt), np.multiply(s[..., np.newaxis], np.transpose(u)))
 
 

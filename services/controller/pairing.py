@@ -56,7 +56,7 @@ def pairing_costs_px2(hand_px: FloatArray, target_px: FloatArray) -> FloatArray:
     about the optical axis; it is also the one with the least squared image error."""
     hand = hand_px - centroid(hand_px)
     target = target_px - centroid(target_px)
-    return np.sum((hand - target[_CYCLIC_PAIRINGS]) ** 2, axis=(1, 2))
+    return np.add.reduce((hand - target[_CYCLIC_PAIRINGS]) ** 2, axis=(1, 2))  # np.sum's
 
 
 def choose_pairing(costs_px2: FloatArray, current: int | None) -> int:
@@ -74,7 +74,11 @@ def label_shift(previous_px: FloatArray, current_px: FloatArray) -> int:
 
     Vision keeps a marker's labels from frame to frame, and labels its corners afresh when it
     has lost the marker or restarted; anything indexed by corner or by pairing must follow.
-    The shift is the pairing of the view now with the view then that needs the least turn."""
+    The shift is the pairing of the view now with the view then that needs the least turn;
+    0 at once for the same view to the bit (a still marker), whose pairing 0 costs 0."""
+    previous_px, current_px = np.asarray(previous_px), np.asarray(current_px)
+    if previous_px.shape == current_px.shape and previous_px.tobytes() == current_px.tobytes():
+        return 0
     return int(np.argmin(pairing_costs_px2(current_px, previous_px)))
 
 
