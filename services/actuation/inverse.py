@@ -25,7 +25,7 @@ def damped_pinv(jacobian: FloatArray, damping: float) -> FloatArray:
     """``Jᵀ (J Jᵀ + δ² I)⁻¹``; the pseudo-inverse when ``δ = 0`` (J of full row rank)."""
     j = np.asarray(jacobian, dtype=float)
     if damping == 0.0:
-        return np.linalg.pinv(j)
+        return kin.pinv(j)
     return j.T @ np.linalg.inv(j @ j.T + damping**2 * np.eye(j.shape[0]))
 
 
@@ -62,7 +62,7 @@ def redistribute_at_limits(
             break
         rest = twist - jac[:, held] @ qdot[held]
         qdot[free] = damped_pinv(jac[:, free], damping) @ rest
-    return qdot, [int(i) for i in np.flatnonzero(held)]
+    return qdot, held.nonzero()[0].tolist()
 
 
 def limit_joint_positions(
@@ -83,7 +83,7 @@ def limit_joint_positions(
     for its last millimetres. Returns the rates and the joints slowed."""
     qdot = np.array(qdot_rad_s, dtype=float)
     bound = position_bound_rad_s(qdot, q_rad, lower_rad, upper_rad, slow_zone_rad, vmax_rad_s)
-    slowed = [int(i) for i in np.flatnonzero(np.abs(qdot) > bound)]
+    slowed = (np.abs(qdot) > bound).nonzero()[0].tolist()
     return np.clip(qdot, -bound, bound), slowed
 
 
@@ -93,7 +93,7 @@ def limit_speed(
     """Scale the whole vector so no joint exceeds its speed limit (the direction of the
     end-effector motion is kept). Returns the rates and the joints that were over."""
     qdot = np.array(qdot_rad_s, dtype=float)
-    over = [int(i) for i in np.flatnonzero(np.abs(qdot) > vmax_rad_s)]
+    over = (np.abs(qdot) > vmax_rad_s).nonzero()[0].tolist()
     if over:
         qdot /= np.max(np.abs(qdot) / vmax_rad_s)
     return qdot, over
