@@ -240,9 +240,13 @@ def rotation_error_rad(r_a: FloatArray, r_b: FloatArray) -> float:
     return float(np.arccos(np.clip(cos_angle, -1.0, 1.0)))
 
 
+_EYE3 = np.eye(3)
+_EYE3.setflags(write=False)
+
+
 def rotation_log(r: FloatArray) -> FloatArray:
     """Axis-angle vector θ·u of a rotation matrix (rad)."""
-    angle = rotation_error_rad(np.eye(3), r)
+    angle = rotation_error_rad(_EYE3, r)
     if angle < 1e-9:
         return np.zeros(3)
     if np.pi - angle < 1e-6:
@@ -273,6 +277,7 @@ def inverse_kinematics(
     """
     tool = np.eye(4) if tool_in_ee is None else tool_in_ee
     q = np.clip(np.asarray(q_seed_rad, dtype=float).copy(), JOINT_LOWER_RAD, JOINT_UPPER_RAD)
+    damping_term = damping**2 * np.eye(6)  # the same every iteration
     for _ in range(iterations):
         frames = frame_transforms(q)  # the pose and the Jacobian from one forward kinematics
         ee = frames[-1]
@@ -280,16 +285,16 @@ def inverse_kinematics(
         e_pos = target_pose[:3, 3] - pose[:3, 3]
         e_rot = pose[:3, :3] @ rotation_log(pose[:3, :3].T @ target_pose[:3, :3])
         err = np.concatenate([e_pos, e_rot])
-        if np.linalg.norm(err) < tolerance:
+        if norm(err) < tolerance:
             break
         jac = jacobian_of_frames(frames)
         # Twist at the tool origin: v_tool = v_ee + ω × (p_tool - p_ee).
         lever = pose[:3, 3] - ee[:3, 3]
         jac_tool = jac.copy()
         jac_tool[:3] = jac[:3] - skew(lever) @ jac[3:]
-        dq = jac_tool.T @ np.linalg.solve(jac_tool @ jac_tool.T + damping**2 * np.eye(6), err)
+        dq = jac_tool.T @ np.linalg.solve(jac_tool @ jac_tool.T + damping_term, err)
         q_next = np.clip(q + dq, JOINT_LOWER_RAD, JOINT_UPPER_RAD)
-        stalled = float(np.max(np.abs(q_next - q))) <= stall_rad
+        stalled = float(np.maximum.reduce(np.abs(q_next - q))) <= stall_rad  # np.max's
         q = q_next
         if stalled:
             break

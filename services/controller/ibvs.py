@@ -287,7 +287,7 @@ class IbvsController:
         centroid = kin.centroid(goal.points_m)
         if kin.norm(centroid - last) < POSTURE_RESOLVE_M:
             return
-        pose = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee)[k]
+        pose = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee, pairings=[k])[0]
         q_goal, reached = goal_posture(pose, postures[k])
         if reached:  # else the last one stands, until the goal has moved as far again
             postures[k] = q_goal
