@@ -13,7 +13,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import NDArray
 
-from common.kinematics import centroid
+from common.kinematics import centroid, norm
 
 FloatArray = NDArray[np.float64]
 
@@ -64,8 +64,8 @@ class MarkerMotion:
         t = np.array([v[0] for v in self.views])
         centres = np.array([v[1] for v in self.views])
         dt = t - t.mean()
-        velocity = dt @ (centres - centres.mean(axis=0)) / float(dt @ dt)
-        speed = float(np.linalg.norm(velocity))
+        velocity = dt @ (centres - centroid(centres)) / float(dt @ dt)
+        speed = norm(velocity)
         if speed < STILL_SPEED_M_S:
             velocity = np.zeros(3)
         elif speed > MAX_SPEED_M_S:
