@@ -159,16 +159,22 @@ def _samples(lo: float, hi: float) -> FloatArray:
     return t
 
 
-def point_jacobian(frames: list[FloatArray], point_m: FloatArray) -> FloatArray:
+def point_jacobian(frames: Sequence[FloatArray], point_m: FloatArray) -> FloatArray:
     """The linear Jacobian (3×6, base frame) of a point carried by the forearm: joint k turns
     it about frame k's z axis through frame k's origin; the wrist's joints do not move it."""
+    return point_jacobians(frames, np.asarray(point_m, dtype=float)[None, :])[0]
+
+
+def point_jacobians(frames: Sequence[FloatArray], points_m: FloatArray) -> FloatArray:
+    """:func:`point_jacobian` of each point (k×3) at once (k×3×6)."""
     poses = np.array(frames[:FOREARM_JOINTS])
-    z, lever = poses[:, :3, 2], point_m - poses[:, :3, 3]  # joint k's axis, and to the point
-    jp = np.zeros((3, kin.N_JOINTS))
-    # z × lever of each joint at once, the products of kin.cross
-    jp[0, :FOREARM_JOINTS] = z[:, 1] * lever[:, 2] - z[:, 2] * lever[:, 1]
-    jp[1, :FOREARM_JOINTS] = z[:, 2] * lever[:, 0] - z[:, 0] * lever[:, 2]
-    jp[2, :FOREARM_JOINTS] = z[:, 0] * lever[:, 1] - z[:, 1] * lever[:, 0]
+    z = poses[:, :3, 2]  # joint k's axis
+    lever = points_m[:, None, :] - poses[:, :3, 3]  # from joint k's origin to each point
+    jp = np.zeros((len(points_m), 3, kin.N_JOINTS))
+    # z × lever of each joint and point at once, the products of kin.cross
+    jp[:, 0, :FOREARM_JOINTS] = z[:, 1] * lever[..., 2] - z[:, 2] * lever[..., 1]
+    jp[:, 1, :FOREARM_JOINTS] = z[:, 2] * lever[..., 0] - z[:, 0] * lever[..., 2]
+    jp[:, 2, :FOREARM_JOINTS] = z[:, 0] * lever[..., 1] - z[:, 1] * lever[..., 0]
     return jp
 
 
@@ -265,6 +271,7 @@ def forearm_bounds(
     joint_rates = kin.pinv(kin.jacobian_of_frames(frames))  # J⁺: q̇ of a twist
     # ḋ − (the margin's own rate, as the wrist moves through the funnel): the barrier keeps
     # d − margin, which the funnel lets shrink to 0 at the goal.
-    gap_rate = g @ point_jacobian(frames, nearest) - margin_gradient @ point_jacobian(frames, wrist)
+    jp_nearest, jp_wrist = point_jacobians(frames, np.array([nearest, wrist]))
+    gap_rate = g @ jp_nearest - margin_gradient @ jp_wrist
     row = gap_rate @ joint_rates
     return row[None, :], np.array([-rate_1_s * (dist - margin_m)])
