@@ -163,6 +163,9 @@ class IbvsController:
     # The hand's last usable view, to carry along the encoders while vision cannot use it.
     hand_memory: HandMemory = field(default_factory=HandMemory)
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
+    # The constant strategy's M (read-only) with the frozen matrix and the pairing it is for:
+    # both change only on a new goal or a relabelling, M is not computed afresh every frame.
+    _constant_m: tuple[FloatArray, int, FloatArray] | None = field(default=None, repr=False)
 
     @classmethod
     def of(cls, scenario: Scenario) -> IbvsController:
@@ -494,11 +497,21 @@ class IbvsController:
         # Only the matrices this strategy uses (the controller's share of the loop's latency).
         l_current = interaction_matrix(s, hand.depth_m) if mode in USES_CURRENT else None
         l_desired = interaction_matrix(s_star, target.depth_m) if mode in USES_DESIRED else None
-        l_constant = None
         if mode is JacobianMode.CONSTANT:
-            assert self.l_constant is not None and self.pairing is not None
+            return error, self._constant_control_matrix()
+        return error, control_matrix(mode, l_current, l_desired, None)
+
+    def _constant_control_matrix(self) -> FloatArray:
+        """The constant strategy's ``M``: the frozen matrix's rows in the current pairing's
+        order, pseudo-inverted; kept (:attr:`_constant_m`) while both stay the same."""
+        assert self.l_constant is not None and self.pairing is not None
+        kept = self._constant_m
+        if kept is None or kept[0] is not self.l_constant or kept[1] != self.pairing:
             l_constant = np.roll(self.l_constant, -2 * self.pairing, axis=0)  # 2 rows per corner
-        return error, control_matrix(mode, l_current, l_desired, l_constant)
+            m = control_matrix(JacobianMode.CONSTANT, None, None, l_constant)
+            m.setflags(write=False)
+            kept = self._constant_m = (self.l_constant, self.pairing, m)
+        return kept[2]
 
     @staticmethod
     def _points3d_law(hand: Marker, target: Marker) -> tuple[FloatArray, FloatArray]:
