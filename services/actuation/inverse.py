@@ -110,7 +110,7 @@ def limit_acceleration(
     Returns the rates and whether they were limited."""
     qdot = np.asarray(qdot_rad_s, dtype=float)
     change = qdot - np.asarray(previous_rad_s, dtype=float)
-    ratio = np.max(np.abs(change)) / (max_accel_rad_s2 * dt_s) if dt_s > 0 else np.inf
+    ratio = np.abs(change).max() / (max_accel_rad_s2 * dt_s) if dt_s > 0 else np.inf
     if ratio <= 1.0:
         return qdot.copy(), False
     if not np.isfinite(ratio):  # no time has passed: keep the previous command
@@ -179,7 +179,7 @@ def twist_to_joint_velocities(
     with np.errstate(invalid="ignore", over="ignore"):  # a non-finite result is handled next
         qdot = damped_pinv(jac, delta) @ np.asarray(twist_base_ee, dtype=float)
         qdot, held = redistribute_at_limits(jac, twist_base_ee, qdot, q_rad, delta)
-    if not np.all(np.isfinite(qdot)):  # never let NaN/Inf reach the motors
+    if not np.isfinite(qdot).all():  # never let NaN/Inf reach the motors
         return JointCommand(np.zeros(kin.N_JOINTS), Clamps(nonfinite=True), w, delta)
     accelerated = False
     if previous_rad_s is not None and np.isfinite(max_accel_rad_s2):

@@ -123,9 +123,9 @@ def lift_then_nearest(
     rising does not help it, the nearest twist that meets them all (the least ``‖Δ‖``,
     :func:`.constrained.least_feature_change` with ``W = I``), lifted again by what its
     sweeps left short: the hand box's corners, which rising always helps, end met."""
-    broke = bool(np.any(rows @ twist < bounds))
+    broke = bool((rows @ twist < bounds).any())
     lifted, _ = lift_short(twist, rows, bounds, normal)
-    if np.all(rows @ lifted >= bounds):
+    if (rows @ lifted >= bounds).all():
         return lifted, broke
     nearest, _ = least_feature_change(lifted, rows, bounds, np.eye(6))
     return lift_short(nearest, rows, bounds, normal)[0], broke

@@ -48,7 +48,7 @@ def settled_error_px_rms(recent_errors_px: Sequence[FloatArray]) -> float:
     (runs held 0.3 px and 2 mm from the goal until their timeout), while the mean over a few
     frames lies on the goal."""
     mean = centroid(np.asarray(recent_errors_px, dtype=float))  # per coordinate, over frames
-    return float(np.sqrt(np.mean(mean**2)))
+    return float(np.sqrt((mean**2).mean()))
 
 
 @dataclass

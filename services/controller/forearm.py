@@ -118,7 +118,7 @@ def distance_to_object(point_m: FloatArray, face: TopFace) -> tuple[float, Float
     """:func:`distances_to_object` of one point, and the unit direction from the object's
     nearest point (out through the top from inside)."""
     gap = gaps_to_object(point_m, face)[0]
-    dist = float(np.sqrt(np.sum(gap**2)))
+    dist = float(np.sqrt((gap**2).sum()))
     if dist < 1e-12:
         return 0.0, face.normal
     return dist, (gap[0] * face.u + gap[1] * face.w + gap[2] * face.normal) / dist
@@ -137,7 +137,7 @@ def nearest_along(
     t = _FIRST_PASS_T
     for sweep in range(2):
         dist = distances_to_object(a_m + t[:, None] * along, face)
-        i = int(np.argmin(dist))
+        i = int(dist.argmin())
         # The distance changes no faster than the point moves: nothing between two samples
         # is nearer than the nearest sample less half their spacing.
         if dist[i] - 0.5 * (t[1] - t[0]) * length_m > beyond_m:

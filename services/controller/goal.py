@@ -96,6 +96,6 @@ class TargetMemory:
             shift = self.motion.shift_m(t_s)
             expected = carried(self.last, shift, k)
             if hand_hides_target(hand, expected):
-                self.predicted = self.predicted or bool(np.any(shift))
+                self.predicted = self.predicted or bool(shift.any())
                 return expected, True, False
         return target, False, False

@@ -383,11 +383,11 @@ class IbvsController:
         twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
         # s − s* (px, 2N): this frame's error, and its share of convergence's window
         error_px = (np.asarray(hand.corners_px) - np.asarray(target.corners_px)).ravel()
-        err_px = float(np.sqrt(np.mean(error_px**2)))  # feature_error_px_rms
+        err_px = float(np.sqrt((error_px**2).mean()))  # feature_error_px_rms
         # On a target believed to move the hand is tracking, not done; nor on a hand carried by
         # the encoders. On a prediction of where a hidden target went it may settle, but it is
         # not done either: the target must be seen there first.
-        still = not np.any(velocity)  # slower than motion.STILL_SPEED_M_S
+        still = not velocity.any()  # slower than motion.STILL_SPEED_M_S
         if still and not hand_predicted:
             self.window.add(error_px, self.config)
         else:

@@ -79,7 +79,7 @@ def label_shift(previous_px: FloatArray, current_px: FloatArray) -> int:
     previous_px, current_px = np.asarray(previous_px), np.asarray(current_px)
     if previous_px.shape == current_px.shape and previous_px.tobytes() == current_px.tobytes():
         return 0
-    return int(np.argmin(pairing_costs_px2(current_px, previous_px)))
+    return int(pairing_costs_px2(current_px, previous_px).argmin())
 
 
 def relabelled_pairing(pairing: int, hand_shift: int, target_shift: int) -> int:

@@ -64,7 +64,7 @@ def above_the_target(
     plane = clearance.plane_of_corners(corners, controller.t_base_cam[:3, 3])
     rows, bounds = object_bounds(controller, arm, plane, corners)
     twist = out.twist_base_ee
-    if len(bounds) == 0 or float(np.max(bounds - rows @ twist)) <= 0.0:
+    if len(bounds) == 0 or float((bounds - rows @ twist).max()) <= 0.0:
         return out
     least_change = cfg.clearance_correction is ClearanceCorrection.LEAST_FEATURE_CHANGE
     if least_change and out.control_matrix is not None:  # the law's twist: its W, only now
