@@ -166,6 +166,11 @@ class IbvsController:
     # The constant strategy's M (read-only) with the frozen matrix and the pairing it is for:
     # both change only on a new goal or a relabelling, M is not computed afresh every frame.
     _constant_m: tuple[FloatArray, int, FloatArray] | None = field(default=None, repr=False)
+    # The last goal made (.goal.desired_observation) and what it was made from: a still target
+    # is measured the same to the bit frame after frame (or remembered), its goal with it.
+    _goal_memo: tuple[tuple[bytes, bytes, float, CameraIntrinsics], Marker] | None = field(
+        default=None, repr=False
+    )
 
     @classmethod
     def of(cls, scenario: Scenario) -> IbvsController:
@@ -213,12 +218,28 @@ class IbvsController:
         if not (hand.usable and target.usable):
             return self._hold(hand, target, seen, k, arm, t_s)
         self.hold_since_s = None
-        goal = desired_observation(target, self.approach_height_m, k)
+        goal = self._goal(target, k)
         q, t_base_ee = arm.q_rad, arm.t_base_ee
         if q is not None and t_base_ee is not None and self._pairing_open() and not hand_predicted:
             self._check_reach(hand, goal, q, t_base_ee)
             self._follow_goal_posture(hand, goal, t_base_ee)
         return self._servo(hand, goal, k, arm, t_s, remembered, hand_predicted)
+
+    def _goal(self, target: Marker, k: CameraIntrinsics) -> Marker:
+        """:func:`.goal.desired_observation` of ``target``: the last one made when made from the
+        same points, depth uncertainties, approach height and intrinsics."""
+        key = (
+            np.asarray(target.points_m, dtype=float).tobytes(),
+            np.asarray(target.depth_sigma_m, dtype=float).tobytes(),
+            self.approach_height_m,
+            k,
+        )
+        memo = self._goal_memo
+        if memo is not None and memo[0] == key and self.approach_height_m != 0.0:
+            return memo[1]
+        goal = desired_observation(target, self.approach_height_m, k)
+        self._goal_memo = (key, goal)
+        return goal
 
     def _follow_labels(self, hand: Marker, target: Marker) -> None:
         """Keep what is indexed by corner or by pairing on the same physical corners when
