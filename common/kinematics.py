@@ -122,10 +122,13 @@ def dh_link_transform(row: DHRow, q_rad: float) -> FloatArray:
     )
 
 
+LinkConstants = tuple[float, float, float, float, float, float]
+
+
 @functools.lru_cache(maxsize=4)
-def _link_constants(dh: tuple[DHRow, ...]) -> tuple[tuple[float, float, float, float, float], ...]:
+def _link_constants(dh: tuple[DHRow, ...]) -> tuple[LinkConstants, ...]:
     """Each row's joint-independent factors of :func:`dh_link_transform`: ``cos α``, ``sin α``,
-    ``a``, ``−sin α · d``, ``cos α · d`` (and the θ offset), computed as it computes them."""
+    ``a``, ``−sin α · d``, ``cos α · d`` and the θ offset, computed as it computes them."""
     out = []
     for row in dh:
         ca, sa = math.cos(row.alpha_prev_rad), math.sin(row.alpha_prev_rad)
