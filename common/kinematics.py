@@ -136,6 +136,11 @@ def _link_constants(dh: tuple[DHRow, ...]) -> tuple[LinkConstants, ...]:
     return tuple(out)
 
 
+_UMAY_LINK_CONSTANTS = _link_constants(UMAY_DH)  # the arm's, without hashing its table each call
+_EYE4 = np.eye(4)
+_EYE4.setflags(write=False)
+
+
 def frame_transforms(q_rad: FloatArray, dh: tuple[DHRow, ...] = UMAY_DH) -> list[FloatArray]:
     """Poses of DH frames 1..6 in the base frame (list of six 4×4 matrices).
 
@@ -146,14 +151,15 @@ def frame_transforms(q_rad: FloatArray, dh: tuple[DHRow, ...] = UMAY_DH) -> list
     if q.shape != (len(dh),):
         raise ValueError(f"q_rad must have shape ({len(dh)},), got {q.shape}")
     entries: list[float] = []
-    for (ca, sa, a, sa_d, ca_d, offset), qi in zip(_link_constants(dh), q.tolist(), strict=True):
+    constants = _UMAY_LINK_CONSTANTS if dh is UMAY_DH else _link_constants(dh)
+    for (ca, sa, a, sa_d, ca_d, offset), qi in zip(constants, q.tolist(), strict=True):
         theta = qi + offset
         ct, st = math.cos(theta), math.sin(theta)
         entries += (ct, -st, 0.0, a, ca * st, ca * ct, -sa, sa_d, sa * st, sa * ct, ca, ca_d)
         entries += (0.0, 0.0, 0.0, 1.0)
     links = np.array(entries).reshape(len(dh), 4, 4)
     poses = []
-    t = np.eye(4)
+    t = _EYE4
     for link in links:
         t = t @ link
         poses.append(t)
