@@ -245,8 +245,8 @@ def skew(v: FloatArray) -> FloatArray:
 
 def rotation_error_rad(r_a: FloatArray, r_b: FloatArray) -> float:
     """Angle of the rotation taking ``r_a`` to ``r_b`` (rad, in [0, π])."""
-    cos_angle = (np.trace(r_a.T @ r_b) - 1.0) / 2.0
-    return float(np.arccos(np.clip(cos_angle, -1.0, 1.0)))
+    cos_angle = ((r_a.T @ r_b).trace() - 1.0) / 2.0  # np.trace's and np.clip's own methods
+    return float(np.arccos(cos_angle.clip(-1.0, 1.0)))
 
 
 _EYE3 = np.eye(3)
@@ -302,7 +302,7 @@ def inverse_kinematics(
         jac_tool = jac.copy()
         jac_tool[:3] = jac[:3] - skew(lever) @ jac[3:]
         dq = jac_tool.T @ np.linalg.solve(jac_tool @ jac_tool.T + damping_term, err)
-        q_next = np.clip(q + dq, JOINT_LOWER_RAD, JOINT_UPPER_RAD)
+        q_next = (q + dq).clip(JOINT_LOWER_RAD, JOINT_UPPER_RAD)
         stalled = float(np.maximum.reduce(np.abs(q_next - q))) <= stall_rad  # np.max's
         q = q_next
         if stalled:
