@@ -75,8 +75,8 @@ def position_bound_rad_s(
     at the limit). Actuation bounds its commands with it, at the angles of their frame; the
     sim's motors bound what they follow with it again, at the angles the joints have now."""
     q = np.asarray(q_rad, dtype=float)
-    to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)
-    to_lower = np.clip((q - lower_rad) / slow_zone_rad, 0.0, 1.0)
+    to_upper = ((upper_rad - q) / slow_zone_rad).clip(0.0, 1.0)  # np.clip's own method
+    to_lower = ((q - lower_rad) / slow_zone_rad).clip(0.0, 1.0)
     qdot = np.asarray(qdot_rad_s, dtype=float)
     return np.asarray(vmax_rad_s, dtype=float) * np.where(qdot > 0, to_upper, to_lower)
 

@@ -84,7 +84,7 @@ def limit_joint_positions(
     qdot = np.array(qdot_rad_s, dtype=float)
     bound = position_bound_rad_s(qdot, q_rad, lower_rad, upper_rad, slow_zone_rad, vmax_rad_s)
     slowed = (np.abs(qdot) > bound).nonzero()[0].tolist()
-    return np.clip(qdot, -bound, bound), slowed
+    return qdot.clip(-bound, bound), slowed
 
 
 def limit_speed(
