@@ -19,6 +19,7 @@ All functions are pure: they take and return numpy arrays, lengths in metres, an
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -74,8 +75,8 @@ def position_bound_rad_s(
     at the limit). Actuation bounds its commands with it, at the angles of their frame; the
     sim's motors bound what they follow with it again, at the angles the joints have now."""
     q = np.asarray(q_rad, dtype=float)
-    to_upper = np.clip((upper_rad - q) / slow_zone_rad, 0.0, 1.0)
-    to_lower = np.clip((q - lower_rad) / slow_zone_rad, 0.0, 1.0)
+    to_upper = ((upper_rad - q) / slow_zone_rad).clip(0.0, 1.0)  # np.clip's own method
+    to_lower = ((q - lower_rad) / slow_zone_rad).clip(0.0, 1.0)
     qdot = np.asarray(qdot_rad_s, dtype=float)
     return np.asarray(vmax_rad_s, dtype=float) * np.where(qdot > 0, to_upper, to_lower)
 
@@ -153,15 +154,46 @@ def dh_link_transform(row: DHRow, q_rad: float) -> FloatArray:
     )
 
 
+LinkConstants = tuple[float, float, float, float, float, float]
+
+
+@functools.lru_cache(maxsize=4)
+def _link_constants(dh: tuple[DHRow, ...]) -> tuple[LinkConstants, ...]:
+    """Each row's joint-independent factors of :func:`dh_link_transform`: ``cos α``, ``sin α``,
+    ``a``, ``−sin α · d``, ``cos α · d`` and the θ offset, computed as it computes them."""
+    out = []
+    for row in dh:
+        ca, sa = math.cos(row.alpha_prev_rad), math.sin(row.alpha_prev_rad)
+        out.append((ca, sa, row.a_prev_m, -sa * row.d_m, ca * row.d_m, row.theta_offset_rad))
+    return tuple(out)
+
+
+_UMAY_LINK_CONSTANTS = _link_constants(UMAY_DH)  # the arm's, without hashing its table each call
+_EYE4 = np.eye(4)
+_EYE4.setflags(write=False)
+
+
 def frame_transforms(q_rad: FloatArray, dh: tuple[DHRow, ...] = UMAY_DH) -> list[FloatArray]:
-    """Poses of DH frames 1..6 in the base frame (list of six 4×4 matrices)."""
+    """Poses of DH frames 1..6 in the base frame (list of six 4×4 matrices).
+
+    Every link's :func:`dh_link_transform` is written into one array at once, its entries
+    the same products (the per-link array constructions were most of this function's cost);
+    the poses are the same chain of matrix products."""
     q = np.asarray(q_rad, dtype=float)
     if q.shape != (len(dh),):
         raise ValueError(f"q_rad must have shape ({len(dh)},), got {q.shape}")
+    entries: list[float] = []
+    constants = _UMAY_LINK_CONSTANTS if dh is UMAY_DH else _link_constants(dh)
+    for (ca, sa, a, sa_d, ca_d, offset), qi in zip(constants, q.tolist(), strict=True):
+        theta = qi + offset
+        ct, st = math.cos(theta), math.sin(theta)
+        entries += (ct, -st, 0.0, a, ca * st, ca * ct, -sa, sa_d, sa * st, sa * ct, ca, ca_d)
+        entries += (0.0, 0.0, 0.0, 1.0)
+    links = np.array(entries).reshape(len(dh), 4, 4)
     poses = []
-    t = np.eye(4)
-    for row, qi in zip(dh, q, strict=True):
-        t = t @ dh_link_transform(row, float(qi))
+    t = _EYE4
+    for link in links:
+        t = t @ link
         poses.append(t)
     return poses
 
@@ -186,14 +218,12 @@ def jacobian_of_frames(frames: list[FloatArray]) -> FloatArray:
     z = poses[:, :3, 2]  # joint axes
     lever = poses[-1, :3, 3] - poses[:, :3, 3]  # joint origin → end-effector origin
     # z × lever for all joints at once (np.cross per joint has a large per-call overhead).
-    linear = np.stack(
-        [
-            z[:, 1] * lever[:, 2] - z[:, 2] * lever[:, 1],
-            z[:, 2] * lever[:, 0] - z[:, 0] * lever[:, 2],
-            z[:, 0] * lever[:, 1] - z[:, 1] * lever[:, 0],
-        ]
-    )
-    return np.vstack([linear, z.T])
+    out = np.empty((6, len(frames)))
+    out[0] = z[:, 1] * lever[:, 2] - z[:, 2] * lever[:, 1]
+    out[1] = z[:, 2] * lever[:, 0] - z[:, 0] * lever[:, 2]
+    out[2] = z[:, 0] * lever[:, 1] - z[:, 1] * lever[:, 0]
+    out[3:] = z.T
+    return out
 
 
 def manipulability(jacobian: FloatArray) -> float:
@@ -210,6 +240,36 @@ def cross(a: FloatArray, b: FloatArray) -> FloatArray:
     )
 
 
+def centroid(points: FloatArray) -> FloatArray:
+    """``points.mean(axis=0)`` of a float array, bit for bit (the same sum, divided by the same
+    count), without its generic per-call overhead."""
+    return np.add.reduce(points, axis=0) / len(points)
+
+
+def norm(v: FloatArray) -> float:
+    """``np.linalg.norm(v)`` of a float vector, bit for bit (the square root of its dot with
+    itself, as that computes it), without its generic per-call overhead."""
+    flat = v.ravel(order="K")
+    return math.sqrt(flat.dot(flat))
+
+
+# np.linalg.pinv's default cut-off: singular values below this share of the largest count as 0.
+PINV_RCOND = 1e-15
+
+
+def pinv(a: FloatArray) -> FloatArray:
+    """``np.linalg.pinv(a)`` of a real 2-D matrix, bit for bit (the same SVD and the same
+    operations on it), without its generic per-call overhead: for the per-frame laws."""
+    u, s, vt = np.linalg.svd(a.conjugate(), full_matrices=False)
+    large = s > PINV_RCOND * np.maximum.reduce(s)
+    if large.all():  # full rank: every singular value inverted
+        s = np.divide(1, s, out=s)
+    else:
+        s = np.divide(1, s, where=large, out=s)
+        s[~large] = 0
+    return np.matmul(np.transpose(vt), np.multiply(s[..., np.newaxis], np.transpose(u)))
+
+
 def skew(v: FloatArray) -> FloatArray:
     """Cross-product matrix: ``skew(a) @ b == cross(a, b)``."""
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
@@ -217,13 +277,17 @@ def skew(v: FloatArray) -> FloatArray:
 
 def rotation_error_rad(r_a: FloatArray, r_b: FloatArray) -> float:
     """Angle of the rotation taking ``r_a`` to ``r_b`` (rad, in [0, π])."""
-    cos_angle = (np.trace(r_a.T @ r_b) - 1.0) / 2.0
-    return float(np.arccos(np.clip(cos_angle, -1.0, 1.0)))
+    cos_angle = ((r_a.T @ r_b).trace() - 1.0) / 2.0  # np.trace's and np.clip's own methods
+    return float(np.arccos(cos_angle.clip(-1.0, 1.0)))
+
+
+_EYE3 = np.eye(3)
+_EYE3.setflags(write=False)
 
 
 def rotation_log(r: FloatArray) -> FloatArray:
     """Axis-angle vector θ·u of a rotation matrix (rad)."""
-    angle = rotation_error_rad(np.eye(3), r)
+    angle = rotation_error_rad(_EYE3, r)
     if angle < 1e-9:
         return np.zeros(3)
     if np.pi - angle < 1e-6:
@@ -254,22 +318,24 @@ def inverse_kinematics(
     """
     tool = np.eye(4) if tool_in_ee is None else tool_in_ee
     q = np.clip(np.asarray(q_seed_rad, dtype=float).copy(), JOINT_LOWER_RAD, JOINT_UPPER_RAD)
+    damping_term = damping**2 * np.eye(6)  # the same every iteration
     for _ in range(iterations):
-        ee = forward_kinematics(q)
+        frames = frame_transforms(q)  # the pose and the Jacobian from one forward kinematics
+        ee = frames[-1]
         pose = ee @ tool
         e_pos = target_pose[:3, 3] - pose[:3, 3]
         e_rot = pose[:3, :3] @ rotation_log(pose[:3, :3].T @ target_pose[:3, :3])
         err = np.concatenate([e_pos, e_rot])
-        if np.linalg.norm(err) < tolerance:
+        if norm(err) < tolerance:
             break
-        jac = geometric_jacobian(q)
+        jac = jacobian_of_frames(frames)
         # Twist at the tool origin: v_tool = v_ee + ω × (p_tool - p_ee).
         lever = pose[:3, 3] - ee[:3, 3]
         jac_tool = jac.copy()
         jac_tool[:3] = jac[:3] - skew(lever) @ jac[3:]
-        dq = jac_tool.T @ np.linalg.solve(jac_tool @ jac_tool.T + damping**2 * np.eye(6), err)
-        q_next = np.clip(q + dq, JOINT_LOWER_RAD, JOINT_UPPER_RAD)
-        stalled = float(np.max(np.abs(q_next - q))) <= stall_rad
+        dq = jac_tool.T @ np.linalg.solve(jac_tool @ jac_tool.T + damping_term, err)
+        q_next = (q + dq).clip(JOINT_LOWER_RAD, JOINT_UPPER_RAD)
+        stalled = float(np.maximum.reduce(np.abs(q_next - q))) <= stall_rad  # np.max's
         q = q_next
         if stalled:
             break

@@ -263,9 +263,9 @@ class MarkerFeatures(Message):
         # marker at zero depth or collapsed to a point would end it with a NaN twist.
         if not self.usable:
             return self
-        if min(self.depth_m) < MIN_USABLE_DEPTH_M or min(p[2] for p in self.points_m) < (
-            MIN_USABLE_DEPTH_M
-        ):
+        points = self.points_m
+        nearest_z = min(points[0][2], points[1][2], points[2][2], points[3][2])  # four corners
+        if min(self.depth_m) < MIN_USABLE_DEPTH_M or nearest_z < MIN_USABLE_DEPTH_M:
             raise ValueError(
                 f"a {self.state} marker needs every corner at least {MIN_USABLE_DEPTH_M} m in "
                 "front of the camera (depth_m, points_m)"
@@ -288,16 +288,19 @@ class MarkerFeatures(Message):
 def _diagonals_cross(points: list[list[float]]) -> float:
     """|d1 × d2|² of a 3-D quadrilateral's diagonals: zero when its corners enclose no area.
     Plain Python: numpy's calls on four points cost several times more, on every message."""
-    a = [points[2][i] - points[0][i] for i in range(3)]
-    b = [points[3][i] - points[1][i] for i in range(3)]
-    c = (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-    return c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+    (x0, y0, z0), (x1, y1, z1), (x2, y2, z2), (x3, y3, z3) = points
+    a0, a1, a2 = x2 - x0, y2 - y0, z2 - z0
+    b0, b1, b2 = x3 - x1, y3 - y1, z3 - z1
+    c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    return c0 * c0 + c1 * c1 + c2 * c2
 
 
 def _quad_area(corners: list[list[float]]) -> float:
-    """Area of a quadrilateral (shoelace, either winding), in the corners' units squared."""
-    xs, ys = [c[0] for c in corners], [c[1] for c in corners]
-    return 0.5 * abs(sum(xs[i] * ys[i - 1] - xs[i - 1] * ys[i] for i in range(4)))
+    """Area of a quadrilateral (shoelace, either winding), in the corners' units squared.
+    Written out: it runs on every marker of every Features message."""
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = corners
+    twice = (x0 * y3 - x3 * y0) + (x1 * y0 - x0 * y1) + (x2 * y1 - x1 * y2) + (x3 * y2 - x2 * y3)
+    return 0.5 * abs(twice)
 
 
 class Features(Message):

@@ -13,6 +13,8 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import NDArray
 
+from common.kinematics import centroid, norm
+
 FloatArray = NDArray[np.float64]
 
 VELOCITY_WINDOW_S = 0.5  # the velocity is the slope of the corners' centroid over this window
@@ -39,7 +41,7 @@ class MarkerMotion:
         """With one more view (the corners' 3-D points, (4, 3) m); views older than the window
         before it are dropped."""
         kept = tuple(v for v in self.views if v[0] >= t_s - VELOCITY_WINDOW_S and v[0] < t_s)
-        centre = np.asarray(points_m, dtype=float).mean(axis=0)
+        centre = centroid(np.asarray(points_m, dtype=float))
         return MarkerMotion((*kept, (t_s, centre)))
 
     def velocity_m_s(self, t_s: float) -> FloatArray:
@@ -62,8 +64,8 @@ class MarkerMotion:
         t = np.array([v[0] for v in self.views])
         centres = np.array([v[1] for v in self.views])
         dt = t - t.mean()
-        velocity = dt @ (centres - centres.mean(axis=0)) / float(dt @ dt)
-        speed = float(np.linalg.norm(velocity))
+        velocity = dt @ (centres - centroid(centres)) / float(dt @ dt)
+        speed = norm(velocity)
         if speed < STILL_SPEED_M_S:
             velocity = np.zeros(3)
         elif speed > MAX_SPEED_M_S:

@@ -25,7 +25,7 @@ def damped_pinv(jacobian: FloatArray, damping: float) -> FloatArray:
     """``Jᵀ (J Jᵀ + δ² I)⁻¹``; the pseudo-inverse when ``δ = 0`` (J of full row rank)."""
     j = np.asarray(jacobian, dtype=float)
     if damping == 0.0:
-        return np.linalg.pinv(j)
+        return kin.pinv(j)
     return j.T @ np.linalg.inv(j @ j.T + damping**2 * np.eye(j.shape[0]))
 
 
@@ -62,7 +62,7 @@ def redistribute_at_limits(
             break
         rest = twist - jac[:, held] @ qdot[held]
         qdot[free] = damped_pinv(jac[:, free], damping) @ rest
-    return qdot, [int(i) for i in np.flatnonzero(held)]
+    return qdot, held.nonzero()[0].tolist()
 
 
 def limit_joint_positions(
@@ -83,8 +83,8 @@ def limit_joint_positions(
     for its last millimetres. Returns the rates and the joints slowed."""
     qdot = np.array(qdot_rad_s, dtype=float)
     bound = position_bound_rad_s(qdot, q_rad, lower_rad, upper_rad, slow_zone_rad, vmax_rad_s)
-    slowed = [int(i) for i in np.flatnonzero(np.abs(qdot) > bound)]
-    return np.clip(qdot, -bound, bound), slowed
+    slowed = (np.abs(qdot) > bound).nonzero()[0].tolist()
+    return qdot.clip(-bound, bound), slowed
 
 
 def limit_speed(
@@ -93,7 +93,7 @@ def limit_speed(
     """Scale the whole vector so no joint exceeds its speed limit (the direction of the
     end-effector motion is kept). Returns the rates and the joints that were over."""
     qdot = np.array(qdot_rad_s, dtype=float)
-    over = [int(i) for i in np.flatnonzero(np.abs(qdot) > vmax_rad_s)]
+    over = (np.abs(qdot) > vmax_rad_s).nonzero()[0].tolist()
     if over:
         qdot /= np.max(np.abs(qdot) / vmax_rad_s)
     return qdot, over
@@ -110,7 +110,7 @@ def limit_acceleration(
     Returns the rates and whether they were limited."""
     qdot = np.asarray(qdot_rad_s, dtype=float)
     change = qdot - np.asarray(previous_rad_s, dtype=float)
-    ratio = np.max(np.abs(change)) / (max_accel_rad_s2 * dt_s) if dt_s > 0 else np.inf
+    ratio = np.abs(change).max() / (max_accel_rad_s2 * dt_s) if dt_s > 0 else np.inf
     if ratio <= 1.0:
         return qdot.copy(), False
     if not np.isfinite(ratio):  # no time has passed: keep the previous command
@@ -179,7 +179,7 @@ def twist_to_joint_velocities(
     with np.errstate(invalid="ignore", over="ignore"):  # a non-finite result is handled next
         qdot = damped_pinv(jac, delta) @ np.asarray(twist_base_ee, dtype=float)
         qdot, held = redistribute_at_limits(jac, twist_base_ee, qdot, q_rad, delta)
-    if not np.all(np.isfinite(qdot)):  # never let NaN/Inf reach the motors
+    if not np.isfinite(qdot).all():  # never let NaN/Inf reach the motors
         return JointCommand(np.zeros(kin.N_JOINTS), Clamps(nonfinite=True), w, delta)
     accelerated = False
     if previous_rad_s is not None and np.isfinite(max_accel_rad_s2):

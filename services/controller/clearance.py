@@ -25,6 +25,7 @@ which at the goal lies below the plane beside the object, is kept off the object
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,21 +45,24 @@ class Plane:
     normal: FloatArray
 
 
+@functools.cache
 def hand_box_corners_ee() -> FloatArray:
     """The hand box's eight corners in DH frame 6 (8×3, m; the sim's URDF builds the box from
-    the same dimensions)."""
+    the same dimensions); made once, read-only."""
     centre = np.array([0.0, kin.HAND_OFFSET_M + kin.HAND_LENGTH_M / 2, 0.0])
     half = np.array([kin.HAND_THICKNESS_M, kin.HAND_LENGTH_M, kin.HAND_WIDTH_M]) / 2
     signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
-    return centre + signs * half
+    corners = centre + signs * half
+    corners.setflags(write=False)
+    return corners
 
 
 def plane_of_corners(points: FloatArray, origin: FloatArray) -> Plane:
     """The plane of the red marker's four corners (base frame, m), its normal turned towards
     the camera's optical centre ``origin`` (up, out of the object)."""
-    centre = points.mean(axis=0)
+    centre = kin.centroid(points)
     normal = kin.cross(points[1] - points[0], points[3] - points[0])
-    normal = normal / np.linalg.norm(normal)
+    normal = normal / kin.norm(normal)
     if normal @ (origin - centre) < 0:
         normal = -normal
     return Plane(centre, normal)
@@ -81,7 +85,13 @@ def clearance_bounds(
     ``ḣ`` allowed, ``−rate · (h − h_min)`` (positive: a corner below the margin must rise)."""
     corners = np.asarray(corners_base_m, dtype=float)
     n = plane.normal
-    rows = np.hstack([np.tile(n, (len(corners), 1)), np.cross(corners - p_ee_base_m, n)])
+    lever = corners - p_ee_base_m
+    rows = np.empty((len(corners), 6))
+    rows[:, :3] = n
+    # lever × n for every corner at once, the products of np.cross
+    rows[:, 3] = lever[:, 1] * n[2] - lever[:, 2] * n[1]
+    rows[:, 4] = lever[:, 2] * n[0] - lever[:, 0] * n[2]
+    rows[:, 5] = lever[:, 0] * n[1] - lever[:, 1] * n[0]
     return rows, -rate_1_s * (heights_m(corners, plane) - min_height_m)
 
 
@@ -113,9 +123,9 @@ def lift_then_nearest(
     rising does not help it, the nearest twist that meets them all (the least ``‖Δ‖``,
     :func:`.constrained.least_feature_change` with ``W = I``), lifted again by what its
     sweeps left short: the hand box's corners, which rising always helps, end met."""
-    broke = bool(np.any(rows @ twist < bounds))
+    broke = bool((rows @ twist < bounds).any())
     lifted, _ = lift_short(twist, rows, bounds, normal)
-    if np.all(rows @ lifted >= bounds):
+    if (rows @ lifted >= bounds).all():
         return lifted, broke
     nearest, _ = least_feature_change(lifted, rows, bounds, np.eye(6))
     return lift_short(nearest, rows, bounds, normal)[0], broke

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common.config import ControllerConfig
+from common.kinematics import centroid
 
 FloatArray = NDArray[np.float64]
 
@@ -46,8 +47,8 @@ def settled_error_px_rms(recent_errors_px: Sequence[FloatArray]) -> float:
     it. A goal within that jitter was otherwise never "reached" for enough consecutive frames
     (runs held 0.3 px and 2 mm from the goal until their timeout), while the mean over a few
     frames lies on the goal."""
-    mean = np.mean(np.asarray(recent_errors_px, dtype=float), axis=0)
-    return float(np.sqrt(np.mean(mean**2)))
+    mean = centroid(np.asarray(recent_errors_px, dtype=float))  # per coordinate, over frames
+    return float(np.sqrt((mean**2).mean()))
 
 
 @dataclass

@@ -32,6 +32,8 @@ short by that overlap.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +55,10 @@ GOAL_SLACK_M = 0.5e-3
 # slowly, and a narrower funnel held the hand 5 mm short of its goal that way, out of reach
 # of the lowered margin, while its image error had converged.
 FUNNEL_RADIUS_M = 0.02
+# The first pass's samples along the segment (np.linspace(0, 1, SAMPLES), the same each call).
+_FIRST_PASS_T = np.linspace(0.0, 1.0, SAMPLES)
+_FIRST_PASS_T.setflags(write=False)
+_SAMPLE_INDEX = np.arange(SAMPLES, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -73,36 +79,46 @@ def top_face(plane: Plane, corners_base_m: FloatArray, side_m: float) -> TopFace
     n = plane.normal
     u = corners_base_m[1] - corners_base_m[0]
     u = u - (u @ n) * n
-    u = u / np.linalg.norm(u)
+    u = u / kin.norm(u)
     return TopFace(plane.point_m, u, kin.cross(n, u), n, side_m / 2)
+
+
+def _in_face_axes(points_m: FloatArray, face: TopFace) -> FloatArray:
+    """Each point (k×3) from the face's centre, in its axes ``u``, ``w``, ``normal`` (k×3)."""
+    d = np.atleast_2d(np.asarray(points_m, dtype=float)) - face.centre_m
+    out = np.empty((len(d), 3))
+    out[:, 0], out[:, 1], out[:, 2] = d @ face.u, d @ face.w, d @ face.normal
+    return out
 
 
 def gaps_to_object(points_m: FloatArray, face: TopFace) -> FloatArray:
     """For each point (k×3), how far it lies beyond the object along the face's sides and its
     normal (k×3, in ``u``, ``w``, ``normal``; 0 where it lies within): the vector from the
     object's nearest point, in the face's axes."""
-    d = np.atleast_2d(np.asarray(points_m, dtype=float)) - face.centre_m
-    x, y, z = d @ face.u, d @ face.w, d @ face.normal
-    return np.column_stack(
-        [
-            np.sign(x) * np.maximum(np.abs(x) - face.half_side_m, 0.0),
-            np.sign(y) * np.maximum(np.abs(y) - face.half_side_m, 0.0),
-            np.maximum(z, 0.0),
-        ]
-    )
+    gaps = _in_face_axes(points_m, face)
+    sides = gaps[:, :2]  # a view: both sides at once
+    sides[...] = np.sign(sides) * np.maximum(np.abs(sides) - face.half_side_m, 0.0)
+    np.maximum(gaps[:, 2], 0.0, out=gaps[:, 2])
+    return gaps
 
 
 def distances_to_object(points_m: FloatArray, face: TopFace) -> FloatArray:
     """The distance (m) from each point (k×3) to the object, the prism under its top face
-    (down without end)."""
-    return np.sqrt(np.sum(gaps_to_object(points_m, face) ** 2, axis=1))
+    (down without end): the length of :func:`gaps_to_object`, whose signs its squares do not
+    need (a side's gap is 0 where its sign is: the face's half side is positive)."""
+    gaps = _in_face_axes(points_m, face)
+    sides = gaps[:, :2]
+    np.abs(sides, out=sides)
+    sides -= face.half_side_m
+    np.maximum(gaps, 0.0, out=gaps)
+    return np.sqrt(np.add.reduce(gaps**2, axis=1))
 
 
 def distance_to_object(point_m: FloatArray, face: TopFace) -> tuple[float, FloatArray]:
     """:func:`distances_to_object` of one point, and the unit direction from the object's
     nearest point (out through the top from inside)."""
     gap = gaps_to_object(point_m, face)[0]
-    dist = float(np.sqrt(np.sum(gap**2)))
+    dist = float(np.sqrt((gap**2).sum()))
     if dist < 1e-12:
         return 0.0, face.normal
     return dist, (gap[0] * face.u + gap[1] * face.w + gap[2] * face.normal) / dist
@@ -116,29 +132,53 @@ def nearest_along(
     The distance to a convex body is convex along a line, so the least of evenly spaced samples
     brackets the minimum between its neighbours; sampled again there, 0.1 mm apart on a 21 cm
     forearm, the least sample is within 0.05 mm of the least distance."""
-    lo, hi = 0.0, 1.0
-    for _ in range(2):
-        t = np.linspace(lo, hi, SAMPLES)
-        dist = distances_to_object(a_m + t[:, None] * (b_m - a_m), face)
-        i = int(np.argmin(dist))
+    along = b_m - a_m
+    length_m = kin.norm(along)
+    t = _FIRST_PASS_T
+    for sweep in range(2):
+        dist = distances_to_object(a_m + t[:, None] * along, face)
+        i = int(dist.argmin())
         # The distance changes no faster than the point moves: nothing between two samples
         # is nearer than the nearest sample less half their spacing.
-        if dist[i] - 0.5 * (t[1] - t[0]) * float(np.linalg.norm(b_m - a_m)) > beyond_m:
+        if dist[i] - 0.5 * (t[1] - t[0]) * length_m > beyond_m:
             return float("nan"), float("inf")
-        lo, hi = t[max(i - 1, 0)], t[min(i + 1, SAMPLES - 1)]
+        if sweep == 0:  # sampled again between the least sample's neighbours
+            t = _samples(t[max(i - 1, 0)], t[min(i + 1, SAMPLES - 1)])
     return float(t[i]), float(dist[i])
 
 
-def point_jacobian(frames: list[FloatArray], point_m: FloatArray) -> FloatArray:
+def _samples(lo: float, hi: float) -> FloatArray:
+    """``np.linspace(lo, hi, SAMPLES)``, bit for bit (the same steps as it takes them), without
+    its generic per-call overhead."""
+    step = (hi - lo) / (SAMPLES - 1)
+    if step == 0:  # np.linspace's own handling of a denormal step
+        return np.linspace(lo, hi, SAMPLES)
+    t = _SAMPLE_INDEX * step
+    t += lo
+    t[-1] = hi
+    return t
+
+
+def point_jacobian(frames: Sequence[FloatArray], point_m: FloatArray) -> FloatArray:
     """The linear Jacobian (3×6, base frame) of a point carried by the forearm: joint k turns
     it about frame k's z axis through frame k's origin; the wrist's joints do not move it."""
-    jp = np.zeros((3, kin.N_JOINTS))
-    for k in range(FOREARM_JOINTS):
-        jp[:, k] = kin.cross(frames[k][:3, 2], point_m - frames[k][:3, 3])
+    return point_jacobians(frames, np.asarray(point_m, dtype=float)[None, :])[0]
+
+
+def point_jacobians(frames: Sequence[FloatArray], points_m: FloatArray) -> FloatArray:
+    """:func:`point_jacobian` of each point (k×3) at once (k×3×6)."""
+    poses = np.array(frames[:FOREARM_JOINTS])
+    z = poses[:, :3, 2]  # joint k's axis
+    lever = points_m[:, None, :] - poses[:, :3, 3]  # from joint k's origin to each point
+    jp = np.zeros((len(points_m), 3, kin.N_JOINTS))
+    # z × lever of each joint and point at once, the products of kin.cross
+    jp[:, 0, :FOREARM_JOINTS] = z[:, 1] * lever[..., 2] - z[:, 2] * lever[..., 1]
+    jp[:, 1, :FOREARM_JOINTS] = z[:, 2] * lever[..., 0] - z[:, 0] * lever[..., 2]
+    jp[:, 2, :FOREARM_JOINTS] = z[:, 0] * lever[..., 1] - z[:, 1] * lever[..., 0]
     return jp
 
 
-def forearm_distance_m(frames: list[FloatArray], face: TopFace) -> float:
+def forearm_distance_m(frames: Sequence[FloatArray], face: TopFace) -> float:
     """How near the forearm's axis comes to the object (m), the arm at ``frames``."""
     return nearest_along(frames[ELBOW_FRAME][:3, 3], frames[WRIST_FRAME][:3, 3], face)[1]
 
@@ -157,17 +197,46 @@ def margin_near_goal(
     flat = np.zeros(3)
     if goal_q_rad is None:
         return min_distance_m, flat
-    goal_frames = kin.frame_transforms(goal_q_rad)
+    q_key = np.asarray(goal_q_rad, dtype=float).tobytes()
+    goal_frames = _frames_at(q_key)
     away = frames[WRIST_FRAME][:3, 3] - goal_frames[WRIST_FRAME][:3, 3]
-    off_m = float(np.linalg.norm(away))
+    off_m = kin.norm(away)
     radius_m = funnel_radius_m(min_distance_m)
     if off_m >= radius_m:  # outside the funnel, whatever the goal's clearance
         return min_distance_m, flat
-    at_goal = max(forearm_distance_m(goal_frames, face) - GOAL_SLACK_M, kin.LIMB_RADIUS_M)
+    at_goal = max(_goal_distance_m(q_key, *_face_key(face)) - GOAL_SLACK_M, kin.LIMB_RADIUS_M)
     if at_goal >= min_distance_m:
         return min_distance_m, flat
     slope = (min_distance_m - at_goal) / radius_m
     return at_goal + slope * off_m, (slope * away / off_m if off_m > 1e-12 else flat)
+
+
+@functools.lru_cache(maxsize=8)
+def _frames_at(q_rad: bytes) -> tuple[FloatArray, ...]:
+    """``kinematics.frame_transforms`` of the joint angles ``q_rad`` (float64 bytes), read-only:
+    the goal posture stays the same over many frames, its kinematics need not be redone."""
+    frames = kin.frame_transforms(np.frombuffer(q_rad, dtype=float))
+    for frame in frames:
+        frame.setflags(write=False)
+    return tuple(frames)
+
+
+def _face_key(face: TopFace) -> tuple[bytes, bytes, bytes, bytes, float]:
+    """The face as :func:`_goal_distance_m` takes it: its vectors' float64 bytes, its half side."""
+    vectors = (face.centre_m, face.u, face.w, face.normal)
+    centre, u, w, normal = (np.asarray(v, dtype=float).tobytes() for v in vectors)
+    return centre, u, w, normal, face.half_side_m
+
+
+@functools.lru_cache(maxsize=8)
+def _goal_distance_m(
+    q_rad: bytes, centre: bytes, u: bytes, w: bytes, normal: bytes, half_side_m: float
+) -> float:
+    """:func:`forearm_distance_m` at the joint angles ``q_rad`` from the face of
+    :func:`_face_key`: the goal posture and the face vision measures stay the same, to the
+    bit, over many frames (a still target), and the search need not be redone."""
+    vectors = (np.frombuffer(b, dtype=float) for b in (centre, u, w, normal))
+    return forearm_distance_m(_frames_at(q_rad), TopFace(*vectors, half_side_m))
 
 
 def funnel_radius_m(min_distance_m: float) -> float:
@@ -199,9 +268,10 @@ def forearm_bounds(
     margin_m, margin_gradient = margin_near_goal(min_distance_m, frames, goal_q_rad, face)
     nearest = elbow + t * (wrist - elbow)
     dist, g = distance_to_object(nearest, face)
-    joint_rates = np.linalg.pinv(kin.jacobian_of_frames(frames))  # J⁺: q̇ of a twist
+    joint_rates = kin.pinv(kin.jacobian_of_frames(frames))  # J⁺: q̇ of a twist
     # ḋ − (the margin's own rate, as the wrist moves through the funnel): the barrier keeps
     # d − margin, which the funnel lets shrink to 0 at the goal.
-    gap_rate = g @ point_jacobian(frames, nearest) - margin_gradient @ point_jacobian(frames, wrist)
+    jp_nearest, jp_wrist = point_jacobians(frames, np.array([nearest, wrist]))
+    gap_rate = g @ jp_nearest - margin_gradient @ jp_wrist
     row = gap_rate @ joint_rates
     return row[None, :], np.array([-rate_1_s * (dist - margin_m)])

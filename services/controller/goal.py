@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, project
-from common.kinematics import cross
+from common.kinematics import centroid, cross, norm
 from common.marker import Marker
 from common.motion import MarkerMotion
 
@@ -27,8 +27,8 @@ def desired_observation(target: Marker, approach_height_m: float, k: CameraIntri
         return target
     p = target.points_m
     normal = cross(p[2] - p[0], p[3] - p[1])
-    normal /= np.linalg.norm(normal)
-    if normal @ p.mean(axis=0) > 0:  # make it face the camera (at the origin)
+    normal /= norm(normal)
+    if normal @ centroid(p) > 0:  # make it face the camera (at the origin)
         normal = -normal
     raised = p + approach_height_m * normal
     # Its depths come from the target's, moved by a known height: the same uncertainty.
@@ -54,8 +54,8 @@ def hand_hides_target(hand: Marker, last_target: Marker) -> bool:
     """In eye-to-hand servoing the hand must end up in front of the target, hiding it."""
     if not hand.usable:
         return False
-    diagonal = np.linalg.norm(last_target.corners_px[0] - last_target.corners_px[2])
-    gap = np.linalg.norm(hand.corners_px.mean(axis=0) - last_target.corners_px.mean(axis=0))
+    diagonal = norm(last_target.corners_px[0] - last_target.corners_px[2])
+    gap = norm(centroid(hand.corners_px) - centroid(last_target.corners_px))
     return bool(gap < OCCLUSION_RADIUS_DIAGONALS * diagonal)
 
 
@@ -96,6 +96,6 @@ class TargetMemory:
             shift = self.motion.shift_m(t_s)
             expected = carried(self.last, shift, k)
             if hand_hides_target(hand, expected):
-                self.predicted = self.predicted or bool(np.any(shift))
+                self.predicted = self.predicted or bool(shift.any())
                 return expected, True, False
         return target, False, False

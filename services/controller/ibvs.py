@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from common import kinematics as kin
 from common.camera import CameraIntrinsics, pixel_to_normalized, project
 from common.config import ControllerConfig, JacobianMode, Scenario
 from common.kinematics import BASE_UP
@@ -162,6 +163,14 @@ class IbvsController:
     # The hand's last usable view, to carry along the encoders while vision cannot use it.
     hand_memory: HandMemory = field(default_factory=HandMemory)
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
+    # The constant strategy's M (read-only) with the frozen matrix and the pairing it is for:
+    # both change only on a new goal or a relabelling, M is not computed afresh every frame.
+    _constant_m: tuple[FloatArray, int, FloatArray] | None = field(default=None, repr=False)
+    # The last goal made (.goal.desired_observation) and what it was made from: a still target
+    # is measured the same to the bit frame after frame (or remembered), its goal with it.
+    _goal_memo: tuple[tuple[bytes, bytes, float, CameraIntrinsics], Marker] | None = field(
+        default=None, repr=False
+    )
 
     @classmethod
     def of(cls, scenario: Scenario) -> IbvsController:
@@ -209,12 +218,28 @@ class IbvsController:
         if not (hand.usable and target.usable):
             return self._hold(hand, target, seen, k, arm, t_s)
         self.hold_since_s = None
-        goal = desired_observation(target, self.approach_height_m, k)
+        goal = self._goal(target, k)
         q, t_base_ee = arm.q_rad, arm.t_base_ee
         if q is not None and t_base_ee is not None and self._pairing_open() and not hand_predicted:
             self._check_reach(hand, goal, q, t_base_ee)
             self._follow_goal_posture(hand, goal, t_base_ee)
         return self._servo(hand, goal, k, arm, t_s, remembered, hand_predicted)
+
+    def _goal(self, target: Marker, k: CameraIntrinsics) -> Marker:
+        """:func:`.goal.desired_observation` of ``target``: the last one made when made from the
+        same points, depth uncertainties, approach height and intrinsics."""
+        key = (
+            np.asarray(target.points_m, dtype=float).tobytes(),
+            np.asarray(target.depth_sigma_m, dtype=float).tobytes(),
+            self.approach_height_m,
+            k,
+        )
+        memo = self._goal_memo
+        if memo is not None and memo[0] == key and self.approach_height_m != 0.0:
+            return memo[1]
+        goal = desired_observation(target, self.approach_height_m, k)
+        self._goal_memo = (key, goal)
+        return goal
 
     def _follow_labels(self, hand: Marker, target: Marker) -> None:
         """Keep what is indexed by corner or by pairing on the same physical corners when
@@ -260,9 +285,9 @@ class IbvsController:
         servoed and again once the goal has moved by :data:`REACH_RECHECK_M`; once vision sees
         the hand after it lost it, the verdicts are carried over to the pairings' indices
         as its corners are labelled now (:attr:`reach_stale`)."""
-        centroid = goal.points_m.mean(axis=0)
+        centroid = kin.centroid(goal.points_m)
         last = self.reachable_for_m
-        moved = last is None or np.linalg.norm(centroid - last) >= REACH_RECHECK_M
+        moved = last is None or kin.norm(centroid - last) >= REACH_RECHECK_M
         if not (moved or self.reach_stale):
             return
         poses = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee)
@@ -283,10 +308,10 @@ class IbvsController:
         k, postures, last = self.pairing, self.reach_postures, self.posture_for_m
         if k is None or postures is None or last is None:
             return
-        centroid = goal.points_m.mean(axis=0)
-        if np.linalg.norm(centroid - last) < POSTURE_RESOLVE_M:
+        centroid = kin.centroid(goal.points_m)
+        if kin.norm(centroid - last) < POSTURE_RESOLVE_M:
             return
-        pose = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee)[k]
+        pose = goal_poses_ee(hand, goal, self.t_base_cam, t_base_ee, pairings=[k])[0]
         q_goal, reached = goal_posture(pose, postures[k])
         if reached:  # else the last one stands, until the goal has moved as far again
             postures[k] = q_goal
@@ -370,20 +395,20 @@ class IbvsController:
             error, m = self._points3d_law(hand, target)
             target_rate = np.tile(velocity, len(target.points_m))
         else:
-            error, m = self._image_law(hand, target, k)
-            xy = pixel_to_normalized(target.corners_px, k)
-            target_rate = image_feature_rate(xy, target.depth_m, velocity)
+            s_star = pixel_to_normalized(target.corners_px, k)  # the law's and the rate's
+            error, m = self._image_law(hand, target, s_star, k)
+            target_rate = image_feature_rate(s_star, target.depth_m, velocity)
         # ė = ṡ − ṡ* = −λe, with ṡ* the goal's own motion fed forward (zero for a still target).
         twist_cam = m @ (self.config.gain * error - target_rate)
         twist = camera_twist_to_base_ee(twist_cam, self.t_base_cam, arm.p_ee_base_m)
         twist = clamp_twist(twist, self.config.max_linear_m_s, self.config.max_angular_rad_s)
         # s − s* (px, 2N): this frame's error, and its share of convergence's window
         error_px = (np.asarray(hand.corners_px) - np.asarray(target.corners_px)).ravel()
-        err_px = float(np.sqrt(np.mean(error_px**2)))  # feature_error_px_rms
+        err_px = float(np.sqrt((error_px**2).mean()))  # feature_error_px_rms
         # On a target believed to move the hand is tracking, not done; nor on a hand carried by
         # the encoders. On a prediction of where a hidden target went it may settle, but it is
         # not done either: the target must be seen there first.
-        still = not np.any(velocity)  # slower than motion.STILL_SPEED_M_S
+        still = not velocity.any()  # slower than motion.STILL_SPEED_M_S
         if still and not hand_predicted:
             self.window.add(error_px, self.config)
         else:
@@ -483,22 +508,31 @@ class IbvsController:
         return ControlOutput(twist, True, 0.0, False, False, reason, ACQUIRING)
 
     def _image_law(
-        self, hand: Marker, target: Marker, k: CameraIntrinsics
+        self, hand: Marker, target: Marker, s_star: FloatArray, k: CameraIntrinsics
     ) -> tuple[FloatArray, FloatArray]:
         """``(e, M)`` on the normalized image points (constant, dynamic, pmj, mpj); ``target``
-        already paired with the hand's corners."""
+        already paired with the hand's corners, ``s_star`` its normalized points."""
         s = pixel_to_normalized(hand.corners_px, k)
-        s_star = pixel_to_normalized(target.corners_px, k)
         error = (s - s_star).reshape(-1)
         mode = self.config.mode
         # Only the matrices this strategy uses (the controller's share of the loop's latency).
         l_current = interaction_matrix(s, hand.depth_m) if mode in USES_CURRENT else None
         l_desired = interaction_matrix(s_star, target.depth_m) if mode in USES_DESIRED else None
-        l_constant = None
         if mode is JacobianMode.CONSTANT:
-            assert self.l_constant is not None and self.pairing is not None
+            return error, self._constant_control_matrix()
+        return error, control_matrix(mode, l_current, l_desired, None)
+
+    def _constant_control_matrix(self) -> FloatArray:
+        """The constant strategy's ``M``: the frozen matrix's rows in the current pairing's
+        order, pseudo-inverted; kept (:attr:`_constant_m`) while both stay the same."""
+        assert self.l_constant is not None and self.pairing is not None
+        kept = self._constant_m
+        if kept is None or kept[0] is not self.l_constant or kept[1] != self.pairing:
             l_constant = np.roll(self.l_constant, -2 * self.pairing, axis=0)  # 2 rows per corner
-        return error, control_matrix(mode, l_current, l_desired, l_constant)
+            m = control_matrix(JacobianMode.CONSTANT, None, None, l_constant)
+            m.setflags(write=False)
+            kept = self._constant_m = (self.l_constant, self.pairing, m)
+        return kept[2]
 
     @staticmethod
     def _points3d_law(hand: Marker, target: Marker) -> tuple[FloatArray, FloatArray]:

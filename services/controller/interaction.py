@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized
 from common.config import ConstantDepth, JacobianMode
-from common.kinematics import skew
+from common.kinematics import pinv, skew
 from common.marker import Marker
 
 FloatArray = NDArray[np.float64]
@@ -37,12 +37,12 @@ def interaction_matrix(xy: FloatArray, depth_m: FloatArray) -> FloatArray:
     """
     x, y = xy[:, 0], xy[:, 1]
     inv_z = 1.0 / np.asarray(depth_m, dtype=float)
-    zeros = np.zeros_like(x)
-    rows_u = np.column_stack([-inv_z, zeros, x * inv_z, x * y, -(1.0 + x * x), y])
-    rows_v = np.column_stack([zeros, -inv_z, y * inv_z, 1.0 + y * y, -x * y, -x])
-    out = np.empty((2 * len(x), 6))
-    out[0::2] = rows_u
-    out[1::2] = rows_v
+    out = np.zeros((2 * len(x), 6))
+    rows_u, rows_v = out[0::2], out[1::2]  # views: filled column by column
+    rows_u[:, 0], rows_u[:, 2], rows_u[:, 3] = -inv_z, x * inv_z, x * y
+    rows_u[:, 4], rows_u[:, 5] = -(1.0 + x * x), y
+    rows_v[:, 1], rows_v[:, 2], rows_v[:, 3] = -inv_z, y * inv_z, 1.0 + y * y
+    rows_v[:, 4], rows_v[:, 5] = -x * y, -x
     return out
 
 
@@ -67,7 +67,7 @@ def points3d_control_matrix(points_m: FloatArray) -> FloatArray:
     ``J`` is :func:`point_feature_jacobian` at the current (measured) points: the minus sign is
     that of ``ė = J · (v, ω) = -λ e``, not the ``+`` of the image points (see the module doc).
     """
-    return -np.linalg.pinv(point_feature_jacobian(points_m))
+    return -pinv(point_feature_jacobian(points_m))
 
 
 # The interaction matrices each image-point strategy is built from (the others are not needed).
@@ -100,14 +100,14 @@ def control_matrix(
         return matrix
 
     if mode is JacobianMode.CONSTANT:
-        return np.linalg.pinv(given(l_constant, "l_constant"))
+        return pinv(given(l_constant, "l_constant"))
     if mode is JacobianMode.DYNAMIC:
-        return np.linalg.pinv(given(l_current, "l_current"))
+        return pinv(given(l_current, "l_current"))
     if mode is JacobianMode.PMJ:
-        return np.linalg.pinv(0.5 * (given(l_current, "l_current") + given(l_desired, "l_desired")))
+        return pinv(0.5 * (given(l_current, "l_current") + given(l_desired, "l_desired")))
     if mode is JacobianMode.MPJ:
-        pinv_current = np.linalg.pinv(given(l_current, "l_current"))
-        return 0.5 * (pinv_current + np.linalg.pinv(given(l_desired, "l_desired")))
+        pinv_current = pinv(given(l_current, "l_current"))
+        return 0.5 * (pinv_current + pinv(given(l_desired, "l_desired")))
     if mode is JacobianMode.POINTS3D:
         raise ValueError("points3d servoes 3-D points: use points3d_control_matrix")
     raise ValueError(f"unknown Jacobian mode {mode!r}")
@@ -132,5 +132,7 @@ def image_feature_rate(xy: FloatArray, depth_m: FloatArray, velocity_m_s: FloatA
     """ṡ (2N,) of normalized points at ``xy`` (N×2), depths Z (N,), all translating with
     ``velocity_m_s`` in the camera frame: ẋ = (vx − x·vz)/Z, ẏ = (vy − y·vz)/Z."""
     vx, vy, vz = velocity_m_s
-    rates = np.column_stack([(vx - xy[:, 0] * vz) / depth_m, (vy - xy[:, 1] * vz) / depth_m])
+    rates = np.empty((len(xy), 2))
+    rates[:, 0] = (vx - xy[:, 0] * vz) / depth_m
+    rates[:, 1] = (vy - xy[:, 1] * vz) / depth_m
     return rates.reshape(-1)

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
+from common.kinematics import centroid
 from common.marker import Marker
 
 FloatArray = NDArray[np.float64]
@@ -20,11 +21,19 @@ def rolled(observation: Marker, shift: int) -> Marker:
         return observation
     return replace(
         observation,
-        corners_px=np.roll(observation.corners_px, -shift, axis=0),
-        depth_m=np.roll(observation.depth_m, -shift, axis=0),
-        depth_sigma_m=np.roll(observation.depth_sigma_m, -shift, axis=0),
-        points_m=np.roll(observation.points_m, -shift, axis=0),
+        corners_px=cyclic(observation.corners_px, shift),
+        depth_m=cyclic(observation.depth_m, shift),
+        depth_sigma_m=cyclic(observation.depth_sigma_m, shift),
+        points_m=cyclic(observation.points_m, shift),
     )
+
+
+def cyclic(values: FloatArray, shift: int) -> FloatArray:
+    """``np.roll(values, -shift, axis=0)``: entry i becomes entry (i + shift) % n (a copy),
+    taken by index for a marker's four corners (np.roll's generic overhead, not its values)."""
+    if len(values) != 4:
+        return np.roll(values, -shift, axis=0)
+    return values[_CYCLIC_PAIRINGS[shift % 4]]
 
 
 # Another pairing of corners must cut the squared image error by this factor to replace the
@@ -45,9 +54,9 @@ def pairing_costs_px2(hand_px: FloatArray, target_px: FloatArray) -> FloatArray:
     about their centroids (the offset between the squares is the same for every pairing and
     would drown the difference), so the least cost is the pairing that needs the least turn
     about the optical axis; it is also the one with the least squared image error."""
-    hand = hand_px - hand_px.mean(axis=0)
-    target = target_px - target_px.mean(axis=0)
-    return np.sum((hand - target[_CYCLIC_PAIRINGS]) ** 2, axis=(1, 2))
+    hand = hand_px - centroid(hand_px)
+    target = target_px - centroid(target_px)
+    return np.add.reduce((hand - target[_CYCLIC_PAIRINGS]) ** 2, axis=(1, 2))  # np.sum's
 
 
 def choose_pairing(costs_px2: FloatArray, current: int | None) -> int:
@@ -65,8 +74,12 @@ def label_shift(previous_px: FloatArray, current_px: FloatArray) -> int:
 
     Vision keeps a marker's labels from frame to frame, and labels its corners afresh when it
     has lost the marker or restarted; anything indexed by corner or by pairing must follow.
-    The shift is the pairing of the view now with the view then that needs the least turn."""
-    return int(np.argmin(pairing_costs_px2(current_px, previous_px)))
+    The shift is the pairing of the view now with the view then that needs the least turn;
+    0 at once for the same view to the bit (a still marker), whose pairing 0 costs 0."""
+    previous_px, current_px = np.asarray(previous_px), np.asarray(current_px)
+    if previous_px.shape == current_px.shape and previous_px.tobytes() == current_px.tobytes():
+        return 0
+    return int(pairing_costs_px2(current_px, previous_px).argmin())
 
 
 def relabelled_pairing(pairing: int, hand_shift: int, target_shift: int) -> int:

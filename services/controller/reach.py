@@ -50,18 +50,23 @@ def rigid_motion(source: FloatArray, destination: FloatArray) -> FloatArray:
 
 
 def goal_poses_ee(
-    hand: Marker, goal: Marker, t_base_cam: FloatArray, t_base_ee: FloatArray
+    hand: Marker,
+    goal: Marker,
+    t_base_cam: FloatArray,
+    t_base_ee: FloatArray,
+    pairings: Sequence[int] = range(4),
 ) -> FloatArray:
     """For each of the four cyclic pairings k (hand corner i → goal corner (i + k) % 4), the
     end effector's pose (4×4×4, base frame) that puts the hand's corners on the goal's (both
     markers' 3-D corners, camera frame; the end effector at ``t_base_ee``, from the encoders).
     The hand rides rigidly on the end effector, so each depends on the physical pairing only,
     not on where the hand is now: their orientations tell the pairings apart whatever the
-    corners' labels."""
+    corners' labels. ``pairings``: only these k, in this order (the poses of the others are
+    not computed)."""
     hand_base = camera_points_to_base(hand.points_m, t_base_cam)
     goal_base = camera_points_to_base(goal.points_m, t_base_cam)
     return np.array(
-        [rigid_motion(hand_base, np.roll(goal_base, -k, axis=0)) @ t_base_ee for k in range(4)]
+        [rigid_motion(hand_base, np.roll(goal_base, -k, axis=0)) @ t_base_ee for k in pairings]
     )
 
 

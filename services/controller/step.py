@@ -9,6 +9,7 @@ camera pose held by the controller (the calibration); never the simulator's grou
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 
 import numpy as np
@@ -60,21 +61,65 @@ def above_the_target(
     if not out.valid or last is None:
         return out
     # The red corners in the base frame once a frame: the top face's plane and its square.
-    corners = camera_points_to_base(last.points_m, controller.t_base_cam)
-    plane = clearance.plane_of_corners(corners, controller.t_base_cam[:3, 3])
+    corners, plane = target_top(last.points_m, controller.t_base_cam)
     rows, bounds = object_bounds(controller, arm, plane, corners)
     twist = out.twist_base_ee
-    if len(bounds) == 0 or float(np.max(bounds - rows @ twist)) <= 0.0:
+    if len(bounds) == 0 or float((bounds - rows @ twist).max()) <= 0.0:
         return out
     least_change = cfg.clearance_correction is ClearanceCorrection.LEAST_FEATURE_CHANGE
     if least_change and out.control_matrix is not None:  # the law's twist: its W, only now
-        w_cam = np.linalg.pinv(out.control_matrix)
+        w_cam = kin.pinv(out.control_matrix)
         w_base = w_cam @ twist_matrix_base_ee_to_cam(controller.t_base_cam, arm.p_ee_base_m)
         twist, _ = least_feature_change(twist, rows, bounds, w_base)
     # What the sweeps left short, or the whole correction of a twist not the law's.
     twist, _ = clearance.lift_then_nearest(twist, rows, bounds, plane.normal)
     twist = clamp_twist(twist, cfg.max_linear_m_s, cfg.max_angular_rad_s)
     return replace(out, twist_base_ee=twist, lifted=True)
+
+
+def target_top(
+    points_cam_m: FloatArray, t_base_cam: FloatArray
+) -> tuple[FloatArray, clearance.Plane]:
+    """The red marker's corners (4×3, camera frame) in the base frame through the camera pose,
+    and their plane (the object's top face's); the last ones made (read-only) when the corners
+    and the pose are the same to the bit: a still target is measured so frame after frame (or
+    remembered)."""
+    arrays = ((points_cam_m, (4, 3)), (t_base_cam, (4, 4)))
+    if all(_plain(a, shape) for a, shape in arrays):
+        return _target_top_of_bytes(points_cam_m.tobytes(), t_base_cam.tobytes())
+    return _target_top_of(points_cam_m, t_base_cam)
+
+
+def _plain(array: FloatArray, shape: tuple[int, ...]) -> bool:
+    """A C-ordered float64 array of ``shape``: one its bytes stand for (:func:`target_top`)."""
+    return (
+        isinstance(array, np.ndarray)
+        and array.dtype == np.float64
+        and array.shape == shape
+        and array.flags.c_contiguous
+    )
+
+
+def _target_top_of(
+    points_cam_m: FloatArray, t_base_cam: FloatArray
+) -> tuple[FloatArray, clearance.Plane]:
+    """:func:`target_top`, made afresh."""
+    corners = camera_points_to_base(points_cam_m, t_base_cam)
+    return corners, clearance.plane_of_corners(corners, t_base_cam[:3, 3])
+
+
+@functools.lru_cache(maxsize=4)
+def _target_top_of_bytes(
+    points_cam_m: bytes, t_base_cam: bytes
+) -> tuple[FloatArray, clearance.Plane]:
+    """:func:`_target_top_of` of C-ordered float64 arrays given as their bytes (4×3, 4×4)."""
+    corners, plane = _target_top_of(
+        np.frombuffer(points_cam_m, dtype=float).reshape(4, 3),
+        np.frombuffer(t_base_cam, dtype=float).reshape(4, 4),
+    )
+    for array in (corners, plane.point_m, plane.normal):
+        array.setflags(write=False)
+    return corners, plane
 
 
 def object_bounds(

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from common.kinematics import cross, skew
+from common.kinematics import cross, norm, skew
 
 FloatArray = NDArray[np.float64]
 
@@ -48,7 +48,7 @@ def twist_matrix_base_ee_to_cam(t_base_cam: FloatArray, p_ee_base_m: FloatArray)
 def clamp_twist(twist: FloatArray, max_linear_m_s: float, max_angular_rad_s: float) -> FloatArray:
     """Scale the whole twist down (direction kept) so both norms respect their limits."""
     scale = 1.0
-    lin, ang = np.linalg.norm(twist[:3]), np.linalg.norm(twist[3:])
+    lin, ang = norm(twist[:3]), norm(twist[3:])
     if lin > max_linear_m_s:
         scale = min(scale, max_linear_m_s / lin)
     if ang > max_angular_rad_s:
