@@ -235,6 +235,7 @@ class IbvsController:
             k,
         )
         memo = self._goal_memo
+        # At zero height the goal is the target itself, pixels and all, which the key leaves out.
         if memo is not None and memo[0] == key and self.approach_height_m != 0.0:
             return memo[1]
         goal = desired_observation(target, self.approach_height_m, k)
