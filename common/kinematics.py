@@ -139,8 +139,8 @@ def rotation_from_quaternion(x: float, y: float, z: float, w: float) -> FloatArr
 def dh_link_transform(row: DHRow, q_rad: float) -> FloatArray:
     """``T(i-1, i) = Rx(alpha) · Tx(a) · Rz(theta) · Tz(d)`` as a 4×4 matrix.
 
-    Written out (each entry is a single product, as the four-matrix product gives it): this
-    runs on every control step, and the product of four 4×4 matrices cost 5× more."""
+    Written out, each entry a single product as the four-matrix product gives it;
+    :func:`frame_transforms` writes the same entries for every link of a table at once."""
     theta = q_rad + row.theta_offset_rad
     ct, st = math.cos(theta), math.sin(theta)
     ca, sa = math.cos(row.alpha_prev_rad), math.sin(row.alpha_prev_rad)
@@ -260,6 +260,8 @@ PINV_RCOND = 1e-15
 def pinv(a: FloatArray) -> FloatArray:
     """``np.linalg.pinv(a)`` of a real 2-D matrix, bit for bit (the same SVD and the same
     operations on it), without its generic per-call overhead: for the per-frame laws."""
+    if a.size == 0:  # no singular values: numpy's answer, an empty matrix the other way round
+        return np.zeros(a.shape[::-1])
     u, s, vt = np.linalg.svd(a.conjugate(), full_matrices=False)
     large = s > PINV_RCOND * np.maximum.reduce(s)
     if large.all():  # full rank: every singular value inverted

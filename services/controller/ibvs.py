@@ -164,7 +164,7 @@ class IbvsController:
     hand_memory: HandMemory = field(default_factory=HandMemory)
     _zero: FloatArray = field(default_factory=lambda: np.zeros(6))
     # The constant strategy's M (read-only) with the frozen matrix and the pairing it is for:
-    # both change only on a new goal or a relabelling, M is not computed afresh every frame.
+    # M is made again only when either has changed (the matrix is replaced, never written).
     _constant_m: tuple[FloatArray, int, FloatArray] | None = field(default=None, repr=False)
     # The last goal made (.goal.desired_observation) and what it was made from: a still target
     # is measured the same to the bit frame after frame (or remembered), its goal with it.

@@ -61,8 +61,10 @@ def occluder_fraction(
 
 @functools.lru_cache(maxsize=32)
 def square_kernel(size_px: int) -> np.ndarray:
-    """A square structuring element of ones, ``size_px`` wide (memoised; not to be written)."""
-    return np.ones((size_px, size_px), np.uint8)
+    """A square structuring element of ones, ``size_px`` wide (memoised, so read-only)."""
+    kernel = np.ones((size_px, size_px), np.uint8)
+    kernel.setflags(write=False)
+    return kernel
 
 
 def occluder_map(depth_m: np.ndarray, surface_m: np.ndarray | float, reach_px: int) -> np.ndarray:

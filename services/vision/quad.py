@@ -264,8 +264,11 @@ def _padded_hulls(point_sets: list[np.ndarray]) -> np.ndarray:
 @functools.lru_cache(maxsize=64)
 def _pair_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Row and column indices of the n·(n-1)/2 entries above the diagonal of an n×n matrix
-    (memoised: pure, and np.triu_indices is slow for its size)."""
-    return np.triu_indices(n, 1)
+    (memoised, so read-only: pure, and np.triu_indices is slow for its size)."""
+    rows, cols = np.triu_indices(n, 1)
+    rows.setflags(write=False)
+    cols.setflags(write=False)
+    return rows, cols
 
 
 def _preimage_centroids(inside: np.ndarray, outside: np.ndarray) -> tuple[FloatArray, ...]:

@@ -171,13 +171,14 @@ def marker_masks(
     cut from it (of an even-sized image, a window's coarse pixels are the whole image's)."""
     windows = [tracking_window(previous.get(name), rgb.shape) for name in MARKERS]
     whole: np.ndarray | None = None  # the whole image's coarse pixels, made when first needed
-    if None in windows and rgb.shape[0] % COARSE_STEP == 0 and rgb.shape[1] % COARSE_STEP == 0:
+    even = rgb.shape[0] % COARSE_STEP == 0 and rgb.shape[1] % COARSE_STEP == 0
+    if None in windows and even:
         whole = coarse_image(rgb, cfg)
     masks = []
     for color, window in zip(MARKERS.values(), windows, strict=True):
         region = None
         if window is not None:
-            if whole is None:
+            if whole is None or not even:  # cv2.resize samples an odd-sized image otherwise
                 coarse = coarse_image(rgb[window], cfg)
             else:
                 rows, cols = window

@@ -88,3 +88,26 @@ def test_quaternion_round_trip_in_every_branch_and_agrees_with_pybullet() -> Non
         assert np.allclose(kin.rotation_from_quaternion(*q), r, atol=1e-12)
         m = np.array(pybullet.getMatrixFromQuaternion(q)).reshape(3, 3)
         assert np.allclose(m, r, atol=1e-12)
+
+
+def test_frame_transforms_is_the_chain_of_link_transforms_to_the_bit() -> None:
+    # frame_transforms writes every link's entries at once; dh_link_transform is the reference.
+    rng = np.random.default_rng(7)
+    tables = [kin.UMAY_DH] + [
+        tuple(kin.DHRow(*rng.uniform(-2.0, 2.0, size=4)) for _ in range(6)) for _ in range(20)
+    ]
+    for dh in tables:
+        q = rng.uniform(-3.0, 3.0, size=6)
+        t = np.eye(4)
+        for row, pose, qi in zip(dh, kin.frame_transforms(q, dh), q, strict=True):
+            t = t @ kin.dh_link_transform(row, float(qi))
+            assert np.array_equal(pose, t)
+
+
+def test_pinv_is_numpys_to_the_bit_whatever_the_rank() -> None:
+    rng = np.random.default_rng(8)
+    for shape, rank in [((6, 6), 6), ((6, 6), 4), ((8, 6), 6), ((1, 6), 1), ((6, 3), 2)]:
+        a = rng.normal(size=(shape[0], rank)) @ rng.normal(size=(rank, shape[1]))
+        assert np.array_equal(kin.pinv(a), np.linalg.pinv(a))
+    for empty in (np.zeros((0, 6)), np.zeros((6, 0))):
+        assert np.array_equal(kin.pinv(empty), np.linalg.pinv(empty))

@@ -485,6 +485,21 @@ def test_the_tracking_window_finds_what_the_whole_image_finds(monkeypatch):
                 np.testing.assert_array_equal(tracked[name].corners_px, reordered)
 
 
+@pytest.mark.parametrize("offset_px", range(4))
+def test_an_odd_sized_image_is_looked_at_in_the_window_as_an_even_one(offset_px):
+    """When the hand has no window the whole image is converted, and the target's window is
+    cut from it only where the image is even-sized: of an odd-sized one cv2.resize samples
+    other pixels, and the window must give what it gives on its own."""
+    rgb = np.full((481, 641, 3), BACKGROUND, np.uint8)
+    top = 302 + offset_px
+    rgb[top : top + 50, top : top + 50] = RED
+    corners = np.array([[top, top], [top + 49, top], [top + 49, top + 49], [top, top + 49]], float)
+    window = tracking_window(corners, rgb.shape)
+    own = segmentation.blob_region(coarse_image(rgb[window], CFG), "red", CFG, rgb.shape, window)
+    regions = [roi for _, roi in marker_masks(rgb, CFG, {"target": corners})]
+    assert own is not None and regions[1] == own
+
+
 @pytest.mark.parametrize(
     "corners_px",
     [
