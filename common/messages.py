@@ -336,6 +336,12 @@ class EndEffectorTwist(Message):
         "forearm off the object (controller.keep_above_target, keep_forearm_off_object): the "
         "law asked to take the arm further towards it",
     )
+    goal_px: Corners2 | None = Field(
+        None,
+        description="s* as the law used it this step, paired with the hand's corners: row i is "
+        "where hand corner i is driven (px; from memory while the hand hides the target); "
+        "None when the twist is not the law's",
+    )
 
     @property
     def servoing(self) -> bool:

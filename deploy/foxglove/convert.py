@@ -40,6 +40,7 @@ from foxglove.messages import FrameTransforms, JointState, JointStates, Log, Log
 from common import keys
 from common.config import Scenario
 from common.keys import SERVICES
+from common.kinematics import FloatArray
 from common.messages import (
     DepthFrame,
     EndEffectorTwist,
@@ -55,9 +56,7 @@ from deploy.foxglove.image import (
     calibration,
     compressed_image,
     depth_image,
-    desired_corners_px,
     image_annotations,
-    paired_error_px,
 )
 from deploy.foxglove.scene import measured_markers, static_scene, truth_scene
 from deploy.foxglove.topics import (
@@ -83,6 +82,9 @@ TRAIL_MAX_POINTS = 3000  # the hand-marker centre's trail (the thesis's white do
 TRAIL_MIN_STEP_PX = 1.0  # a dot is added once the centre has moved this far from the last
 STATIC_PERIOD_S = 1.0  # the fixed scene is sent again this often (sim s), for late clients
 RESTART_BACK_S = 1.0  # simulated time going back by more than this: a new run began
+# The overlay draws the controller's goal of a twist at most this many frames older than the
+# features it is drawn on: an older one belongs to a controller that has gone silent.
+GOAL_MAX_AGE_FRAMES = 3
 
 
 @dataclass(frozen=True)
@@ -164,6 +166,7 @@ class ViewState:
     trail_px: list[tuple[float, float]] = field(default_factory=list)
     last_error_px_rms: float | None = None
     last_phase: tuple[str, str] | None = None
+    goal: tuple[int, FloatArray] | None = None  # the newest twist's frame and s* (desired_px)
     static_sent_s: float | None = None
     sim_time_s: float = 0.0
     runs: RunWatch = field(default_factory=RunWatch)  # the sim's runs seen, kept across runs
@@ -173,10 +176,14 @@ class ViewState:
         """The sim's run in progress (Header.run; 0: none stamped seen)."""
         return self.runs.current or 0
 
-    @property
-    def oriented(self) -> bool:
-        """Corners paired i with i, as the controller does with ``marker.orientation_cue``."""
-        return self.scenario.marker.orientation_cue
+    def desired_px(self, frame_seq: int) -> FloatArray | None:
+        """The controller's s* for camera frame ``frame_seq`` (4×2 px, row i where hand corner
+        i is driven): the newest twist's, unless it is older than :data:`GOAL_MAX_AGE_FRAMES`
+        frames (the controller silent). A frame's features come before its twist, so the
+        overlay on frame k shows the goal of frame k − 1: the same while the target is still."""
+        if self.goal is None or not 0 <= frame_seq - self.goal[0] <= GOAL_MAX_AGE_FRAMES:
+            return None
+        return self.goal[1]
 
     def continued(self, message: Any) -> ViewState | None:
         """This state, a fresh one when ``message`` begins a new run, or None when it is left
@@ -257,7 +264,7 @@ class ViewState:
             if last is None or math.hypot(u - last[0], v - last[1]) >= TRAIL_MIN_STEP_PX:
                 self.trail_px.append((float(u), float(v)))
             del self.trail_px[: max(0, len(self.trail_px) - self.trail_max)]
-        desired = desired_corners_px(features, self.scenario.target.approach_height_m)
+        desired = self.desired_px(features.header.frame_seq)
         error: dict[str, Any] = {
             "sim_time_s": t,
             "frame_seq": features.header.frame_seq,
@@ -268,11 +275,11 @@ class ViewState:
         }
         rms = None
         if desired is not None and hand.usable:
-            e = paired_error_px(np.asarray(hand.corners_px, dtype=float), desired, self.oriented)
+            e = np.asarray(hand.corners_px, dtype=float) - desired  # rows paired by the controller
             rms = float(np.sqrt(np.mean(e**2)))
             error.update(error_px=e.reshape(-1).tolist(), error_px_rms=rms)
         self.last_error_px_rms = rms
-        ann = image_annotations(features, desired, self.trail_px, rms, self.oriented)
+        ann = image_annotations(features, desired, self.trail_px, rms)
         return [
             Out(ANNOTATIONS, ann, ns),
             Out(FEATURE_ERROR, error, ns),
@@ -282,6 +289,8 @@ class ViewState:
     def on_twist(self, twist: EndEffectorTwist) -> list[Out]:
         t = twist.header.sim_time_s
         self._advance(t)
+        goal = None if twist.goal_px is None else np.array(twist.goal_px, dtype=float)
+        self.goal = None if goal is None else (twist.header.frame_seq, goal)
         ns = time_ns(t)
         phase = phase_of(twist)
         out = [

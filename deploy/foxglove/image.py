@@ -20,13 +20,10 @@ from foxglove.messages import (
 )
 
 from common.camera import CameraIntrinsics
-from common.marker import Marker
 from common.messages import DepthFrame, Features, MarkerFeatures, RgbFrame
 from deploy.foxglove.style import CYAN, GREEN, ORANGE, RED, WHITE, YELLOW, color
 from deploy.foxglove.topics import CAMERA
 from deploy.foxglove.transforms import stamp
-from services.controller.goal import desired_observation
-from services.controller.pairing import choose_pairing, pairing_costs_px2
 
 FloatArray = np.ndarray
 
@@ -74,28 +71,6 @@ def calibration(k: CameraIntrinsics, t_s: float) -> CameraCalibration:
     )
 
 
-def desired_corners_px(features: Features, approach_height_m: float) -> FloatArray | None:
-    """s*: the controller's desired corners for this frame (the target's measured corners
-    raised by the approach height, :func:`services.controller.goal.desired_observation`), or
-    None while the target is not usable."""
-    if not features.target.usable:
-        return None
-    target = desired_observation(
-        Marker.from_wire(features.target), approach_height_m, features.intrinsics
-    )
-    return np.asarray(target.corners_px, dtype=float)
-
-
-def paired_error_px(
-    hand_px: FloatArray, desired_px: FloatArray, oriented: bool = False
-) -> FloatArray:
-    """e = s - s* (4×2) with the hand's corners paired to the desired ones as the controller
-    pairs them: the cyclic pairing of least cost, or corner i with corner i when the markers
-    are ``oriented`` (``marker.orientation_cue``)."""
-    k = 0 if oriented else choose_pairing(pairing_costs_px2(hand_px, desired_px), None)
-    return hand_px - np.roll(desired_px, -k, axis=0)
-
-
 def _points(
     kind: PointsAnnotationType,
     pts: FloatArray,
@@ -129,10 +104,10 @@ def image_annotations(
     desired_px: FloatArray | None,
     trail_px: list[tuple[float, float]],
     error_px_rms: float | None,
-    oriented: bool = False,
 ) -> ImageAnnotations:
     """Fig. 5.10-5.16's overlay: the hand's square (green), the target's (red), both orange
-    when only partly seen, the desired corners s* (yellow), the error vectors s → s* (cyan),
+    when only partly seen, the controller's desired corners s* (yellow; ``desired_px`` row i
+    is where hand corner i is driven), the error vectors s → s* (cyan),
     the hand-marker centre's trail (white dots) and the states and pixel error as text.
     Each points annotation names itself in its metadata (``name``: hand, target, desired,
     error, trail)."""
@@ -159,8 +134,7 @@ def image_annotations(
         points.append(_points(loop, desired_px, YELLOW, t, "desired", 1.5))
         if features.hand.usable:
             hand = np.asarray(features.hand.corners_px, dtype=float)
-            err = paired_error_px(hand, desired_px, oriented)
-            segments = np.stack([hand, hand - err], axis=1).reshape(-1, 2)
+            segments = np.stack([hand, desired_px], axis=1).reshape(-1, 2)
             points.append(_points(PointsAnnotationType.LineList, segments, CYAN, t, "error", 1.5))
     if trail_px:
         points.append(

@@ -80,6 +80,8 @@ class ControlOutput:
     # correction is needed). None when the twist is not the law's.
     control_matrix: FloatArray | None = None
     hand_predicted: bool = False  # servoed on the hand carried by the encoders (.hand)
+    # s* of the law (4×2 px), paired: row i is where hand corner i is driven. None: no law.
+    goal_px: FloatArray | None = None
 
     @property
     def status(self) -> str:
@@ -432,7 +434,7 @@ class IbvsController:
                 return started
         return ControlOutput(
             twist, True, err_px, converged, remembered,
-            control_matrix=m, hand_predicted=hand_predicted,
+            control_matrix=m, hand_predicted=hand_predicted, goal_px=target.corners_px,
         )  # fmt: skip
 
     def _start_acquisition(

@@ -18,7 +18,7 @@ from common import kinematics as kin
 from common.config import ClearanceCorrection
 from common.kinematics import FloatArray
 from common.marker import Marker
-from common.messages import EndEffectorTwist, Features, Header
+from common.messages import PIXEL_LIMIT_PX, EndEffectorTwist, Features, Header
 from services.controller import clearance, forearm
 from services.controller.arm import ArmReading
 from services.controller.constrained import least_feature_change
@@ -168,4 +168,16 @@ def twist_message(out: ControlOutput, header: Header, mode: str) -> EndEffectorT
         error_px_rms=out.error_px_rms,
         converged=out.converged,
         lifted=out.lifted,
+        goal_px=wire_corners(out.goal_px),
     )
+
+
+def wire_corners(corners_px: FloatArray | None) -> list[list[float]] | None:
+    """Corners as the wire carries them; None for none, or for corners the wire cannot carry
+    (a remembered goal carried far out of the image: only the view reads them)."""
+    if corners_px is None:
+        return None
+    corners = np.asarray(corners_px, dtype=float)
+    if not np.all(np.abs(corners) <= PIXEL_LIMIT_PX):  # NaN too
+        return None
+    return corners.tolist()

@@ -118,45 +118,88 @@ def test_transforms_compose_to_forward_kinematics(scenario: Scenario) -> None:
     assert topics.SCENE in outs and topics.CALIBRATION in outs
 
 
-def test_annotations_carry_vision_corners_desired_corners_and_the_trail(scenario: Scenario) -> None:
+def goal_twist(t_s: float, seq: int, goal_px: np.ndarray | None) -> EndEffectorTwist:
+    """A twist of the law for frame ``seq`` whose s* is ``goal_px`` (None: a hold)."""
+    return EndEffectorTwist(
+        header=header(t_s, seq), linear_m_s=[0.01, 0.0, 0.0], angular_rad_s=[0.0] * 3,
+        valid=goal_px is not None, hold_reason="" if goal_px is not None else "target lost",
+        mode="dynamic", error_px_rms=1.0, converged=False,
+        goal_px=None if goal_px is None else goal_px.tolist(),
+    )  # fmt: skip
+
+
+def controller_goal(f: Features, scenario: Scenario, shift: int = 1) -> np.ndarray:
+    """The desired corners above ``f``'s target, relabelled by ``shift`` as the controller may
+    pair them (row i: where hand corner i goes)."""
+    target = Marker.from_wire(f.target)
+    desired = desired_observation(target, scenario.target.approach_height_m, f.intrinsics)
+    return np.roll(desired.corners_px, -shift, axis=0)
+
+
+def test_annotations_carry_vision_corners_the_controllers_goal_and_the_trail(
+    scenario: Scenario,
+) -> None:
     state = convert.ViewState(scenario, trail_max=3)
     for i in range(5):
-        outs = {o.topic: o for o in state.on_features(features(scenario, 0.1 * i, 0.01 * i, i))}
-    f = features(scenario, 0.4, 0.04, 4)
+        f = features(scenario, 0.1 * i, 0.01 * i, i)
+        outs = {o.topic: o for o in state.on_features(f)}
+        goal = controller_goal(f, scenario)
+        state.on_twist(goal_twist(0.1 * i, i, goal))  # after the features, as they come
     ann = decoded(outs[topics.ANNOTATIONS].message)
     by_name = {dict((kv.key, kv.value) for kv in p.metadata)["name"]: p for p in ann.points}
     assert set(by_name) == {"hand", "target", "desired", "error", "trail"}
     for name, m in (("hand", f.hand), ("target", f.target)):
         got = np.array([[p.x, p.y] for p in by_name[name].points])
         assert np.array_equal(got, np.array(m.corners_px))
-    desired = desired_observation(
-        Marker.from_wire(f.target), scenario.target.approach_height_m, f.intrinsics
-    ).corners_px
+    # s* is the last twist's (frame 3's): the target is still, so frame 4's is the same.
+    desired = controller_goal(features(scenario, 0.3, 0.03, 3), scenario)
     got = np.array([[p.x, p.y] for p in by_name["desired"].points])
-    assert np.allclose(got, desired, atol=1e-9)
+    assert np.array_equal(got, desired)
+    # Each error vector runs from hand corner i to the goal's row i: the controller's pairing.
+    segments = np.array([[p.x, p.y] for p in by_name["error"].points]).reshape(4, 2, 2)
+    assert np.array_equal(segments[:, 0], np.array(f.hand.corners_px))
+    assert np.array_equal(segments[:, 1], desired)
     assert len(by_name["trail"].points) == 3  # capped
     trail_last = by_name["trail"].points[-1]
     assert [trail_last.x, trail_last.y] == pytest.approx(np.mean(f.hand.corners_px, axis=0))
     err = outs[topics.FEATURE_ERROR].message
     json.dumps(err)  # a JSON topic
     e = np.array(err["error_px"]).reshape(4, 2)
-    # The controller's own RMS error on the same pairing.
     hand = np.array(f.hand.corners_px)
-    assert err["error_px_rms"] == pytest.approx(feature_error_px_rms(hand, hand - e))
-    assert err["error_px_rms"] == pytest.approx(float(np.sqrt(np.mean(e**2))))
+    np.testing.assert_array_equal(e, hand - desired)
+    assert err["error_px_rms"] == pytest.approx(feature_error_px_rms(hand, desired))
     texts = [t.text for t in ann.texts]
     assert texts[0] == "hand: visible" and texts[2].startswith("e: ")
 
 
-def test_a_lost_marker_is_not_drawn_and_gives_no_error(scenario: Scenario) -> None:
-    f = features(scenario, 0.0)
-    lost = f.target.model_copy(update={"state": "lost"})
-    f = f.model_copy(update={"target": lost})
-    outs = {o.topic: o for o in convert.ViewState(scenario).on_features(f)}
-    ann = decoded(outs[topics.ANNOTATIONS].message)
-    names = {dict((kv.key, kv.value) for kv in p.metadata)["name"] for p in ann.points}
-    assert names == {"hand", "trail"}
-    assert outs[topics.FEATURE_ERROR].message["error_px_rms"] is None
+def test_a_hidden_target_keeps_the_controllers_goal_and_error_on_the_overlay(
+    scenario: Scenario,
+) -> None:
+    """While the hand hides the target the controller servos on its memory of it: the overlay
+    shows that goal and the error to it, with the target itself not drawn. Without a twist (or
+    one over GOAL_MAX_AGE_FRAMES frames old, or a hold) there is no goal to show."""
+    seen = features(scenario, 0.0)
+    lost = seen.model_copy(update={"target": seen.target.model_copy(update={"state": "lost"})})
+    goal = controller_goal(seen, scenario)
+
+    def names_and_rms(state: convert.ViewState, f: Features) -> tuple[set[str], float | None]:
+        outs = {o.topic: o for o in state.on_features(f)}
+        ann = decoded(outs[topics.ANNOTATIONS].message)
+        names = {dict((kv.key, kv.value) for kv in p.metadata)["name"] for p in ann.points}
+        return names, outs[topics.FEATURE_ERROR].message["error_px_rms"]
+
+    state = convert.ViewState(scenario)
+    assert names_and_rms(state, lost) == ({"hand", "trail"}, None)  # no twist yet
+    state.on_twist(goal_twist(0.0, 0, goal))
+    names, rms = names_and_rms(state, lost)
+    assert names == {"hand", "desired", "error", "trail"} and rms is not None
+    stale = lost.model_copy(update={"header": header(1.0, convert.GOAL_MAX_AGE_FRAMES + 1)})
+    assert names_and_rms(state, stale)[1] is None
+    state.on_twist(goal_twist(0.1, 1, None))  # a hold: no goal
+    assert names_and_rms(state, lost) == ({"hand", "trail"}, None)
+    no_hand = seen.model_copy(update={"hand": seen.hand.model_copy(update={"state": "lost"})})
+    state.on_twist(goal_twist(0.2, 2, goal))
+    assert names_and_rms(state, no_hand)[1] is None
 
 
 def test_images(scenario: Scenario) -> None:
@@ -290,14 +333,3 @@ def test_every_view_topic_has_a_channel_and_the_layout_is_up_to_date() -> None:
     # The layout names only topics the view has (and some: it is not empty).
     named = set(re.findall(r'"(/[a-z_]+(?:/[a-z_]+)*)[".]', path.read_text()))
     assert named and named <= set(TOPICS), named - set(TOPICS)
-
-
-def test_the_error_pairs_corners_as_the_controller_does_with_and_without_the_cue() -> None:
-    """A hand square half a turn from its goal: a plain square pairs by least turn (no error),
-    an oriented one pairs corner i with corner i (the whole half turn shows)."""
-    from deploy.foxglove.image import paired_error_px
-
-    desired = np.array([[100.0, 100.0], [140.0, 100.0], [140.0, 140.0], [100.0, 140.0]])
-    hand = np.roll(desired, 2, axis=0)  # the same square, labels half a turn on
-    np.testing.assert_allclose(paired_error_px(hand, desired), 0.0)
-    np.testing.assert_allclose(paired_error_px(hand, desired, oriented=True), hand - desired)

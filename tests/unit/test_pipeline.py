@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -279,3 +280,27 @@ def test_a_twist_clamp_the_wire_cannot_carry_is_refused_by_name(field, too_large
     with pytest.raises(ScenarioError, match=rf"controller\.{field}: Input should be less than"):
         short(None, f"controller.{field}={too_large}")
     assert getattr(short(None, f"controller.{field}={largest}").controller, field) == largest
+
+
+def test_the_twist_carries_the_laws_goal_paired_with_the_hands_corners() -> None:
+    """Each twist of the law carries s* in the hand's corner order: its error to the hand's
+    corners is the twist's own error_px_rms, also while the hand hides the target (servoed on
+    memory). A goal the wire cannot carry is left out, not a reason to fail the twist."""
+    from services.controller.step import twist_message
+
+    scenario = load_scenario(None, parse_overrides(["camera.width_px=320", "camera.height_px=240"]))
+    hidden = 0
+    with Pipeline(scenario, truth=False) as pipeline:
+        for _ in range(60):
+            r = pipeline.step()
+            if not r.twist.servoing:
+                assert r.twist.goal_px is None
+                continue
+            hand = np.array(r.features.hand.corners_px)
+            if r.features.hand.usable:
+                e = hand - np.array(r.twist.goal_px)
+                assert float(np.sqrt(np.mean(e**2))) == pytest.approx(r.twist.error_px_rms)
+            hidden += not r.features.target.usable
+        far = r.control.goal_px * 1e6  # a remembered goal carried far out of the image
+        out = twist_message(replace(r.control, goal_px=far), r.twist.header, "dynamic")
+    assert hidden > 0 and out.goal_px is None
