@@ -82,9 +82,9 @@ TRAIL_MAX_POINTS = 3000  # the hand-marker centre's trail (the thesis's white do
 TRAIL_MIN_STEP_PX = 1.0  # a dot is added once the centre has moved this far from the last
 STATIC_PERIOD_S = 1.0  # the fixed scene is sent again this often (sim s), for late clients
 RESTART_BACK_S = 1.0  # simulated time going back by more than this: a new run began
-# The overlay draws the controller's goal of a twist at most this many frames older than the
-# features it is drawn on: an older one belongs to a controller that has gone silent.
-GOAL_MAX_AGE_FRAMES = 3
+# The overlay draws the controller's goal of a twist at most this far (simulated s) from the
+# features it is drawn on: one further off belongs to a controller that has gone silent.
+GOAL_MAX_AGE_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -166,7 +166,7 @@ class ViewState:
     trail_px: list[tuple[float, float]] = field(default_factory=list)
     last_error_px_rms: float | None = None
     last_phase: tuple[str, str] | None = None
-    goal: tuple[int, FloatArray] | None = None  # the newest twist's frame and s* (desired_px)
+    goal: tuple[float, FloatArray] | None = None  # the newest twist's sim time and s* (desired_px)
     static_sent_s: float | None = None
     sim_time_s: float = 0.0
     runs: RunWatch = field(default_factory=RunWatch)  # the sim's runs seen, kept across runs
@@ -176,12 +176,14 @@ class ViewState:
         """The sim's run in progress (Header.run; 0: none stamped seen)."""
         return self.runs.current or 0
 
-    def desired_px(self, frame_seq: int) -> FloatArray | None:
-        """The controller's s* for camera frame ``frame_seq`` (4×2 px, row i where hand corner
-        i is driven): the newest twist's, unless it is older than :data:`GOAL_MAX_AGE_FRAMES`
-        frames (the controller silent). A frame's features come before its twist, so the
-        overlay on frame k shows the goal of frame k − 1: the same while the target is still."""
-        if self.goal is None or not 0 <= frame_seq - self.goal[0] <= GOAL_MAX_AGE_FRAMES:
+    def desired_px(self, sim_time_s: float) -> FloatArray | None:
+        """The controller's s* for the camera frame taken at ``sim_time_s`` (4×2 px, row i where
+        hand corner i is driven): the newest twist's, unless it is more than
+        :data:`GOAL_MAX_AGE_S` away (the controller silent). A frame's features come before its
+        twist, so the overlay on a frame may show the goal of a frame or a few before (the
+        live view shows some frames only): the same while the target is still, and for a
+        frame after vision labelled a marker afresh, in the old corner order."""
+        if self.goal is None or abs(sim_time_s - self.goal[0]) > GOAL_MAX_AGE_S:
             return None
         return self.goal[1]
 
@@ -264,7 +266,7 @@ class ViewState:
             if last is None or math.hypot(u - last[0], v - last[1]) >= TRAIL_MIN_STEP_PX:
                 self.trail_px.append((float(u), float(v)))
             del self.trail_px[: max(0, len(self.trail_px) - self.trail_max)]
-        desired = self.desired_px(features.header.frame_seq)
+        desired = self.desired_px(features.header.sim_time_s)
         error: dict[str, Any] = {
             "sim_time_s": t,
             "frame_seq": features.header.frame_seq,
@@ -286,11 +288,17 @@ class ViewState:
             Out(SCENE, measured_markers(features), ns),
         ]
 
+    def note_goal(self, twist: EndEffectorTwist) -> None:
+        """Keep ``twist``'s goal for the overlay (:meth:`desired_px`). The live view calls it on
+        every twist, also those its rate limit does not show: a lockstep run's frames come
+        faster than the limit, and the goal of a twist left out would be frames old."""
+        goal = None if twist.goal_px is None else np.array(twist.goal_px, dtype=float)
+        self.goal = None if goal is None else (twist.header.sim_time_s, goal)
+
     def on_twist(self, twist: EndEffectorTwist) -> list[Out]:
         t = twist.header.sim_time_s
         self._advance(t)
-        goal = None if twist.goal_px is None else np.array(twist.goal_px, dtype=float)
-        self.goal = None if goal is None else (twist.header.frame_seq, goal)
+        self.note_goal(twist)
         ns = time_ns(t)
         phase = phase_of(twist)
         out = [

@@ -214,6 +214,8 @@ class ViewNode:
         if state is not self.state:
             log.info("a new run of the sim (at %.2f s simulated)", message.header.sim_time_s)
             self.state = state
+        if suffix == TWIST:
+            self.state.note_goal(message)  # the overlay's goal, whether or not it is shown
         if suffix == TWIST and not (
             self.state.phase_changes(message) or self._gates[TWIST].admit(time.monotonic())
         ):
@@ -260,7 +262,10 @@ class ViewNode:
                 with self._cond:
                     if not self._latest and not self._phase_twists:
                         self._cond.wait(0.1)
-                    batch = [(TWIST, t) for t in self._phase_twists] + list(self._latest.items())
+                    # Twists first: the overlay of a frame drawn in this batch then has the goal
+                    # of the newest twist heard, its own frame's when that has come.
+                    latest = sorted(self._latest.items(), key=lambda item: item[0] != TWIST)
+                    batch = [(TWIST, t) for t in self._phase_twists] + latest
                     self._phase_twists, self._latest = [], {}
                 for suffix, message in batch:
                     self.on_event(suffix, message)

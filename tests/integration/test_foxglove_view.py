@@ -87,8 +87,11 @@ def stamp_ns(ts) -> int:
 def check_content(decoded: dict[str, list[tuple[int, object]]], sent: Sent) -> dict[str, int]:
     """Every decoded message of a view against the services' messages at its simulation time:
     corners within CORNER_TOL_PX, the end effector within EE_TOL_M of forward kinematics, the
-    image 640×480, the plots' values; how many of each were compared."""
-    checked = {"annotations": 0, "tf": 0, "image": 0, "twist": 0, "depth": 0}
+    image 640×480, the plots' values, the overlay's s* a goal of the twists near its time;
+    how many of each were compared."""
+    checked = {"annotations": 0, "tf": 0, "image": 0, "twist": 0, "depth": 0, "goal": 0}
+    twist_times = sorted(sent.twists)
+    near_ns = 200_000_000  # the twists whose goal the overlay of a frame may show
     for log_ns, ann in decoded[topics.ANNOTATIONS]:
         f = sent.features.get(log_ns)
         if f is None:
@@ -100,6 +103,13 @@ def check_content(decoded: dict[str, list[tuple[int, object]]], sent: Sent) -> d
         if f.target.usable:
             target = annotated(ann, "target")
             assert np.abs(target - np.array(f.target.corners_px)).max() < CORNER_TOL_PX
+        near = [sent.twists[t] for t in twist_times if abs(t - log_ns) <= near_ns]
+        goals = [np.array(t.goal_px) for t in near if t.goal_px is not None]
+        earlier = any(t < log_ns for t in twist_times if abs(t - log_ns) <= near_ns)
+        if earlier and goals and len(goals) == len(near):  # servoing all the while
+            desired = annotated(ann, "desired")  # shown however many twists the view showed
+            assert min(np.abs(desired - g).max() for g in goals) < CORNER_TOL_PX
+            checked["goal"] += 1
         checked["annotations"] += 1
     for log_ns, tf in decoded[topics.TRANSFORMS]:
         js = sent.joints.get(log_ns)
@@ -206,6 +216,7 @@ def test_live_view_shows_the_run(live) -> None:
     time.sleep(0.5)  # the Zenoh listener may be a message behind the view
     checked = check_content(collect(client), sent)
     assert checked["annotations"] >= 10 and checked["tf"] >= 10 and checked["twist"] >= 10
+    assert checked["goal"] >= 10  # a lockstep run's twists come faster than the view shows
     assert checked["image"] >= 3 and checked["depth"] >= 1
     logs = [decoder(advertised[topics.LOG])(r.payload) for r in client.messages(topics.LOG)]
     assert {lg.name for lg in logs} >= {"sim", "vision", "controller", "actuation"}
@@ -310,6 +321,7 @@ def test_export_writes_the_view_channels_from_a_recording(tmp_path: Path) -> Non
     }
     checked = check_content(decoded, sent)
     assert checked["annotations"] >= 20 and checked["tf"] >= 20 and checked["twist"] >= 20
+    assert checked["goal"] >= 20
     # Every frame exported (no rate limit), log times = simulation time.
     times = {topic: {t for t, _ in decoded[topic]} for topic in decoded}
     assert times[topics.ANNOTATIONS] == set(sent.features)

@@ -177,7 +177,7 @@ def test_a_hidden_target_keeps_the_controllers_goal_and_error_on_the_overlay(
 ) -> None:
     """While the hand hides the target the controller servos on its memory of it: the overlay
     shows that goal and the error to it, with the target itself not drawn. Without a twist (or
-    one over GOAL_MAX_AGE_FRAMES frames old, or a hold) there is no goal to show."""
+    one over GOAL_MAX_AGE_S away, or a hold) there is no goal to show."""
     seen = features(scenario, 0.0)
     lost = seen.model_copy(update={"target": seen.target.model_copy(update={"state": "lost"})})
     goal = controller_goal(seen, scenario)
@@ -193,7 +193,7 @@ def test_a_hidden_target_keeps_the_controllers_goal_and_error_on_the_overlay(
     state.on_twist(goal_twist(0.0, 0, goal))
     names, rms = names_and_rms(state, lost)
     assert names == {"hand", "desired", "error", "trail"} and rms is not None
-    stale = lost.model_copy(update={"header": header(1.0, convert.GOAL_MAX_AGE_FRAMES + 1)})
+    stale = lost.model_copy(update={"header": header(convert.GOAL_MAX_AGE_S + 0.01, 9)})
     assert names_and_rms(state, stale)[1] is None
     state.on_twist(goal_twist(0.1, 1, None))  # a hold: no goal
     assert names_and_rms(state, lost) == ({"hand", "trail"}, None)

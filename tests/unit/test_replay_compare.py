@@ -110,6 +110,36 @@ def test_a_field_a_recording_predates_reads_as_its_default() -> None:
         assert without.other_diffs == {"lifted": 1, "header.run": 1}  # absent vs the default
 
 
+def test_an_output_a_recording_predates_is_named_and_not_compared() -> None:
+    """A twist recorded before the controller published its goal (``goal_px``, default None)
+    matches a replayed one that carries a goal: the recording cannot say what it would have
+    been, and the report says it was left out. A goal recorded is compared as any field."""
+    header = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
+    goal = [[10.0, 20.0], [30.0, 20.0], [30.0, 40.0], [10.0, 40.0]]
+    twist = EndEffectorTwist(
+        header=header, linear_m_s=[0.0] * 3, angular_rad_s=[0.0] * 3, valid=True,
+        mode="dynamic", error_px_rms=1.0, converged=False, goal_px=goal,
+    )  # fmt: skip
+    old = twist.model_dump()
+    del old["goal_px"]
+
+    def check(recorded: dict) -> ReplayReport:
+        report = ReplayReport(
+            recording="r.mcap", service="controller", speed="max", prefix="p", log_path="l",
+            inputs_published=2, frames=1, outputs=1, no_answer=0, skipped_inputs=0,
+            wall_time_s=0.1, check=True, tolerance=0.0, ok=True,
+        )  # fmt: skip
+        defaults = field_defaults(EndEffectorTwist)
+        check_outputs(report, {0: msgpack.packb(recorded)}, {0: encode(twist)}, defaults)
+        return report
+
+    report = check(old)
+    assert report.ok and report.matched == 1, report
+    assert report.notes == ["not compared, the recording predates them: goal_px"]
+    moved = twist.model_dump() | {"goal_px": [[11.0, 20.0], *goal[1:]]}
+    assert not check(moved).ok  # a recorded goal is checked
+
+
 class Topics:
     """A recording as source_prefix sees it: its path and its topics."""
 
