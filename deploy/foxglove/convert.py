@@ -82,8 +82,9 @@ TRAIL_MAX_POINTS = 3000  # the hand-marker centre's trail (the thesis's white do
 TRAIL_MIN_STEP_PX = 1.0  # a dot is added once the centre has moved this far from the last
 STATIC_PERIOD_S = 1.0  # the fixed scene is sent again this often (sim s), for late clients
 RESTART_BACK_S = 1.0  # simulated time going back by more than this: a new run began
-# The overlay draws the controller's goal of a twist at most this far (simulated s) from the
-# features it is drawn on: one further off belongs to a controller that has gone silent.
+# The overlay draws the controller's goal of a twist at most this much (simulated s) older than
+# the features it is drawn on: an older one belongs to a controller that has gone silent. A
+# newer one is drawn: a view that lags shows a frame after the controller has answered later ones.
 GOAL_MAX_AGE_S = 0.5
 
 
@@ -179,11 +180,11 @@ class ViewState:
     def desired_px(self, sim_time_s: float) -> FloatArray | None:
         """The controller's s* for the camera frame taken at ``sim_time_s`` (4×2 px, row i where
         hand corner i is driven): the newest twist's, unless it is more than
-        :data:`GOAL_MAX_AGE_S` away (the controller silent). A frame's features come before its
+        :data:`GOAL_MAX_AGE_S` older (the controller silent). A frame's features come before its
         twist, so the overlay on a frame may show the goal of a frame or a few before (the
         live view shows some frames only): the same while the target is still, and for a
         frame after vision labelled a marker afresh, in the old corner order."""
-        if self.goal is None or abs(sim_time_s - self.goal[0]) > GOAL_MAX_AGE_S:
+        if self.goal is None or sim_time_s - self.goal[0] > GOAL_MAX_AGE_S:
             return None
         return self.goal[1]
 

@@ -22,7 +22,7 @@ from common import kinematics as kin
 from common.codec import DEFAULT_MAX_BYTES, decode
 from common.messages import EndEffectorTwist, Features, JointState
 from common.session import free_tcp_endpoint, open_session
-from deploy.foxglove import topics
+from deploy.foxglove import convert, topics
 from deploy.foxglove.client import FoxgloveClient, decoder, protobuf_class
 from deploy.foxglove.transforms import rotation_from_quaternion, time_ns
 from deploy.recording.channels import split_data_key
@@ -73,6 +73,11 @@ def pose_of(transforms, child: str) -> np.ndarray:
     return pose
 
 
+def names(ann) -> set[str]:
+    """The names of an overlay's points annotations."""
+    return {dict((kv.key, kv.value) for kv in p.metadata).get("name") for p in ann.points}
+
+
 def annotated(ann, name: str) -> np.ndarray:
     for p in ann.points:
         if dict((kv.key, kv.value) for kv in p.metadata).get("name") == name:
@@ -87,11 +92,11 @@ def stamp_ns(ts) -> int:
 def check_content(decoded: dict[str, list[tuple[int, object]]], sent: Sent) -> dict[str, int]:
     """Every decoded message of a view against the services' messages at its simulation time:
     corners within CORNER_TOL_PX, the end effector within EE_TOL_M of forward kinematics, the
-    image 640×480, the plots' values, the overlay's s* a goal of the twists near its time;
+    image 640×480, the plots' values, the overlay's s* a goal of a twist near its time;
     how many of each were compared."""
     checked = {"annotations": 0, "tf": 0, "image": 0, "twist": 0, "depth": 0, "goal": 0}
     twist_times = sorted(sent.twists)
-    near_ns = 200_000_000  # the twists whose goal the overlay of a frame may show
+    max_age_ns = time_ns(convert.GOAL_MAX_AGE_S)  # the goals the overlay of a frame may show
     for log_ns, ann in decoded[topics.ANNOTATIONS]:
         f = sent.features.get(log_ns)
         if f is None:
@@ -103,11 +108,12 @@ def check_content(decoded: dict[str, list[tuple[int, object]]], sent: Sent) -> d
         if f.target.usable:
             target = annotated(ann, "target")
             assert np.abs(target - np.array(f.target.corners_px)).max() < CORNER_TOL_PX
-        near = [sent.twists[t] for t in twist_times if abs(t - log_ns) <= near_ns]
-        goals = [np.array(t.goal_px) for t in near if t.goal_px is not None]
-        earlier = any(t < log_ns for t in twist_times if abs(t - log_ns) <= near_ns)
-        if earlier and goals and len(goals) == len(near):  # servoing all the while
-            desired = annotated(ann, "desired")  # shown however many twists the view showed
+        # s* drawn is a twist's goal from GOAL_MAX_AGE_S before the frame on (a view that lags
+        # may draw a newer one); the callers ask for enough frames drawn with one.
+        if "desired" in names(ann):
+            near = [sent.twists[t] for t in twist_times if t >= log_ns - max_age_ns]
+            goals = [np.array(t.goal_px) for t in near if t.goal_px is not None]
+            desired = annotated(ann, "desired")
             assert min(np.abs(desired - g).max() for g in goals) < CORNER_TOL_PX
             checked["goal"] += 1
         checked["annotations"] += 1
@@ -216,7 +222,8 @@ def test_live_view_shows_the_run(live) -> None:
     time.sleep(0.5)  # the Zenoh listener may be a message behind the view
     checked = check_content(collect(client), sent)
     assert checked["annotations"] >= 10 and checked["tf"] >= 10 and checked["twist"] >= 10
-    assert checked["goal"] >= 10  # a lockstep run's twists come faster than the view shows
+    # The goal drawn on most frames, though a lockstep run's twists come faster than it shows.
+    assert checked["goal"] >= 0.5 * checked["annotations"], checked
     assert checked["image"] >= 3 and checked["depth"] >= 1
     logs = [decoder(advertised[topics.LOG])(r.payload) for r in client.messages(topics.LOG)]
     assert {lg.name for lg in logs} >= {"sim", "vision", "controller", "actuation"}
@@ -321,7 +328,7 @@ def test_export_writes_the_view_channels_from_a_recording(tmp_path: Path) -> Non
     }
     checked = check_content(decoded, sent)
     assert checked["annotations"] >= 20 and checked["tf"] >= 20 and checked["twist"] >= 20
-    assert checked["goal"] >= 20
+    assert checked["goal"] >= checked["annotations"] - 1  # all but the first, before a twist
     # Every frame exported (no rate limit), log times = simulation time.
     times = {topic: {t for t, _ in decoded[topic]} for topic in decoded}
     assert times[topics.ANNOTATIONS] == set(sent.features)
