@@ -181,9 +181,9 @@ class ViewState:
         """The controller's s* for the camera frame taken at ``sim_time_s`` (4×2 px, row i where
         hand corner i is driven): the newest twist's, unless it is more than
         :data:`GOAL_MAX_AGE_S` older (the controller silent). A frame's features come before its
-        twist, so the overlay on a frame may show the goal of a frame or a few before (the
-        live view shows some frames only): the same while the target is still, and for a
-        frame after vision labelled a marker afresh, in the old corner order."""
+        twist, and the live view shows some frames only and may lag, so the overlay on a frame
+        may show the goal of a few frames before or after it: the same while the target is
+        still; for a frame after vision labelled a marker afresh, in another corner order."""
         if self.goal is None or sim_time_s - self.goal[0] > GOAL_MAX_AGE_S:
             return None
         return self.goal[1]
