@@ -188,11 +188,10 @@ class Scenario(Strict):
     @model_validator(mode="after")
     def _events_within_the_run(self) -> Scenario:
         # A run is judged converged only once the last event is over.
-        ends = [e.end_s for e in self.events]
-        if ends and max(ends) > self.run.timeout_s:
-            last = int(np.argmax(ends))
+        if self.events_end_s > self.run.timeout_s:
+            last = int(np.argmax([e.end_s for e in self.events]))
             raise ValueError(
-                f"events[{last}] ends at {ends[last]:g} s, after run.timeout_s "
+                f"events[{last}] ends at {self.events_end_s:g} s, after run.timeout_s "
                 f"({self.run.timeout_s:g}): a run is judged only once its events are over"
             )
         return self

@@ -214,11 +214,10 @@ class ViewNode:
         if state is not self.state:
             log.info("a new run of the sim (at %.2f s simulated)", message.header.sim_time_s)
             self.state = state
-        if suffix == TWIST:
-            self.state.note_goal(message)  # the overlay's goal, whether or not it is shown
         if suffix == TWIST and not (
             self.state.phase_changes(message) or self._gates[TWIST].admit(time.monotonic())
         ):
+            self.state.note_goal(message)  # not shown, but its goal is the overlay's from now
             self.dropped[suffix] += 1  # over the rate, and the phase the same
             return
         outs = self.state.on_message(suffix, message, self.jpeg_quality)

@@ -40,6 +40,7 @@ from deploy.foxglove.style import (
 from deploy.foxglove.topics import BASE, CAMERA, CAMERA_TRUE, DH_FRAMES, EE, HAND_MARKER
 from deploy.foxglove.transforms import pose, stamp
 from services.sim.urdf import (
+    MIN_BLOCK_HEIGHT_M,
     TABLE_CENTRE_M,
     TABLE_SIZE_M,
     TORSO_CENTRE_M,
@@ -156,7 +157,7 @@ def static_scene(scenario: Scenario, t_s: float) -> SceneUpdate:
     entities.append(_entity("table", BASE, t_s, cubes=[table]))
     target = kin.target_marker_pose(np.array(scenario.target.position), scenario.target.yaw)
     centre, height = object_block(target)  # as the sim builds it
-    if height > 0.005:
+    if height > MIN_BLOCK_HEIGHT_M:
         block_pose = kin.homogeneous(target[:3, :3], centre)
         side = scenario.object_side_m
         block = _cube(block_pose, (side, side, height), BLOCK)

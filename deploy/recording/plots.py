@@ -470,15 +470,14 @@ def plot_series(
     """:func:`plot_recording` of a recording already read (``source``: its name, for the log)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    builders: list[tuple[str, Callable[[], Figure | None]]] = [
-        ("image_trajectory.png", lambda: image_trajectory_figure(series)),
-        ("ee_velocity.png", lambda: ee_velocity_figure(series)),
-        ("feature_error.png", lambda: feature_error_figure(series, converged_px)),
-        ("joint_velocities.png", lambda: joint_velocities_figure(series)),
-    ]
-    assert tuple(name for name, _ in builders) == FIGURE_NAMES
+    builds: tuple[Callable[[], Figure | None], ...] = (  # in FIGURE_NAMES' order
+        lambda: image_trajectory_figure(series),
+        lambda: ee_velocity_figure(series),
+        lambda: feature_error_figure(series, converged_px),
+        lambda: joint_velocities_figure(series),
+    )
     written: list[Path] = []
-    for name, build in builders:
+    for name, build in zip(FIGURE_NAMES, builds, strict=True):
         fig = build()
         if fig is None:
             log.info("%s: no data for %s, skipped", source, name)

@@ -94,8 +94,6 @@ class ActuationService:
         )
         if frame_seq >= 0:
             self.last_output = command
-        elif not self.lockstep:  # a deadman stop reaches the motors: start again from rest
-            self.limiter = LimiterState.at_rest()
         self.pub.put(command)
 
     def on_pair(self, twist: EndEffectorTwist, joints: JointState) -> None:

@@ -104,14 +104,8 @@ def gaps_to_object(points_m: FloatArray, face: TopFace) -> FloatArray:
 
 def distances_to_object(points_m: FloatArray, face: TopFace) -> FloatArray:
     """The distance (m) from each point (k×3) to the object, the prism under its top face
-    (down without end): the length of :func:`gaps_to_object`, whose signs its squares do not
-    need (a side's gap is 0 where its sign is: the face's half side is positive)."""
-    gaps = _in_face_axes(points_m, face)
-    sides = gaps[:, :2]
-    np.abs(sides, out=sides)
-    sides -= face.half_side_m
-    np.maximum(gaps, 0.0, out=gaps)
-    return np.sqrt(np.add.reduce(gaps**2, axis=1))
+    (down without end): the length of :func:`gaps_to_object`."""
+    return np.sqrt(np.add.reduce(gaps_to_object(points_m, face) ** 2, axis=1))
 
 
 def distance_to_object(point_m: FloatArray, face: TopFace) -> tuple[float, FloatArray]:

@@ -84,39 +84,19 @@ def target_top(
     and their plane (the object's top face's); the last ones made (read-only) when the corners
     and the pose are the same to the bit: a still target is measured so frame after frame (or
     remembered)."""
-    arrays = ((points_cam_m, (4, 3)), (t_base_cam, (4, 4)))
-    if all(_plain(a, shape) for a, shape in arrays):
-        return _target_top_of_bytes(points_cam_m.tobytes(), t_base_cam.tobytes())
-    return _target_top_of(points_cam_m, t_base_cam)
-
-
-def _plain(array: FloatArray, shape: tuple[int, ...]) -> bool:
-    """A C-ordered float64 array of ``shape``: one its bytes stand for (:func:`target_top`)."""
-    return (
-        isinstance(array, np.ndarray)
-        and array.dtype == np.float64
-        and array.shape == shape
-        and array.flags.c_contiguous
-    )
-
-
-def _target_top_of(
-    points_cam_m: FloatArray, t_base_cam: FloatArray
-) -> tuple[FloatArray, clearance.Plane]:
-    """:func:`target_top`, made afresh."""
-    corners = camera_points_to_base(points_cam_m, t_base_cam)
-    return corners, clearance.plane_of_corners(corners, t_base_cam[:3, 3])
+    points = np.ascontiguousarray(points_cam_m, dtype=float)
+    pose = np.ascontiguousarray(t_base_cam, dtype=float)
+    return _target_top_of_bytes(points.tobytes(), pose.tobytes())
 
 
 @functools.lru_cache(maxsize=4)
 def _target_top_of_bytes(
     points_cam_m: bytes, t_base_cam: bytes
 ) -> tuple[FloatArray, clearance.Plane]:
-    """:func:`_target_top_of` of C-ordered float64 arrays given as their bytes (4×3, 4×4)."""
-    corners, plane = _target_top_of(
-        np.frombuffer(points_cam_m, dtype=float).reshape(4, 3),
-        np.frombuffer(t_base_cam, dtype=float).reshape(4, 4),
-    )
+    """:func:`target_top` of float64 arrays given as their bytes (4×3, 4×4)."""
+    pose = np.frombuffer(t_base_cam, dtype=float).reshape(4, 4)
+    corners = camera_points_to_base(np.frombuffer(points_cam_m, dtype=float).reshape(4, 3), pose)
+    plane = clearance.plane_of_corners(corners, pose[:3, 3])
     for array in (corners, plane.point_m, plane.normal):
         array.setflags(write=False)
     return corners, plane

@@ -140,6 +140,9 @@ def robot_urdf(marker_size_m: float, orientation_cue: bool = False) -> str:
     return f'<?xml version="1.0"?>\n<robot name="umay">\n{body}\n</robot>\n'
 
 
+MIN_BLOCK_HEIGHT_M = 0.005  # a lower object is not built: the marker lies on the table
+
+
 def object_block(target_pose: np.ndarray) -> tuple[np.ndarray, float]:
     """The object under the red marker (pose ``target_pose``, base frame): the centre of the
     block from the table's top up to the marker's underside, and its height (m; ≤ 0: none)."""

@@ -33,6 +33,7 @@ from services.sim.shapes import VisualShape, body_ids, shape_poses, visual_shape
 from services.sim.truth import MarkerView, Truth, square_pixels, truth_corners_px
 from services.sim.urdf import (
     CUE_RGBA,
+    MIN_BLOCK_HEIGHT_M,
     TABLE_CENTRE_M,
     TABLE_SIZE_M,
     TORSO_CENTRE_M,
@@ -204,14 +205,14 @@ class World:
         torso, table and floor to the view (:mod:`services.sim.scenery`) saves more."""
         # The object: a box from the table top up to the red marker, which lies on its top face.
         size = self.scenario.marker.size_m
-        _centre, height = object_block(self.target_pose)
+        centre, height = object_block(self.target_pose)
         self._target_quat = self.client.getQuaternionFromEuler([0.0, self.scenario.target.yaw, 0.0])
         self.object_body: int | None = None
-        if height > 0.005:
+        if height > MIN_BLOCK_HEIGHT_M:
             side = self.scenario.object_side_m
             self.object_body = self._box(
                 (side / 2, height / 2, side / 2),
-                self._object_centre(),
+                centre,
                 OBJECT_COLOUR,
                 True,
                 self._target_quat,

@@ -49,7 +49,11 @@ class PlaneFit:
     covariance: FloatArray  # (3, 3) in 1/m²
 
     def depths_m(self, xy: FloatArray) -> FloatArray:
-        return 1.0 / (rays_of(xy) @ self.coefficients)
+        return self._depths_along(rays_of(xy))
+
+    def _depths_along(self, rays: FloatArray) -> FloatArray:
+        """Z of the plane along each ray ``(x, y, 1)``."""
+        return 1.0 / (rays @ self.coefficients)
 
     def shifted(self, shift_m: FloatArray) -> PlaneFit:
         """The same plane translated by ``shift_m`` (camera frame): ``n·P = d`` becomes
@@ -62,7 +66,7 @@ class PlaneFit:
         """1-σ of the plane's depth along each ray: σ(1/Z)·Z², σ(1/Z)² = φᵀ·C·φ."""
         rays = rays_of(xy)
         inverse_var = np.einsum("ij,jk,ik->i", rays, self.covariance, rays)
-        return np.sqrt(np.maximum(inverse_var, 0.0)) * (1.0 / (rays @ self.coefficients)) ** 2
+        return np.sqrt(np.maximum(inverse_var, 0.0)) * self._depths_along(rays) ** 2
 
 
 def bounding_box(

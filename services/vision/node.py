@@ -97,9 +97,10 @@ class VisionService:
 
     def status_fields(self) -> VisionStatus:
         frames = self.node.received.values()
+        seen = self._last_seen()  # once: a frame may replace it meanwhile (a Zenoh thread)
         return VisionStatus(
-            markers={n: m.state for n, m in self._last_seen()},
-            lost_reasons={n: m.reason for n, m in self._last_seen()},
+            markers={n: m.state for n, m in seen},
+            lost_reasons={n: m.reason for n, m in seen},
             depth_age_s=self.depth_age_s,
             depth_waits=self.depth_wait.waits,
             depth_missed=self.depth_wait.missed,
