@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import time
+from typing import TypeVar
 
 import numpy as np
 
@@ -51,6 +52,14 @@ from services.sim.truth import truth_message
 from services.sim.world import World
 
 log = logging.getLogger("umay.sim")
+M = TypeVar("M", RgbFrame, DepthFrame)
+
+
+def stamped(message: M) -> M:
+    """``message`` with its header's send time now (wall clock): a message made ahead of
+    the data it carries is stamped as it goes."""
+    message.header.send_time_s = time.time()
+    return message
 
 
 class SimService:
@@ -164,50 +173,75 @@ class SimService:
             if with_depth
             else None,
         )
+        schedule = self.depth_schedule.taken(t, seq) if with_depth else self.depth_schedule
+        # The messages are made before the render, on the slots it draws into: all they hold
+        # but the pixels and the send time is known by then, and made after it, on caches the
+        # render has emptied, they took about as long as the rest of the hand-off
+        # (docs/performance.md). Made after the render where it draws into arrays of its own
+        # (no ring, TinyRenderer).
+        in_slots = (
+            self.world.draws_into_out and out[0] is not None and (out[1] is not None) == with_depth
+        )
+        prepared = self._frame_messages(t, seq, schedule, *out) if in_slots else None
         render_start_s = time.time()
         started = time.perf_counter()
         rgb, depth_m = self.world.render(with_depth, out)
         self.render_ms = 1000.0 * (time.perf_counter() - started)
         capture_time_s = time.time()
-        # The images without copying their pixels (ImageData.view_of: render() gives the
-        # ring's slots or fresh arrays every frame, never changed afterwards): the publishers
-        # commit a slot drawn in place, copy anything else into the ring (or into the whole
-        # payload, without a ring). The depth image before the colour frame that names it, so
-        # vision has both when the colour frame arrives.
-        if depth_m is not None:
-            self.depth_schedule = self.depth_schedule.taken(t, seq)
-            self._last_depth = DepthFrame(
-                header=self.node.header(t, seq, run=self.run_id),
-                intrinsics=self.world.depth_intrinsics,
-                depth_m=ImageData.view_of(depth_m),
-            )
-            put(self.pub_depth, self._last_depth)
+        if prepared is None or rgb is not out[0] or depth_m is not out[1]:
+            prepared = self._frame_messages(t, seq, schedule, rgb, depth_m)
+        rgb_frame, depth_frame = prepared
+        # Each sent as it is stamped; the depth image before the colour frame that names it,
+        # so vision has both when the colour frame arrives.
+        self.depth_schedule = schedule
+        if depth_frame is not None:
+            self._last_depth = stamped(depth_frame)
+            put(self.pub_depth, depth_frame)
         elif self._last_depth is not None:
             # Not put now, but put again with a resend: a vision started since the depth
             # image was taken has not got the one this frame names.
             messages.append((self.pub_depth, self._last_depth))
-        rgb_header = self.node.header(t, seq, run=self.run_id)
-        put(
-            self.pub_rgb,
-            RgbFrame(
-                header=rgb_header,
-                intrinsics=self.world.intrinsics,
-                rgb=ImageData.view_of(rgb),
-                depth_frame_seq=self.depth_schedule.depth_frame_seq,
-            ),
-        )
+        put(self.pub_rgb, stamped(rgb_frame))
         self._last_frame = messages
         # How the frame was made; published when the next one starts (_publish_timing).
         self._timing = SimTiming(
             header=self.node.header(t, seq, run=self.run_id),
             render_start_s=render_start_s,
             capture_time_s=capture_time_s,
-            frame_send_time_s=rgb_header.send_time_s,
+            frame_send_time_s=rgb_frame.header.send_time_s,
             with_depth=depth_m is not None,
             dropped_frames=self.dropped_frames,
             resends=self.resends,
         )
         self.node.processing.add(1000.0 * (time.perf_counter() - started_publish))
+
+    def _frame_messages(
+        self,
+        t: float,
+        seq: int,
+        schedule: DepthSchedule,
+        rgb: np.ndarray,
+        depth_m: np.ndarray | None,
+    ) -> tuple[RgbFrame, DepthFrame | None]:
+        """Frame ``seq``'s colour frame and depth image (None: none taken) on ``rgb`` and
+        ``depth_m`` without copying their pixels (ImageData.view_of: the arrays are the ring's
+        slots or fresh ones every frame, never changed once sent), to be stamped as they go
+        (:func:`stamped`): the publishers commit a slot drawn in place and copy anything else
+        into the ring (or into the whole payload, without a ring)."""
+        depth_frame = None
+        if depth_m is not None:
+            depth_frame = DepthFrame(
+                header=self.node.header(t, seq, run=self.run_id),
+                intrinsics=self.world.depth_intrinsics,
+                depth_m=ImageData.view_of(depth_m),
+            )
+        rgb_frame = RgbFrame(
+            header=self.node.header(t, seq, run=self.run_id),
+            intrinsics=self.world.intrinsics,
+            rgb=ImageData.view_of(rgb),
+            depth_frame_seq=schedule.depth_frame_seq,
+        )
+        return rgb_frame, depth_frame
 
     def _publish_timing(self) -> None:
         """The last frame's :class:`SimTiming`, with the commands applied since it (none after

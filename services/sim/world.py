@@ -374,6 +374,13 @@ class World:
         )
         return rgb, depth_m
 
+    @property
+    def draws_into_out(self) -> bool:
+        """Whether :meth:`render` gives back ``out``'s arrays, drawn in (OpenGL draws into
+        them, the sensor model writes into them; TinyRenderer alone draws into arrays of its
+        own): messages may then be made on them before the render."""
+        return self._gl is not None or self.kinect.enabled
+
     def render(
         self,
         with_depth: bool = True,

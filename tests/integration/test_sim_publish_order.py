@@ -66,6 +66,7 @@ def test_the_joint_state_and_truth_go_before_the_frame_and_its_timing_after_its_
     arrivals: list[tuple[str, int]] = []  # (key suffix, frame_seq) in arrival order
     runs: set[int] = set()  # the sim's run, on every message (a command must carry it)
     timings: dict[int, SimTiming] = {}
+    sent_s: dict[tuple[str, int], float] = {}  # the images' header send times
     lock = threading.Lock()
     frame_in = threading.Condition(lock)
 
@@ -84,6 +85,7 @@ def test_the_joint_state_and_truth_go_before_the_frame_and_its_timing_after_its_
             assert data is not None, f"{suffix}: not a message"
             frame_seq = int(data["header"]["frame_seq"])
             runs.add(int(data["header"]["run"]))
+            sent_s[suffix, frame_seq] = float(data["header"]["send_time_s"])
         with lock:
             if suffix == "timing":
                 timings[frame_seq] = t
@@ -117,6 +119,9 @@ def test_the_joint_state_and_truth_go_before_the_frame_and_its_timing_after_its_
         # ... with the command that answered the frame.
         assert [a.frame_seq for a in got[seq].applied] == [seq]
         assert got[seq].frame_send_time_s >= got[seq].capture_time_s >= got[seq].render_start_s
+        # The images' messages are made before the render, but stamped as they go: after it.
+        assert sent_s["rgb", seq] == got[seq].frame_send_time_s
+        assert sent_s["rgb", seq] >= sent_s["depth", seq] >= got[seq].capture_time_s
 
 
 def test_a_resend_puts_again_the_depth_image_its_frame_names(tmp_path: Path) -> None:
