@@ -7,7 +7,8 @@ resolution; the schedule is services/sim/schedule.py, the motors' limit services
 frame the joint state, the ground truth and the previous frame's timing go out first, before
 the render, then the depth image if one was taken, then the colour frame, which names the newest
 depth image (``depth_frame_seq``). The images are drawn straight into the next slots of the
-frame rings (:meth:`TypedPublisher.reserve`) where there are rings.
+frame rings (:meth:`TypedPublisher.reserve`) where there are rings, their messages made on those
+slots before the render and stamped as they go (:func:`stamped`).
 
 Clock modes:
 - lockstep: render frame k, publish it, wait for the command derived from frame k, apply it for
