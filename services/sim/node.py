@@ -176,10 +176,9 @@ class SimService:
         )
         schedule = self.depth_schedule.taken(t, seq) if with_depth else self.depth_schedule
         # The messages are made before the render, on the slots it draws into: all they hold
-        # but the pixels and the send time is known by then, and made after it, on caches the
-        # render has emptied, they took about as long as the rest of the hand-off
-        # (docs/performance.md). Made after the render where it draws into arrays of its own
-        # (no ring, TinyRenderer).
+        # but the pixels and the send time is known by then, and made after it they would run
+        # on caches the render has emptied, on the frame's way to vision (docs/performance.md).
+        # Made after the render where it draws into arrays of its own (no ring, TinyRenderer).
         in_slots = (
             self.world.draws_into_out and out[0] is not None and (out[1] is not None) == with_depth
         )
