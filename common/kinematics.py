@@ -19,7 +19,6 @@ All functions are pure: they take and return numpy arrays, lengths in metres, an
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -157,7 +156,6 @@ def dh_link_transform(row: DHRow, q_rad: float) -> FloatArray:
 LinkConstants = tuple[float, float, float, float, float, float]
 
 
-@functools.lru_cache(maxsize=4)
 def _link_constants(dh: tuple[DHRow, ...]) -> tuple[LinkConstants, ...]:
     """Each row's joint-independent factors of :func:`dh_link_transform`: ``cos α``, ``sin α``,
     ``a``, ``−sin α · d``, ``cos α · d`` and the θ offset, computed as it computes them."""
@@ -219,9 +217,7 @@ def jacobian_of_frames(frames: list[FloatArray]) -> FloatArray:
     lever = poses[-1, :3, 3] - poses[:, :3, 3]  # joint origin → end-effector origin
     # z × lever for all joints at once (np.cross per joint has a large per-call overhead).
     out = np.empty((6, len(frames)))
-    out[0] = z[:, 1] * lever[:, 2] - z[:, 2] * lever[:, 1]
-    out[1] = z[:, 2] * lever[:, 0] - z[:, 0] * lever[:, 2]
-    out[2] = z[:, 0] * lever[:, 1] - z[:, 1] * lever[:, 0]
+    out[0], out[1], out[2] = cross_components(z, lever)
     out[3:] = z.T
     return out
 
@@ -229,6 +225,16 @@ def jacobian_of_frames(frames: list[FloatArray]) -> FloatArray:
 def manipulability(jacobian: FloatArray) -> float:
     """Yoshikawa's manipulability measure sqrt(det(J Jᵀ))."""
     return float(np.sqrt(max(np.linalg.det(jacobian @ jacobian.T), 0.0)))
+
+
+def cross_components(a: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The three components of ``a × b`` over the last axis, broadcast (many cross products
+    at once, each with np.cross's arithmetic), for the caller to write where it needs them."""
+    return (
+        a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+        a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+        a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+    )
 
 
 def cross(a: FloatArray, b: FloatArray) -> FloatArray:

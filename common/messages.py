@@ -270,7 +270,7 @@ class MarkerFeatures(Message):
                 f"a {self.state} marker needs every corner at least {MIN_USABLE_DEPTH_M} m in "
                 "front of the camera (depth_m, points_m)"
             )
-        if _quad_area(self.corners_px) < MIN_USABLE_AREA_PX2:
+        if quad_area(self.corners_px) < MIN_USABLE_AREA_PX2:
             raise ValueError(f"a {self.state} marker's corners_px enclose no area")
         if _diagonals_cross(self.points_m) <= 0.0:
             raise ValueError(f"a {self.state} marker's points_m enclose no area")
@@ -295,7 +295,7 @@ def _diagonals_cross(points: list[list[float]]) -> float:
     return c0 * c0 + c1 * c1 + c2 * c2
 
 
-def _quad_area(corners: list[list[float]]) -> float:
+def quad_area(corners: list[list[float]]) -> float:
     """Area of a quadrilateral (shoelace, either winding), in the corners' units squared.
     Written out: it runs on every marker of every Features message."""
     (x0, y0), (x1, y1), (x2, y2), (x3, y3) = corners

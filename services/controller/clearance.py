@@ -88,10 +88,7 @@ def clearance_bounds(
     lever = corners - p_ee_base_m
     rows = np.empty((len(corners), 6))
     rows[:, :3] = n
-    # lever × n for every corner at once, the products of np.cross
-    rows[:, 3] = lever[:, 1] * n[2] - lever[:, 2] * n[1]
-    rows[:, 4] = lever[:, 2] * n[0] - lever[:, 0] * n[2]
-    rows[:, 5] = lever[:, 0] * n[1] - lever[:, 1] * n[0]
+    rows[:, 3], rows[:, 4], rows[:, 5] = kin.cross_components(lever, n)  # lever × n, each corner
     return rows, -rate_1_s * (heights_m(corners, plane) - min_height_m)
 
 

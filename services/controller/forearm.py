@@ -165,10 +165,10 @@ def point_jacobians(frames: Sequence[FloatArray], points_m: FloatArray) -> Float
     z = poses[:, :3, 2]  # joint k's axis
     lever = points_m[:, None, :] - poses[:, :3, 3]  # from joint k's origin to each point
     jp = np.zeros((len(points_m), 3, kin.N_JOINTS))
-    # z × lever of each joint and point at once, the products of kin.cross
-    jp[:, 0, :FOREARM_JOINTS] = z[:, 1] * lever[..., 2] - z[:, 2] * lever[..., 1]
-    jp[:, 1, :FOREARM_JOINTS] = z[:, 2] * lever[..., 0] - z[:, 0] * lever[..., 2]
-    jp[:, 2, :FOREARM_JOINTS] = z[:, 0] * lever[..., 1] - z[:, 1] * lever[..., 0]
+    # z × lever of each joint and point at once
+    jp[:, 0, :FOREARM_JOINTS], jp[:, 1, :FOREARM_JOINTS], jp[:, 2, :FOREARM_JOINTS] = (
+        kin.cross_components(z, lever)
+    )
     return jp
 
 

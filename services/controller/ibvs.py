@@ -230,6 +230,8 @@ class IbvsController:
     def _goal(self, target: Marker, k: CameraIntrinsics) -> Marker:
         """:func:`.goal.desired_observation` of ``target``: the last one made when made from the
         same points, depth uncertainties, approach height and intrinsics."""
+        if self.approach_height_m == 0.0:
+            return target  # the goal is the target itself, pixels and all
         key = (
             np.asarray(target.points_m, dtype=float).tobytes(),
             np.asarray(target.depth_sigma_m, dtype=float).tobytes(),
@@ -237,8 +239,7 @@ class IbvsController:
             k,
         )
         memo = self._goal_memo
-        # At zero height the goal is the target itself, pixels and all, which the key leaves out.
-        if memo is not None and memo[0] == key and self.approach_height_m != 0.0:
+        if memo is not None and memo[0] == key:
             return memo[1]
         goal = desired_observation(target, self.approach_height_m, k)
         self._goal_memo = (key, goal)

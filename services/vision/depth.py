@@ -238,8 +238,9 @@ def registered_region_mask(
     rows and columns; None: anywhere): when the colour image is a whole multiple of the depth
     one only the depth pixels over the region are resampled, the others being zero."""
     sy, sx = mask.shape[0] // shape[0], mask.shape[1] // shape[1]
-    if region is None or not (sy and sx) or (sy * shape[0], sx * shape[1]) != mask.shape[:2]:
-        return registered_mask(mask, shape)
+    whole_multiple = sy and sx and (sy * shape[0], sx * shape[1]) == mask.shape[:2]
+    if region is None or not whole_multiple or mask.shape[:2] == shape[:2]:
+        return registered_mask(mask, shape)  # a view of the mask itself at the same size
     rows, cols = region
     r0, r1 = rows.start // sy, -(-rows.stop // sy)  # the depth pixels covering the region
     c0, c1 = cols.start // sx, -(-cols.stop // sx)

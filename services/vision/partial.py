@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common.camera import CameraIntrinsics, pixel_to_normalized
-from common.kinematics import cross
+from common.kinematics import centroid, cross
 from services.vision.occlusion import square_kernel
 
 FloatArray = NDArray[np.float64]
@@ -57,7 +57,7 @@ class SquareOnPlane:
         v = c[3] - c[0] + c[2] - c[1]
         v -= (v @ u) * u
         v /= np.linalg.norm(v)
-        return cls(c.sum(axis=0) / len(c), u, v, size_m)  # the mean, as np.mean makes it
+        return cls(centroid(c), u, v, size_m)
 
     def moved(self, du_m: float, dv_m: float, turn_rad: float) -> SquareOnPlane:
         """Slid by (du, dv) along its axes and turned about its normal."""

@@ -19,6 +19,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from common.kinematics import centroid
+from common.messages import quad_area
 from services.vision.segmentation import Roi
 
 FloatArray = NDArray[np.float64]
@@ -346,7 +348,7 @@ def _edge_lines(blobs: list[_Blob]) -> tuple[FloatArray, FloatArray, FloatArray]
     points = np.concatenate(runs)
     side = np.repeat(np.arange(len(runs)), counts)
     starts = np.cumsum([0, *counts[:-1]])
-    inward = np.repeat([blob.rough_px.sum(axis=0) / 4 for blob in blobs], 4, axis=0)  # means
+    inward = np.repeat([centroid(blob.rough_px) for blob in blobs], 4, axis=0)
     fits = _fit_edges_tls(points, side, starts, inward)
     outside_runs = []
     for b, blob in enumerate(blobs):  # each blob has its own mask
@@ -464,5 +466,4 @@ def square_corners(mask: np.ndarray, min_area_px: int) -> np.ndarray | None:
 
 
 def quad_area_px2(corners_px: FloatArray) -> float:
-    q = corners_px.tolist()
-    return 0.5 * abs(sum(q[i - 1][0] * q[i][1] - q[i][0] * q[i - 1][1] for i in range(4)))
+    return quad_area(corners_px.tolist())
