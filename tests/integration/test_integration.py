@@ -193,9 +193,16 @@ def test_a_service_survives_malformed_payloads_and_counts_them(tmp_path: Path) -
         nan_payload = encode(nan_joints).replace(
             np.float64(0.1).tobytes()[::-1], np.float64("nan").tobytes()[::-1]
         )
+        # Put only once the controller's subscriptions reach this session: its status answers
+        # from before they are declared, and a payload put earlier is lost, not rejected.
+        features_pub = session.declare_publisher(keys.features)
+        joints_pub = session.declare_publisher(keys.joint_state)
+        while not (features_pub.matching_status.matching and joints_pub.matching_status.matching):
+            assert time.monotonic() < deadline, "the controller did not subscribe"
+            time.sleep(0.02)
         for payload in bad:
-            session.put(keys.features, payload)
-        session.put(keys.joint_state, nan_payload)
+            features_pub.put(payload)
+        joints_pub.put(nan_payload)
         time.sleep(0.5)
         assert proc.poll() is None, "the controller died"
         status = query_status(session, keys, 1.0)[0]
