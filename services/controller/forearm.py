@@ -153,14 +153,10 @@ def _samples(lo: float, hi: float) -> FloatArray:
     return t
 
 
-def point_jacobian(frames: Sequence[FloatArray], point_m: FloatArray) -> FloatArray:
-    """The linear Jacobian (3×6, base frame) of a point carried by the forearm: joint k turns
-    it about frame k's z axis through frame k's origin; the wrist's joints do not move it."""
-    return point_jacobians(frames, np.asarray(point_m, dtype=float)[None, :])[0]
-
-
 def point_jacobians(frames: Sequence[FloatArray], points_m: FloatArray) -> FloatArray:
-    """:func:`point_jacobian` of each point (k×3) at once (k×3×6)."""
+    """The linear Jacobian (3×6, base frame) of each point (k×3) carried by the forearm, at
+    once (k×3×6): joint k turns a point about frame k's z axis through frame k's origin; the
+    wrist's joints do not move it."""
     poses = np.array(frames[:FOREARM_JOINTS])
     z = poses[:, :3, 2]  # joint k's axis
     lever = points_m[:, None, :] - poses[:, :3, 3]  # from joint k's origin to each point

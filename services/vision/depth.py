@@ -62,11 +62,12 @@ class PlaneFit:
             self.coefficients / (1.0 + float(self.coefficients @ shift_m)), self.covariance
         )
 
-    def depth_sigmas_m(self, xy: FloatArray) -> FloatArray:
-        """1-σ of the plane's depth along each ray: σ(1/Z)·Z², σ(1/Z)² = φᵀ·C·φ."""
+    def depths_and_sigmas_m(self, xy: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The plane's depth along each ray and its 1-σ: σ(1/Z)·Z², σ(1/Z)² = φᵀ·C·φ."""
         rays = rays_of(xy)
+        depths = self._depths_along(rays)
         inverse_var = np.einsum("ij,jk,ik->i", rays, self.covariance, rays)
-        return np.sqrt(np.maximum(inverse_var, 0.0)) * self._depths_along(rays) ** 2
+        return depths, np.sqrt(np.maximum(inverse_var, 0.0)) * depths**2
 
 
 def bounding_box(
@@ -287,8 +288,7 @@ def corner_depths(
     if plane is None:
         return None  # seen edge-on
     corner_xy = pixel_to_normalized(corners, k)
-    depths = plane.depths_m(corner_xy)
-    sigmas = plane.depth_sigmas_m(corner_xy)
+    depths, sigmas = plane.depths_and_sigmas_m(corner_xy)
     if not usable_depths(depths):  # behind the camera, or nearer than a message carries
         return None
     return CornerDepths(depths, sigmas, back_project(corners, depths, k), plane)

@@ -13,6 +13,8 @@ import functools
 import cv2
 import numpy as np
 
+from services.vision.segmentation import binary_u8
+
 RING_WIDTH_PX = 2  # an occluder overlapping the marker borders it directly
 # In front of the marker's surface (its plane, per pixel) by more than this: about 5 σ of Kinect
 # noise at 0.5 m (1.2 mm) and less than a hand held just above the object.
@@ -38,7 +40,7 @@ def occluder_fraction(
     left out (too close, too far, shiny: nothing is known there); a closer object near the
     marker but not touching it leaves valid background in the ring and does not count.
     """
-    binary = mask if mask.dtype == np.uint8 else (mask > 0).astype(np.uint8)  # non-zero: in it
+    binary = binary_u8(mask)  # non-zero: in it
     x, y, w, h = cv2.boundingRect(binary)
     if w == 0 or h == 0:
         return 0.0

@@ -35,7 +35,7 @@ from services.vision.depth import (
     to_depth_pixels,
 )
 from services.vision.partial import SquareOnPlane
-from services.vision.segmentation import Roi, mask_bounds
+from services.vision.segmentation import Roi, binary_u8, mask_bounds
 
 TANGENT_STEP_PX = 3  # an edge's direction: from the outline point this far behind to ahead
 # The edge directions must agree (mean resultant length of their quarter-turn-folded angles):
@@ -56,7 +56,7 @@ def blob_plane(
     as much as a whole view's depth samples are (a tenth of its side, at least 2 depth
     pixels), so that neither its outline nor what borders it counts. None with too few
     samples left. ``region``: where ``mask`` can be non-zero (None: anywhere)."""
-    binary = mask if mask.dtype == np.uint8 else (mask != 0).astype(np.uint8)
+    binary = binary_u8(mask)
     found = mask_bounds(binary, 0, region)  # its non-zero pixels' box
     if found is None:
         return None

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from common.camera import CameraIntrinsics, pixel_to_normalized
 from common.kinematics import centroid, cross
 from services.vision.occlusion import square_kernel
+from services.vision.segmentation import binary_u8
 
 FloatArray = NDArray[np.float64]
 
@@ -80,28 +81,18 @@ def outline(
     image, ``offset_px`` = (column, row) of the crop), and which of its points are the
     marker's true edge (N,): bordering no ``occluder`` pixel (0/1 or 0/255 arrays of the
     same size), nor the crop's border."""
-    contours, _ = cv2.findContours(_binary(mask), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    contours, _ = cv2.findContours(binary_u8(mask), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return np.zeros((0, 2)), np.zeros(0, bool)
     points = max(contours, key=cv2.contourArea).reshape(-1, 2)
     size = 2 * EDGE_CLEARANCE_PX + 1
-    near_occluder = cv2.dilate(_binary(occluder), square_kernel(size))
+    near_occluder = cv2.dilate(binary_u8(occluder), square_kernel(size))
     h, w = mask.shape
     keep = near_occluder[points[:, 1], points[:, 0]] == 0
     keep &= (
         (points[:, 0] > 0) & (points[:, 1] > 0) & (points[:, 0] < w - 1) & (points[:, 1] < h - 1)
     )
     return points.astype(float) + np.asarray(offset_px, dtype=float), keep
-
-
-def _binary(mask: np.ndarray) -> np.ndarray:
-    """A uint8 array non-zero where ``mask`` is: itself when uint8, a bool array's bytes, else
-    ``mask > 0`` converted (what OpenCV's contours and morphology take)."""
-    if mask.dtype == np.uint8:
-        return mask
-    if mask.dtype == np.bool_:
-        return mask.view(np.uint8)
-    return (mask > 0).astype(np.uint8)
 
 
 def true_edge_points(

@@ -29,6 +29,16 @@ TRACK_MARGIN_FRACTION = 0.5
 TRACK_MARGIN_MIN_PX = 16
 
 
+def binary_u8(mask: np.ndarray) -> np.ndarray:
+    """A uint8 array non-zero where ``mask`` is (what OpenCV's contours, morphology and boxes
+    take): ``mask`` itself when uint8, a bool array's bytes (no copy), else ``mask > 0``."""
+    if mask.dtype == np.uint8:
+        return mask
+    if mask.dtype == np.bool_:
+        return mask.view(np.uint8)
+    return (mask > 0).astype(np.uint8)
+
+
 def _threshold_space(rgb: np.ndarray, cfg: VisionConfig) -> np.ndarray:
     """The image in the colour space ``cfg.segmentation`` thresholds: OpenCV HSV, or RGB."""
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV) if cfg.segmentation == "hsv" else rgb

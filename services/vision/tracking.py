@@ -324,7 +324,7 @@ def _fit_on_plane(
     else:
         return None
     xy = pixel_to_normalized(fit.corners_px, k)
-    depths_m, points_m = plane.depths_m(xy), fit.square.corners_m()
+    (depths_m, sigmas_m), points_m = plane.depths_and_sigmas_m(xy), fit.square.corners_m()
     # A square cut by the border near the camera can be fitted right and still have a hidden
     # corner too near, or too far out, for a usable marker on the wire: not fitted, then.
     if not (
@@ -336,7 +336,7 @@ def _fit_on_plane(
     return _PartialFit(
         fit.corners_px,
         depths_m,
-        plane.depth_sigmas_m(xy),
+        sigmas_m,
         points_m,
         plane,
         bool(occluder.any()),
@@ -363,7 +363,7 @@ def _held(
     corners = quad.corners_px
     if HELD_DEPTH[name] == "plane" and memory.plane is not None:
         xy = pixel_to_normalized(corners, k)
-        depths, sigmas = memory.plane.depths_m(xy), memory.plane.depth_sigmas_m(xy)
+        depths, sigmas = memory.plane.depths_and_sigmas_m(xy)
         if not usable_depths(depths):
             return not_visible("no valid depth")
         points = back_project(corners, depths, k)

@@ -30,7 +30,7 @@ from services.controller.forearm import (
     funnel_radius_m,
     margin_near_goal,
     nearest_along,
-    point_jacobian,
+    point_jacobians,
     top_face,
 )
 from services.controller.ibvs import ControlOutput, IbvsController
@@ -89,12 +89,15 @@ def forearm_point(q: np.ndarray, t: float) -> np.ndarray:
 
 def test_a_forearm_point_s_jacobian_is_its_motion_under_each_joint() -> None:
     q = np.array(load_scenario(None).robot.q0)
-    jp = point_jacobian(kin.frame_transforms(q), forearm_point(q, 0.7))
-    for k in range(kin.N_JOINTS):
-        dq = np.zeros(kin.N_JOINTS)
-        dq[k] = 1e-7
-        moved = (forearm_point(q + dq, 0.7) - forearm_point(q - dq, 0.7)) / 2e-7
-        np.testing.assert_allclose(jp[:, k], moved, atol=1e-6)
+    shares = (0.0, 0.7, 1.0)
+    points = np.array([forearm_point(q, t) for t in shares])
+    jps = point_jacobians(kin.frame_transforms(q), points)
+    for jp, t in zip(jps, shares, strict=True):
+        for k in range(kin.N_JOINTS):
+            dq = np.zeros(kin.N_JOINTS)
+            dq[k] = 1e-7
+            moved = (forearm_point(q + dq, t) - forearm_point(q - dq, t)) / 2e-7
+            np.testing.assert_allclose(jp[:, k], moved, atol=1e-6)
 
 
 @pytest.mark.parametrize(
