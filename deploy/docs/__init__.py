@@ -13,7 +13,10 @@ study in ``docs/domains/domains.json``) and of the folder of the document it is 
 ``umay docs --check`` rewrites nothing and names every block that differs from what its JSON
 gives. Everything outside the markers is left as written.
 
-Modules: :mod:`.sources` (what the tables come from), :mod:`.results_tables`,
-:mod:`.bench_tables`, :mod:`.domains_tables` (the blocks, by source), :mod:`.blocks` (their
-names), :mod:`.documents` (finding and rewriting the blocks in the Markdown), :mod:`.cli`.
+Modules: :mod:`.sources` (what the tables come from); the blocks, by source: the comparison's
+(:mod:`.results_tables`), the benchmark's (:mod:`.bench_tables`, :mod:`.bench_hosts`,
+:mod:`.bench_alternation_tables`, :mod:`.bench_view_tables`; how they read a run:
+:mod:`.bench_cells`), the campaign's, the domain study's and the rest (``*_tables``);
+:mod:`.blocks` (their names), :mod:`.documents` (finding and rewriting the blocks in the
+Markdown), :mod:`.figures`, :mod:`.cli`. Tables and links in Markdown: :mod:`deploy.markdown`.
 """

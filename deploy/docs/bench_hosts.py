@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from deploy.docs.bench_tables import (
+from deploy.docs.bench_cells import (
     ADDS_GOAL,
     HANDOFF_GOAL,
     LATENCY_P50_GOAL,
@@ -17,12 +17,11 @@ from deploy.docs.bench_tables import (
     code_cell,
     frame_handoff_ms,
     latency,
-    link,
     load_cell,
     measured,
 )
 from deploy.docs.sources import BENCH_DIR, LOCKSTEP_RUN, BenchRun, DocsError, Inputs
-from deploy.experiments.compare.summary import markdown_table
+from deploy.markdown import link, markdown_table
 
 __all__ = ["HEADERS", "bench_hosts", "within_goals"]
 

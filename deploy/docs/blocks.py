@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from deploy.docs.bench_alternation_tables import bench_alternations
 from deploy.docs.bench_hosts import bench_hosts
 from deploy.docs.bench_tables import (
-    bench_alternations,
     bench_commands,
     bench_distribution,
     bench_dropped,
@@ -19,9 +19,9 @@ from deploy.docs.bench_tables import (
     bench_services,
     bench_stages,
     bench_startup,
-    bench_view,
     bench_workflows,
 )
+from deploy.docs.bench_view_tables import bench_view
 from deploy.docs.calibration_tables import campaign_calibration
 from deploy.docs.campaign_tables import (
     campaign_contacts,

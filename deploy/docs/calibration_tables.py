@@ -7,11 +7,10 @@ from __future__ import annotations
 import statistics
 from collections import Counter
 
-from deploy.docs.bench_tables import link
 from deploy.docs.sources import CALIBRATION_DIR, CalibrationRun, Inputs
 from deploy.experiments.campaign.causes import cause_family
 from deploy.experiments.campaign.tally import ON_GOAL, REFUSED
-from deploy.experiments.compare.summary import markdown_table
+from deploy.markdown import link, markdown_table
 
 NOT_RUN = "*Not run yet: the commands in docs/campaign.md (calibration), then `umay docs`.*"
 HEADERS = [

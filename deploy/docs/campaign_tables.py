@@ -9,7 +9,6 @@ from collections import Counter
 from collections.abc import Mapping
 from typing import Any
 
-from deploy.docs.bench_tables import link
 from deploy.docs.sources import (
     CAMPAIGN_JSON,
     CAMPAIGN_RESULTS_JSON,
@@ -31,7 +30,7 @@ from deploy.experiments.campaign.tally import (
     unstable_goals,
 )
 from deploy.experiments.compare import ALL_MODES
-from deploy.experiments.compare.summary import markdown_table
+from deploy.markdown import link, markdown_table
 
 RATES_PY = "deploy/experiments/campaign/rates.py"  # the success rates' interval, linked
 

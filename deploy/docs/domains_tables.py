@@ -6,9 +6,8 @@ import posixpath
 from collections.abc import Callable
 from typing import Any
 
-from deploy.docs.bench_tables import link
 from deploy.docs.sources import DOMAINS_JSON, EXECUTORS_DIR, Inputs
-from deploy.experiments.compare.summary import markdown_table
+from deploy.markdown import link, markdown_table
 
 
 # --- the convergence-domain study (issue 30) ----------------------------------------------------

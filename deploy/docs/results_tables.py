@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from deploy.docs.bench_tables import link
 from deploy.docs.sources import RESULTS_JSON, SUITE_CAMERA_DIR, SUITE_CAMERAS, Inputs
 from deploy.experiments.compare import ALL_MODES
 from deploy.experiments.compare.rows import CompareRow
@@ -12,11 +11,10 @@ from deploy.experiments.compare.summary import (
     METRICS,
     best_per_metric,
     best_table,
-    format_cell,
-    markdown_table,
     strategy_table,
     summarize_modes,
 )
+from deploy.markdown import format_cell, link, markdown_table
 
 # The README's compact results table: a few of the comparison's metrics (summary.md has all).
 README_METRICS = tuple(

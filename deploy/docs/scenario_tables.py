@@ -15,9 +15,8 @@ from pydantic.fields import FieldInfo
 from pydantic_core import PydanticUndefined
 
 from common.config import Event, Scenario
-from deploy.docs.bench_tables import link
 from deploy.docs.sources import Inputs
-from deploy.experiments.compare.summary import markdown_table
+from deploy.markdown import link, markdown_table
 
 CONFIG_DIR = "common/config"
 

@@ -11,10 +11,9 @@ from typing import Any
 from pydantic import BaseModel
 
 from common.messages import StatusFields
-from deploy.docs.bench_tables import link
 from deploy.docs.sources import Inputs
-from deploy.experiments.compare.summary import markdown_table
 from deploy.foxglove.status import ViewStatus
+from deploy.markdown import link, markdown_table
 from deploy.supervisor import ChildStatus, SupervisorStatus
 from services.actuation.status import ActuationStatus
 from services.controller.status import ControllerStatus

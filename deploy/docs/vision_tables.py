@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from deploy.docs.bench_tables import link
 from deploy.docs.sources import ACCURACY_JSON, Inputs
-from deploy.experiments.compare.summary import markdown_table
+from deploy.markdown import link, markdown_table
 
 ACCURACY_COMMAND = (
     "umay accuracy --scenario deploy/scenarios/default.toml "

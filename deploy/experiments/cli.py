@@ -115,7 +115,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from deploy.experiments.compare.plan import Job, check_jobs, parse_modes, plan
     from deploy.experiments.compare.rows import CompareRow, check_against, rows_from_json
     from deploy.experiments.compare.run import job_label, run_all, write_outputs
-    from deploy.experiments.compare.summary import format_cell
+    from deploy.markdown import format_cell
     from deploy.paths import OutputPathError, check_output_dir
 
     console = progress_console()
@@ -278,7 +278,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from deploy.experiments.compare import CompareError
     from deploy.experiments.compare.plan import Job, check_jobs, parse_modes
     from deploy.experiments.compare.rows import CompareRow
-    from deploy.experiments.compare.summary import format_cell
+    from deploy.markdown import format_cell
     from deploy.paths import OutputPathError, check_output_dir
 
     console = progress_console()

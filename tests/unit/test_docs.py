@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 
 from deploy.cli import main
+from deploy.docs.bench_cells import frame_handoff_ms, latency, run_label
 from deploy.docs.bench_tables import (
     bench_commands,
     bench_distribution,
@@ -19,10 +20,6 @@ from deploy.docs.bench_tables import (
     bench_latency,
     bench_render,
     bench_startup,
-    frame_handoff_ms,
-    latency,
-    link,
-    run_label,
 )
 from deploy.docs.blocks import BLOCKS
 from deploy.docs.documents import END, Outdated, documents, find_blocks, rewrite, update
@@ -42,6 +39,7 @@ from deploy.docs.sources import (
 )
 from deploy.experiments.compare.rows import rows_from_json
 from deploy.experiments.compare.summary import strategy_table, summarize_modes
+from deploy.markdown import link
 
 
 def test_every_generated_table_agrees_with_its_json() -> None:

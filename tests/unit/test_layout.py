@@ -26,6 +26,7 @@ DEPLOY_LAYERS: list[set[str]] = [
         "cpu_latency",
         "service_process",
         "queries",
+        "markdown",
     },
     {"supervisor"},
     {"recording"},

@@ -23,7 +23,7 @@ from deploy.experiments.campaign.tally import (
     unstable_goals,
 )
 from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
-from deploy.experiments.compare.summary import format_cell, markdown_table
+from deploy.markdown import format_cell, markdown_table
 
 
 class CampaignRow(BaseModel):

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pydantic import BaseModel
 
 from deploy.experiments.compare.rows import ON_GOAL_M, CompareRow
+from deploy.markdown import format_cell, markdown_table
 
 
 # --- summary ---------------------------------------------------------------------------------
@@ -136,19 +137,6 @@ def paired_medians(
         if all(m in runs and runs[m].converged and not runs[m].moving_target for m in modes)
     ]
     return common, {m: _median([getattr(by_scenario[s][m], field) for s in common]) for m in modes}
-
-
-def format_cell(value: float | None, scale: float = 1.0, fmt: str = ".3f") -> str:
-    return "–" if value is None else format(value * scale, fmt)
-
-
-def markdown_table(
-    headers: Sequence[str], rows: Sequence[Sequence[str]], right_from: int = 1
-) -> str:
-    align = ["---" if i < right_from else "---:" for i in range(len(headers))]
-    lines = ["| " + " | ".join(headers) + " |", "| " + " | ".join(align) + " |"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 def strategy_table(

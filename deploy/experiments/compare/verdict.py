@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from common.kinematics import JOINT_VELOCITY_LIMIT_RAD_S
 from deploy.experiments.compare.rows import CompareRow
-from deploy.experiments.compare.summary import format_cell, markdown_table
+from deploy.markdown import format_cell, markdown_table
 
 IMAGE_MODES = ("constant", "dynamic", "pmj", "mpj")  # the thesis's four
 LARGE_ROTATION = "large_rotation"  # the suite's scenario with the largest turn of the hand

@@ -18,8 +18,8 @@ from pydantic import BaseModel
 
 from deploy.experiments.campaign.causes import cause_family
 from deploy.experiments.compare import ALL_MODES
-from deploy.experiments.compare.summary import markdown_table
 from deploy.experiments.domains.study import DomainRecord, DomainStart, StudyDefinition
+from deploy.markdown import markdown_table
 
 # One letter per failure cause, written in the heat map's cells (docs/domains.md has the key).
 CAUSE_LETTERS = {
