@@ -1,6 +1,6 @@
-"""The motors' own limits, whatever a joint command says: their speed limit, and the joints'
-angle limits. Pure: the sim node and the in-process pipeline (services/pipeline.py) apply
-commands through them."""
+"""The motors' own limits, whatever a joint command says: their speed limit, the joints' angle
+limits, and a watchdog that stops them when commands stop coming. Pure: the sim node and the
+in-process pipeline (services/pipeline.py) apply commands through them."""
 
 from __future__ import annotations
 
@@ -34,3 +34,15 @@ def bounded_at_angles(velocity_rad_s: FloatArray, q_rad: FloatArray) -> FloatArr
     velocity = np.asarray(velocity_rad_s, dtype=float)
     bound = kin.position_bound_rad_s(velocity, q_rad)
     return np.clip(velocity, -bound, bound)
+
+
+def watchdog_expired(
+    velocity_rad_s: FloatArray, commanded_s: float | None, now_s: float, timeout_s: float
+) -> bool:
+    """Whether the motors must stop (``sim.command_watchdog_s``): moving on a command given at
+    ``commanded_s`` (None: never) more than ``timeout_s`` before ``now_s`` (one clock, seconds).
+    The second line of defence behind actuation's deadman: a frozen or dead actuation sends no
+    stop, and in realtime a command stays in force until the next one."""
+    if commanded_s is None or not np.any(velocity_rad_s):
+        return False
+    return now_s - commanded_s > timeout_s

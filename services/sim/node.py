@@ -46,7 +46,7 @@ from common.queries import alive_services
 from common.runs import new_run
 from common.runtime import ServiceContext
 from common.session import ENV_SHM
-from services.sim.motors import bounded_at_angles, motor_velocities
+from services.sim.motors import bounded_at_angles, motor_velocities, watchdog_expired
 from services.sim.schedule import DepthSchedule, FrameClock
 from services.sim.status import SimStatus
 from services.sim.truth import truth_message
@@ -299,9 +299,8 @@ class SimService:
 
     def check_watchdog(self) -> None:
         """Second line of defence behind the actuation deadman: no command, no motion."""
-        if self.last_command_s is None or not np.any(self.last_command):
-            return
-        if time.monotonic() - self.last_command_s > self.scenario.sim.command_watchdog_s:
+        timeout_s = self.scenario.sim.command_watchdog_s
+        if watchdog_expired(self.last_command, self.last_command_s, time.monotonic(), timeout_s):
             self.last_command = np.zeros(kin.N_JOINTS)
             self.set_motors(self.last_command)
             self.watchdog_stops += 1

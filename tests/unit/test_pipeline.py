@@ -17,7 +17,7 @@ from deploy.launch.run_end import EndLimits, HoldState, judge_twist, timeout_det
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from services.actuation.limiter import LimiterState, actuation_step
 from services.pipeline import STAGES, Pipeline
-from services.sim.motors import bounded_at_angles, motor_velocities
+from services.sim.motors import bounded_at_angles, motor_velocities, watchdog_expired
 from services.sim.schedule import DepthSchedule
 from services.vision.tracking import TrackerState
 
@@ -112,6 +112,18 @@ def test_the_motors_hold_the_joint_limits_whatever_the_command_s_age() -> None:
     assert bounded_at_angles(command, at)[0] == pytest.approx(0.1 * command[0])
     assert bounded_at_angles(-command, at)[0] == -command[0]  # away from it: untouched
     assert np.array_equal(bounded_at_angles(command, np.zeros(kin.N_JOINTS)), command)
+
+
+def test_the_watchdog_stops_motors_left_moving_on_an_old_command() -> None:
+    """The sim's second line of defence: motors that still follow a command older than the
+    watchdog's time stop; a fresh command, motors at rest, or no command yet never trip it."""
+    moving = np.zeros(kin.N_JOINTS)
+    moving[2] = 0.3
+    timeout_s = 0.3
+    assert watchdog_expired(moving, 10.0, 10.31, timeout_s)  # 0.31 s with no command
+    assert not watchdog_expired(moving, 10.0, 10.29, timeout_s)  # within its time
+    assert not watchdog_expired(np.zeros(kin.N_JOINTS), 10.0, 99.0, timeout_s)  # at rest
+    assert not watchdog_expired(moving, None, 99.0, timeout_s)  # never commanded
 
 
 # --- actuation's limiter --------------------------------------------------------------------
