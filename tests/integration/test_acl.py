@@ -1,7 +1,8 @@
 """Access control (deploy/zenoh/acl): behind the router, only the actuation service can move
-the arm and only the sim can publish camera frames; sessions without valid credentials are
-refused. The sim runs for real (realtime clock, small image) and its joint encoders tell
-whether a command reached the motors."""
+the arm, only the sim can publish camera frames, and every key of the loop's data takes puts
+from its own service only; sessions without valid credentials are refused. The sim runs for
+real (realtime clock, small image) and its joint encoders tell whether a command reached the
+motors."""
 
 from __future__ import annotations
 
@@ -130,6 +131,61 @@ def test_only_the_sim_can_publish_frames_and_strangers_are_refused(tmp_path: Pat
         rogue.close()
         vision.close()
     finally:
+        monitor.close()
+        stop_all(procs[::-1])
+
+
+# The keys of the loop's data and the one service that may put on each (deploy/zenoh/acl).
+OWNERS = {
+    "rgb": "sim",
+    "depth": "sim",
+    "joint_state": "sim",
+    "truth": "sim",
+    "features": "vision",
+    "twist": "controller",
+    "joint_command": "actuation",
+}
+USERS = ("sim", "vision", "controller", "actuation", "tool")
+
+
+def test_each_data_key_takes_puts_from_its_own_service_only(tmp_path: Path) -> None:
+    """Behind the router every key of the loop's data is one service's alone: what another
+    service or a tool puts there never reaches a subscriber (a forged twist, say, would move the
+    arm through actuation), while the owner's put does, which shows the path was open."""
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    procs = [start_router(endpoint, tmp_path)]
+    monitor = wait_for_router(endpoint)
+    sessions: list[zenoh.Session] = []
+    try:
+        received: dict[str, set[bytes]] = {name: set() for name in OWNERS}
+        for name in OWNERS:
+            monitor.declare_subscriber(
+                getattr(keys, name), lambda s, name=name: received[name].add(s.payload.to_bytes())
+            )
+        publishers = []
+        for user in USERS:
+            session = client_session(user, endpoint)
+            sessions.append(session)
+            publishers += [
+                (user.encode(), session.declare_publisher(getattr(keys, name))) for name in OWNERS
+            ]
+
+        def put_all() -> None:
+            for payload, publisher in publishers:
+                publisher.put(payload)
+            time.sleep(0.1)
+
+        deadline = time.monotonic() + 30
+        while not all(owner.encode() in received[name] for name, owner in OWNERS.items()):
+            assert time.monotonic() < deadline, f"an owner's put never arrived: {received}"
+            put_all()
+        for _ in range(5):  # every user's put has had time to arrive, had it been let through
+            put_all()
+        assert received == {name: {owner.encode()} for name, owner in OWNERS.items()}
+    finally:
+        for session in sessions:
+            session.close()
         monitor.close()
         stop_all(procs[::-1])
 
