@@ -147,3 +147,34 @@ def test_a_joint_held_at_its_limit_leaves_its_share_of_the_twist_to_the_others()
         kin.geometric_jacobian(free_q), free_twist, free + 0.2, free_q, 0.0
     )
     assert none == [] and np.allclose(same, 0.2)
+
+
+def test_at_a_singular_posture_the_inverse_is_damped_and_the_rates_stay_small() -> None:
+    """All joints at zero (joints 1 and 3 aligned: the manipulability is nil) and 5 cm/s
+    asked along z: the command reports the damping ramped in, and its rates are the damped
+    least squares ``Jᵀ (J Jᵀ + δ² I)⁻¹ V`` (computed here with numpy), finite and under every
+    joint's speed limit with no limit having to act, where the plain pseudo-inverse asks over
+    five times the joints' speed limit; the hand still moves the way it was asked. Without the
+    damping the speed limit would have to scale down rates in a direction the singularity
+    chose, not the twist."""
+    q = np.zeros(6)
+    jac = kin.geometric_jacobian(q)
+    damping_max, threshold = 0.02, 0.002
+    assert kin.manipulability(jac) < threshold  # singular: the damping must ramp in
+    twist = np.array([0.0, 0.0, 0.05, 0.0, 0.0, 0.0])
+    cmd = twist_to_joint_velocities(twist, q, damping_max, threshold)
+    assert 0.0 < cmd.damping <= damping_max
+    qdot = cmd.velocity_rad_s
+    assert np.all(np.isfinite(qdot)) and not cmd.clamps.nonfinite
+    assert cmd.clamps.velocity == [] and cmd.clamps.position == []
+    assert np.all(np.abs(qdot) < kin.JOINT_VELOCITY_LIMIT_RAD_S)
+    dls = jac.T @ np.linalg.solve(jac @ jac.T + cmd.damping**2 * np.eye(6), twist)
+    np.testing.assert_allclose(qdot, dls, rtol=1e-9, atol=1e-12)
+    undamped = np.linalg.pinv(jac) @ twist
+    print(
+        f"damping {cmd.damping:.3f}: |q_dot| {np.linalg.norm(qdot):.3f} rad/s, "
+        f"undamped {np.linalg.norm(undamped):.1f} rad/s"
+    )
+    assert np.abs(undamped).max() > 5.0 * kin.JOINT_VELOCITY_LIMIT_RAD_S.max()
+    assert np.linalg.norm(undamped) > 20.0 * np.linalg.norm(qdot)
+    assert float((jac @ qdot) @ twist) > 0.0  # the hand still moves the way it was asked

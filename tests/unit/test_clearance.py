@@ -10,7 +10,7 @@ import pytest
 from common import kinematics as kin
 from common.config import ControllerConfig, load_scenario
 from common.marker import Marker
-from common.messages import Header
+from common.messages import MAX_ANGULAR_RAD_S, MAX_LINEAR_M_S, Header
 from services.controller.arm import ArmReading
 from services.controller.clearance import (
     Plane,
@@ -178,3 +178,43 @@ def test_the_laws_twist_is_changed_where_its_features_notice_it_least() -> None:
     w_base = w_cam @ twist_matrix_base_ee_to_cam(np.eye(4), t_ee[:3, 3])
     change = np.linalg.norm(w_base @ (law.twist_base_ee - down.twist_base_ee))
     assert change < np.linalg.norm(w_base @ (lifted.twist_base_ee - down.twist_base_ee))
+
+
+@pytest.mark.parametrize("law", [False, True], ids=["lift", "least_feature_change"])
+def test_the_lifted_twist_never_exceeds_the_clamp_and_keeps_its_direction(law: bool) -> None:
+    """The hand box 1 mm over the red square, inside its 2 mm margin, and the law's twist
+    sliding sideways at the 1 cm/s clamp: the correction (the straight lift, or the law's
+    least feature change) adds an upward motion that, with the widest clamp the wire allows,
+    takes the twist over 1 cm/s; clamped again it is within both norms, at the linear one,
+    along the same direction, so the hand still rises off the face. Without that second
+    clamp the clearance would send the arm faster than the controller's limit."""
+    controller, t_ee, _, square = above_a_square()
+    k = load_scenario(None).camera.intrinsics()
+    raised = square + np.array([0.0, 0.002, 0.0])  # from 3 mm under the box's lowest corner to 1
+    controller.target_memory.last = Marker.seen_at(raised, k)
+    m = np.linalg.pinv(np.random.default_rng(3).normal(size=(8, 6))) if law else None
+    max_linear, max_angular = 0.01, 0.05
+    sliding = ControlOutput(np.array([max_linear, 0.0, 0.0, 0.0, 0.0, 0.0]), True, 5.0, False)
+    sliding = replace(sliding, control_matrix=m)
+
+    def corrected(max_linear_m_s: float, max_angular_rad_s: float) -> ControlOutput:
+        controller.config = ControllerConfig(
+            max_linear_m_s=max_linear_m_s, max_angular_rad_s=max_angular_rad_s
+        )
+        return above_the_target(controller, sliding, arm_at(t_ee))
+
+    wide = corrected(MAX_LINEAR_M_S, MAX_ANGULAR_RAD_S)
+    small = corrected(max_linear, max_angular)
+    assert wide.lifted and small.lifted
+    lifted = wide.twist_base_ee
+    assert lifted[1] > 0.0  # the correction raises the hand
+    assert np.linalg.norm(lifted[:3]) > 1.02 * max_linear, "the lift must take it over the clamp"
+    twist = small.twist_base_ee
+    lin, ang = np.linalg.norm(twist[:3]), np.linalg.norm(twist[3:])
+    print(
+        f"lifted |v| {np.linalg.norm(lifted[:3]):.4f} m/s; clamped {lin:.4f} m/s, {ang:.4f} rad/s"
+    )
+    assert lin == pytest.approx(max_linear) and lin <= max_linear * (1 + 1e-12)
+    assert ang <= max_angular * (1 + 1e-12)
+    np.testing.assert_allclose(twist / np.linalg.norm(twist), lifted / np.linalg.norm(lifted))
+    assert twist[1] > 0.0

@@ -11,12 +11,12 @@ from common import kinematics as kin
 from common.camera import CameraIntrinsics, pixel_to_normalized
 from common.config import ConstantDepth, ControllerConfig, JacobianMode
 from common.marker import Marker
-from common.messages import MarkerState
+from common.messages import MAX_ANGULAR_RAD_S, MAX_LINEAR_M_S, MarkerState
 from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
 from services.controller.arm import ArmReading
 from services.controller.convergence import settled_error_px_rms
 from services.controller.goal import desired_observation
-from services.controller.ibvs import IbvsController
+from services.controller.ibvs import ControlOutput, IbvsController
 from services.controller.interaction import (
     USES_CURRENT,
     USES_DESIRED,
@@ -152,6 +152,50 @@ def test_clamp_keeps_direction() -> None:
 
 def observe(points: np.ndarray) -> Marker:
     return Marker.seen_at(points, K)
+
+
+@pytest.mark.parametrize("mode", list(JacobianMode))
+@pytest.mark.parametrize(
+    ("max_linear", "max_angular", "binds"),
+    [(0.01, 0.05, "linear"), (0.15, 0.05, "angular")],
+    ids=["linear", "angular"],
+)
+def test_the_law_s_twist_never_exceeds_the_clamp_and_keeps_its_direction(
+    mode: JacobianMode, max_linear: float, max_angular: float, binds: str
+) -> None:
+    """The hand 13 cm from its goal and turned by 0.4 rad: the same step with the widest clamp
+    the wire allows gives the law's own twist, faster than the small clamp; with the small
+    clamp the twist is within both of its norms, at the one that binds (scaled down, not cut
+    to zero) and along the same direction (the hand still heads for its goal). Without the
+    clamp the controller would send the arm as fast as the error asks."""
+    target = square_points(np.array([0.0, 0.05, 0.55]))
+    turn = _axis_angle(np.array([0.2, 0.3, 0.93]) / np.linalg.norm([0.2, 0.3, 0.93]), 0.4)
+    hand = (turn @ square_points(np.zeros(3)).T).T + np.array([0.08, -0.04, 0.5])
+
+    def first_step(max_linear_m_s: float, max_angular_rad_s: float) -> ControlOutput:
+        config = ControllerConfig(
+            mode=mode,
+            gain=1.0,
+            max_linear_m_s=max_linear_m_s,
+            max_angular_rad_s=max_angular_rad_s,
+        )
+        ctrl = IbvsController(config, np.eye(4))
+        return ctrl.step(observe(hand), observe(target), K, ArmReading(hand.mean(axis=0)))
+
+    wide = first_step(MAX_LINEAR_M_S, MAX_ANGULAR_RAD_S)
+    small = first_step(max_linear, max_angular)
+    assert wide.valid and small.valid
+    law = wide.twist_base_ee
+    over = max(np.linalg.norm(law[:3]) / max_linear, np.linalg.norm(law[3:]) / max_angular)
+    assert over > 1.5, "the law's twist must be over the small clamp for the clamp to act"
+    twist = small.twist_base_ee
+    lin, ang = np.linalg.norm(twist[:3]), np.linalg.norm(twist[3:])
+    print(f"{mode}: law {over:.1f}x the clamp; clamped |v| {lin:.4f} m/s, |w| {ang:.4f} rad/s")
+    assert lin <= max_linear * (1 + 1e-12) and ang <= max_angular * (1 + 1e-12)
+    bound = {"linear": lin / max_linear, "angular": ang / max_angular}
+    assert bound[binds] == pytest.approx(1.0) and max(bound.values()) == bound[binds]
+    np.testing.assert_allclose(twist / np.linalg.norm(twist), law / np.linalg.norm(law))
+    assert small.error_px_rms == wide.error_px_rms  # the same step, only its speed bounded
 
 
 @pytest.mark.parametrize("mode", list(JacobianMode))
