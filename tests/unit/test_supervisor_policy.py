@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
 
 from common.config import RestartPolicy, SupervisorConfig
 from common.processes import ProcessEnd
 from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
-from deploy.supervisor import Heard, backoff_s, hang_reason, wants_restart
+from deploy.supervisor import Child, Heard, Supervisor, backoff_s, hang_reason, wants_restart
 
 
 def test_restart_policy_and_backoff() -> None:
@@ -118,3 +121,69 @@ def test_a_child_silent_for_a_long_hang_timeout_is_still_killed(tmp_path) -> Non
             break
     assert killed_at == 152 and child.last_hang == "no status answer for 151.0 s"
     assert len(sup._queries_s) <= 153
+
+
+class _Ends:
+    """A child's process, running until the test ends it (``returncode`` set); its pid one no
+    process can have (above Linux's PID_MAX_LIMIT), so no real process's leftovers are touched."""
+
+    pids = iter(range(5_000_000, 6_000_000))
+
+    def __init__(self) -> None:
+        self.pid = next(self.pids)
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        return self.returncode
+
+
+def _deaths(
+    deaths_s: list[float], log_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> tuple[Child, list[str]]:
+    """A vision that dies (exit 1) at each of ``deaths_s`` (monotonic s, explicit: nothing
+    sleeps), its supervisor ticking at each death and at the restart it then schedules
+    (at most 3 restarts in 60 s; backoff 0.5 s, doubled per recent restart); the child and
+    what the supervisor said."""
+    monkeypatch.setattr("deploy.supervisor.fork_service", lambda *_args: _Ends())
+    monkeypatch.setattr("deploy.supervisor.exec_service", lambda *_args: _Ends())
+    cfg = SupervisorConfig(
+        max_restarts=3, restart_window_s=60.0, backoff_initial_s=0.5, backoff_max_s=5.0
+    )
+    sup = Supervisor(None, "test/x", "tcp/127.0.0.1:1", log_dir, services=("vision",),
+                     config=cfg)  # fmt: skip
+    sup.start()
+    child = sup.children["vision"]
+    events: list[str] = []
+    for now in deaths_s:
+        if child.process is None:  # not restarted after the death before: given up
+            break
+        child.process.returncode = 1  # type: ignore[misc]
+        events += sup.tick(now)
+        if child.restart_due_s is not None:
+            events += sup.tick(child.restart_due_s)
+    return child, events
+
+
+def test_deaths_further_apart_than_the_restart_window_never_exhaust_the_restarts(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``max_restarts`` counts the restarts of the last ``restart_window_s`` only: a service
+    that dies now and then, each death more than the window after the restart before it, is
+    restarted every time, each time after the first backoff again (no restart is recent);
+    as many deaths close together exhaust the limit (3 restarts in 60 s), and it gives up."""
+    spaced = [65.0 * k for k in range(12)]  # each 64.5 s after the restart (+0.5 s) before it
+    child, events = _deaths(spaced, tmp_path / "spaced", monkeypatch)
+    assert not child.given_up and child.restarts == 12, events
+    assert child.process is not None and child.process.poll() is None  # the 13th, running
+    exits = [e for e in events if e.startswith("vision exited")]
+    assert exits == ["vision exited (1); restarting in 0.50 s"] * 12, events
+
+    burst = [10.0 * k for k in range(4)]  # four deaths in 30 s: the fourth is one too many
+    child, events = _deaths(burst, tmp_path / "burst", monkeypatch)
+    assert child.given_up and child.restarts == 3 and child.process is None, events
+    assert [e for e in events if e.startswith("vision exited")] == [
+        "vision exited (1); restarting in 0.50 s",
+        "vision exited (1); restarting in 1.00 s",
+        "vision exited (1); restarting in 2.00 s",
+        "vision exited (1); 3 restarts in 60 s, giving up",
+    ], events
