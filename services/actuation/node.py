@@ -72,9 +72,14 @@ class ActuationService:
             time.monotonic(), self.last_valid_twist_s, self.config.deadman_timeout_s
         )
 
+    def stopped_by_deadman(self) -> bool:
+        """The deadman holds the motors at zero: a twist came once, none fresh since. Before
+        the first twist the motors are simply at rest: neither a stop nor a degradation."""
+        return self.last_valid_twist_s is not None and self.deadman_active()
+
     def status_fields(self) -> ActuationStatus:
         return ActuationStatus(
-            deadman=self.deadman_active(),
+            deadman=self.stopped_by_deadman(),
             deadman_stops=self.deadman_stops,
             **self.counts,
             saturated_joints=self.saturated,
@@ -82,9 +87,8 @@ class ActuationService:
         )
 
     def degraded(self) -> str:
-        # Before the first twist the motors are simply at rest: not a degradation.
-        stale = self.last_valid_twist_s is not None and self.deadman_active()
-        return "deadman: no fresh twist, motors commanded to zero" if stale else ""
+        stopped = self.stopped_by_deadman()
+        return "deadman: no fresh twist, motors commanded to zero" if stopped else ""
 
     def publish(self, velocity: np.ndarray, reason: str, sim_time_s: float, frame_seq: int) -> None:
         command = JointVelocityCommand(

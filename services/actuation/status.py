@@ -8,7 +8,9 @@ from common.messages import StatusFields
 
 
 class ActuationStatus(StatusFields):
-    deadman: bool = Field(description="no fresh valid twist: the motors are commanded to zero")
+    deadman: bool = Field(
+        description="no fresh valid twist since the last one: the motors are commanded to zero"
+    )
     deadman_stops: int = Field(
         description="zero commands sent because no valid twist came within "
         "`actuation.deadman_timeout_s`"
