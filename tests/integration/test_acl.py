@@ -190,6 +190,70 @@ def test_each_data_key_takes_puts_from_its_own_service_only(tmp_path: Path) -> N
         stop_all(procs[::-1])
 
 
+SERVICES = ("sim", "vision", "controller", "actuation")
+
+
+def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(
+    tmp_path: Path,
+) -> None:
+    """Every user answers queries on every service's status and stamps and declares a
+    liveliness token for every service: only the service's own answers and tokens reach a
+    tool (another user's status answer could keep a hung service from being found hung, its
+    token pass for a service that is not there), and only the sim's timing does."""
+    endpoint = free_tcp_endpoint()
+    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    procs = [start_router(endpoint, tmp_path)]
+    monitor = wait_for_router(endpoint)
+    sessions: list[zenoh.Session] = []
+    try:
+        timings: set[bytes] = set()
+        monitor.declare_subscriber(keys.timing, lambda s: timings.add(s.payload.to_bytes()))
+        held = []  # queryables and tokens, alive until the sessions close
+        timing_publishers = []
+        for pid, user in enumerate(USERS, start=1000):
+            session = client_session(user, endpoint)
+            sessions.append(session)
+            for service in SERVICES:
+                for key in (keys.status(service), keys.stamps(service)):
+                    reply = user.encode()
+                    held.append(
+                        session.declare_queryable(key, lambda q, r=reply: q.reply(q.key_expr, r))
+                    )
+                held.append(session.liveliness().declare_token(keys.alive(service, pid)))
+            timing_publishers.append((user.encode(), session.declare_publisher(keys.timing)))
+        owners = {service: 1000 + USERS.index(service) for service in SERVICES}
+
+        def answers(key: str) -> set[bytes]:
+            """Every queryable's reply, not the best match's alone nor one per key."""
+            replies = monitor.get(
+                key,
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=2.0,
+            )
+            return {r.ok.payload.to_bytes() for r in replies if r.ok}
+
+        deadline = time.monotonic() + 30
+        while not all(answers(keys.status(s)) for s in SERVICES):
+            assert time.monotonic() < deadline, "a service's own status never answered"
+            time.sleep(0.1)
+        for service in SERVICES:
+            assert answers(keys.status(service)) == {service.encode()}, service
+            assert answers(keys.stamps(service)) == {service.encode()}, service
+        tokens = {str(r.ok.key_expr) for r in monitor.liveliness().get(keys.all_alive) if r.ok}
+        assert tokens == {keys.alive(s, pid) for s, pid in owners.items()}
+        for _ in range(10):
+            for payload, publisher in timing_publishers:
+                publisher.put(payload)
+            time.sleep(0.05)
+        assert timings == {b"sim"}
+    finally:
+        for session in sessions:
+            session.close()
+        monitor.close()
+        stop_all(procs[::-1])
+
+
 @pytest.mark.parametrize("content", [None, "{ mode: 'peer', listen: { endpoints: [1, 2] } }"])
 def test_a_bad_zenoh_config_is_named_and_nothing_starts(tmp_path: Path, content) -> None:
     path = tmp_path / "zenoh.json5"
