@@ -168,6 +168,15 @@ def test_actuation_ramps_a_new_run_from_rest(ctx, pipeline_frames) -> None:
         assert after_restart[-1].header.run == RUN_B
         assert after_restart[-1].velocity_rad_s == from_scratch[-1].velocity_rad_s
         assert np.any(after_restart[3].velocity_rad_s)  # moving when the sim died
+        # A twist and a joint state of the run before, still in flight: dropped, counted,
+        # nothing sent for them and the new run's limiter untouched.
+        limiter, sent_before = restarted.limiter, len(after_restart)
+        restarted.on_event(ctx.keys.joint_state, in_run(pipeline_frames[1].joints, RUN_A))
+        restarted.on_event(ctx.keys.twist, in_run(pipeline_frames[1].twist, RUN_A))
+        assert len(after_restart) == sent_before and restarted.limiter is limiter
+        received = restarted.node.received
+        assert received[ctx.keys.twist].dropped == 1
+        assert received[ctx.keys.joint_state].dropped == 1
     finally:
         restarted.node.close()
         fresh.node.close()
