@@ -1,9 +1,10 @@
 """``umay bench``'s report as the readable table it prints: per stage p50 / p99 / max (ms)
-beside the in-process p50, then the summary figures, the services, the renderers and the
-synthetic source."""
+beside the in-process p50, then the summary figures, the services, the renderers, the
+synthetic source, and the run against issue 26's goals where they apply."""
 
 from __future__ import annotations
 
+from deploy.bench.goals import against_goals
 from deploy.bench.report import LATENCY_GOAL_MS, BenchReport, RenderReport, Summary
 from deploy.bench.stages import STAGES
 
@@ -123,4 +124,5 @@ def format_report(r: BenchReport) -> str:
             f"{_f(lat.p50)} p99 {_f(lat.p99)} max {_f(lat.max)} ms",
             "  dropped: " + ", ".join(f"{k} {v}" for k, v in s.dropped.items()),
         ]
+    lines += ["", *against_goals(r.model_dump(mode="json"))]
     return "\n".join(lines)

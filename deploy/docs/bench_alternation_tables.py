@@ -7,17 +7,15 @@ from collections.abc import Sequence
 from statistics import median
 from typing import Any
 
-from deploy.docs.bench_cells import (
+from deploy.bench.goals import (
     ADDS_GOAL,
     HANDOFF_GOAL,
     LATENCY_P50_GOAL,
     LATENCY_P99_GOAL,
     REAL_TIME_GOAL,
     Goal,
-    caption,
-    num,
-    realtime_command,
 )
+from deploy.docs.bench_cells import caption, num, realtime_command
 from deploy.docs.sources import ALTERNATIONS_DIR, Inputs
 from deploy.markdown import markdown_table
 

@@ -8,18 +8,17 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from deploy.docs.bench_cells import (
+from deploy.bench.goals import (
     ADDS_GOAL,
     HANDOFF_GOAL,
+    HOST_FIGURES,
     LATENCY_P50_GOAL,
     LATENCY_P99_GOAL,
     REAL_TIME_GOAL,
-    code_cell,
     frame_handoff_ms,
     latency,
-    load_cell,
-    measured,
 )
+from deploy.docs.bench_cells import code_cell, load_cell, measured
 from deploy.docs.sources import BENCH_DIR, LOCKSTEP_RUN, BenchRun, DocsError, Inputs
 from deploy.markdown import link, markdown_table
 
@@ -55,17 +54,7 @@ def _row(here: str, run: BenchRun) -> list[str]:
 
 def within_goals(reports: list[Mapping[str, Any]]) -> str:
     """How many of the runs have each figure within its goal."""
-
-    def count(goal: Any, figure: Any) -> int:
-        return sum(goal.met(figure(d)) for d in reports)
-
-    counts = [
-        ("real-time factor", count(REAL_TIME_GOAL, lambda d: d["distributed"]["real_time_factor"])),
-        ("frame publish + transport", count(HANDOFF_GOAL, frame_handoff_ms)),
-        ("latency p50", count(LATENCY_P50_GOAL, lambda d: latency(d)[0]["p50"])),
-        ("latency p99", count(LATENCY_P99_GOAL, lambda d: latency(d)[0]["p99"])),
-        ("what distribution adds", count(ADDS_GOAL, lambda d: d["distribution_adds_ms"]["p50"])),
-    ]
+    counts = [(f.words, sum(f.goal.met(f.of(d)) for d in reports)) for f in HOST_FIGURES]
     said = ", ".join(f"{words} {n}" for words, n in counts)
     return f"Runs within each goal, of {len(reports)}: {said}."
 

@@ -7,13 +7,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from deploy.bench.goals import frame_handoff_ms, latency
 from deploy.docs.bench_cells import (
     caption,
     code_cell,
     cpu_cell,
     dropped,
-    frame_handoff_ms,
-    latency,
     load_cell,
     num,
     run_label,

@@ -7,7 +7,8 @@ from collections.abc import Callable, Mapping, Sequence
 from statistics import median
 from typing import Any
 
-from deploy.docs.bench_cells import code_cell, cpu_cell, frame_handoff_ms, latency, measured, num
+from deploy.bench.goals import frame_handoff_ms, latency
+from deploy.docs.bench_cells import code_cell, cpu_cell, measured, num
 from deploy.docs.sources import VIEW_DIR, BenchRun, DocsError, Inputs
 from deploy.markdown import link, markdown_table
 

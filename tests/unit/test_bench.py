@@ -12,6 +12,7 @@ import pytest
 from common.codec import encode
 from common.messages import AppliedCommand, Header, PublishedStamps, SimTiming
 from deploy.bench.figure import bench_figure
+from deploy.bench.goals import against_goals
 from deploy.bench.processes import code_version, cpu_model
 from deploy.bench.report import BenchReport, load_json, median_of_runs, summary_ms
 from deploy.bench.run import same_commands_max_abs_diff
@@ -196,6 +197,34 @@ def test_the_stored_runs_load_and_are_written_back_as_they_are(path: Path) -> No
     report = load_json(path)
     assert json.dumps(report.to_json(), indent=2) + "\n" == path.read_text()
     assert "latency excl. render" in format_report(report)
+
+
+def test_a_run_is_judged_against_the_goals_only_where_they_are_stated() -> None:
+    """The headline's kind of run (lockstep, 640×480 at 30 Hz, no Kinect model) gets a line per
+    goal that depends on the host, met or missed as its figure stands against the limit (a
+    figure on the limit is within it, and is shown with the decimals that say so); another
+    kind of run says it is not judged, rather than measured against goals not its own."""
+    report = load_json(BENCH_DIR / "lockstep_640x480.json")
+    data = report.to_json()
+    adds = data["distribution_adds_ms"]
+    data["distribution_adds_ms"] = {**adds, "p50": 2.0}
+    lines = against_goals(data)
+    assert lines[0].startswith("against issue 26's goals")
+    verdicts = {line.split()[0]: line.split()[-1] for line in lines[1:]}
+    assert len(lines) == 6 and verdicts["what"] == "met"
+    data["distribution_adds_ms"] = {**adds, "p50": 2.0001}
+    missed = next(line for line in against_goals(data) if "distribution adds" in line)
+    assert missed.endswith("missed") and "2.0001 ms" in missed  # not shown as "2.00"
+    data["distributed"]["real_time_factor"] = 2.4
+    rtf = next(line for line in against_goals(data) if "real-time factor" in line)
+    assert rtf.endswith("missed")
+    kinect = {**data, "config": {**data["config"], "overrides": ["camera.kinect.enabled=true"]}}
+    realtime = {**data, "config": {**data["config"], "clock": "realtime"}}
+    smaller = {**data, "config": {**data["config"], "width_px": 320, "height_px": 240}}
+    for other in (kinect, realtime, smaller):
+        (said,) = against_goals(other)
+        assert "not judged" in said
+    assert "against issue 26's goals" in format_report(report)
 
 
 def test_the_cpu_model_is_read_from_the_first_processors_block() -> None:

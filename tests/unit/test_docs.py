@@ -11,8 +11,9 @@ from typing import Any
 
 import pytest
 
+from deploy.bench.goals import frame_handoff_ms, latency
 from deploy.cli import main
-from deploy.docs.bench_cells import frame_handoff_ms, latency, run_label
+from deploy.docs.bench_cells import run_label
 from deploy.docs.bench_tables import (
     bench_commands,
     bench_distribution,

@@ -13,9 +13,9 @@ from typing import Any
 import pytest
 
 from deploy.bench.alternate import AlternationReport, Pair, SideFigures
+from deploy.bench.goals import ADDS_GOAL, HANDOFF_GOAL, LATENCY_P50_GOAL, REAL_TIME_GOAL
 from deploy.cli import main
 from deploy.docs.bench_alternation_tables import alternation_summary
-from deploy.docs.bench_cells import ADDS_GOAL, HANDOFF_GOAL, LATENCY_P50_GOAL, REAL_TIME_GOAL
 from deploy.docs.bench_view_tables import view_pairs
 from deploy.docs.blocks import BLOCKS
 from deploy.docs.documents import END
