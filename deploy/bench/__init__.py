@@ -13,7 +13,8 @@ Three measurements in one command, on the same scenario and image size, by modul
 
 The renderers' cost (:mod:`~deploy.bench.render`) comes with them. :mod:`~deploy.bench.run`
 composes the whole benchmark into one typed report (:mod:`~deploy.bench.report`, the JSON
-written), :mod:`~deploy.bench.text` prints it and :mod:`~deploy.bench.cli` is the command.
+written), :mod:`~deploy.bench.text` prints it, with the run against issue 26's goals
+(:mod:`~deploy.bench.goals`), and :mod:`~deploy.bench.cli` is the command.
 This package's top holds only what every part raises, so that the command's parser and the
 live view's bench hook import nothing heavy.
 """

@@ -124,5 +124,5 @@ def format_report(r: BenchReport) -> str:
             f"{_f(lat.p50)} p99 {_f(lat.p99)} max {_f(lat.max)} ms",
             "  dropped: " + ", ".join(f"{k} {v}" for k, v in s.dropped.items()),
         ]
-    lines += ["", *against_goals(r.model_dump(mode="json"))]
+    lines += ["", *against_goals(r.to_json())]
     return "\n".join(lines)

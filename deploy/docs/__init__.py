@@ -15,8 +15,9 @@ gives. Everything outside the markers is left as written.
 
 Modules: :mod:`.sources` (what the tables come from); the blocks, by source: the comparison's
 (:mod:`.results_tables`), the benchmark's (:mod:`.bench_tables`, :mod:`.bench_hosts`,
-:mod:`.bench_alternation_tables`, :mod:`.bench_view_tables`; how they read a run:
-:mod:`.bench_cells`), the campaign's, the domain study's and the rest (``*_tables``);
-:mod:`.blocks` (their names), :mod:`.documents` (finding and rewriting the blocks in the
-Markdown), :mod:`.figures`, :mod:`.cli`. Tables and links in Markdown: :mod:`deploy.markdown`.
+:mod:`.bench_alternation_tables`, :mod:`.bench_view_tables`; a run's cells:
+:mod:`.bench_cells`; the goals and the figures they judge: :mod:`deploy.bench.goals`), the
+campaign's, the domain study's and the rest (``*_tables``); :mod:`.blocks` (their names),
+:mod:`.documents` (finding and rewriting the blocks in the Markdown), :mod:`.figures`,
+:mod:`.cli`. Tables and links in Markdown: :mod:`deploy.markdown`.
 """

@@ -9,7 +9,8 @@ from common.messages import StatusFields
 
 class ActuationStatus(StatusFields):
     deadman: bool = Field(
-        description="no fresh valid twist since the last one: the motors are commanded to zero"
+        description="a valid twist came, none within `actuation.deadman_timeout_s` since: the "
+        "motors are commanded to zero (false before the first twist)"
     )
     deadman_stops: int = Field(
         description="zero commands sent because no valid twist came within "

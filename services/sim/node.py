@@ -304,9 +304,7 @@ class SimService:
             self.last_command = np.zeros(kin.N_JOINTS)
             self.set_motors(self.last_command)
             self.watchdog_stops += 1
-            log.warning(
-                "no joint command for %.2f s: motors stopped", self.scenario.sim.command_watchdog_s
-            )
+            log.warning("no joint command for %.2f s: motors stopped", timeout_s)
 
     # --- clock modes --------------------------------------------------------------------
     def wait_for_peers(self, timeout_s: float = 20.0) -> None:

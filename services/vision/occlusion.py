@@ -81,7 +81,7 @@ def _occluder_map(
 ) -> np.ndarray:
     """:func:`occluder_map`, given which depth pixels are ``valid`` (finite, positive)."""
     closer = valid & (depth_m < surface_m - CLOSER_MARGIN_M)
-    near_closer = cv2.dilate(closer.astype(np.uint8), square_kernel(2 * reach_px + 1)) > 0
+    near_closer = cv2.dilate(binary_u8(closer), square_kernel(2 * reach_px + 1)) > 0
     return closer | (~valid & near_closer)
 
 
