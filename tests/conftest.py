@@ -1,5 +1,6 @@
-"""Shared fixtures: the default scenario, a pybullet world on it, and ``umay`` in this
-process for the checks it makes before it starts anything."""
+"""Shared fixtures: the default scenario, a pybullet world on it, ``umay`` in this process for
+the checks it makes before it starts anything, and a service's context with the default run's
+first frames for tests that drive the services' handlers (tests/services_in_process.py)."""
 
 from __future__ import annotations
 
@@ -36,6 +37,23 @@ def _signal_handlers_and_log_level_restored():
 @pytest.fixture(scope="session")
 def scenario() -> Scenario:
     return load_scenario()
+
+
+@pytest.fixture()
+def ctx():
+    """A service's context on a loopback session of its own (tests/services_in_process.py)."""
+    from tests.services_in_process import service_context
+
+    with service_context() as context:
+        yield context
+
+
+@pytest.fixture(scope="module")
+def pipeline_frames():
+    """The default run's first frames as the services exchange them (run 0)."""
+    from tests.services_in_process import first_frames
+
+    return first_frames()
 
 
 @pytest.fixture()

@@ -1,6 +1,7 @@
 """Access control (deploy/zenoh/acl): behind the router, only the actuation service can move
-the arm, only the sim can publish camera frames, and every key of the loop's data takes puts
-from its own service only; sessions without valid credentials are refused. The sim runs for
+the arm, only the sim can publish camera frames, every key of the loop's data takes puts from
+its own service only, and each service alone answers for its status and stamps and holds its
+liveliness tokens; sessions without valid credentials are refused. The sim runs for
 real (realtime clock, small image) and its joint encoders tell whether a command reached the
 motors."""
 
@@ -16,7 +17,7 @@ import pytest
 import zenoh
 
 from common.codec import encode
-from common.keys import Keys, whole_frame_key
+from common.keys import SERVICES, Keys, whole_frame_key
 from common.messages import Header, JointState, JointVelocityCommand
 from common.session import free_tcp_endpoint
 from tests.router_deployment import (
@@ -188,9 +189,6 @@ def test_each_data_key_takes_puts_from_its_own_service_only(tmp_path: Path) -> N
             session.close()
         monitor.close()
         stop_all(procs[::-1])
-
-
-SERVICES = ("sim", "vision", "controller", "actuation")
 
 
 def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(

@@ -1,5 +1,6 @@
 """A service forked from the supervisor's forkserver behaves as one exec'd: its arguments,
-environment, log, exit code, command line, and a clean stop."""
+environment, log, exit code, command line, and a clean stop. The simulator prints nothing of
+pybullet's on import."""
 
 from __future__ import annotations
 
@@ -267,3 +268,12 @@ def test_a_forkserver_signalled_as_it_starts_still_forks_the_service(tmp_path: P
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "exit 2", done.stderr  # the service ran: its bad override
     assert "controller.gain" in log.read_text()
+
+
+def test_importing_the_simulator_prints_no_pybullet_banner() -> None:
+    """pybullet's "build time" line (on standard error) is not the first line of every sim
+    log and of ``umay run``'s output (services.sim.bullet)."""
+    code = "import services.sim.world, pybullet; print('imported', pybullet.DIRECT == 2)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert (proc.stdout, proc.stderr) == ("imported True\n", "")

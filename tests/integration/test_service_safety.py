@@ -3,7 +3,7 @@ the service runs it (stops sent, counted, reported, never taken for a frame's an
 hold and position-limit counters, the sim's motors holding their speed and angle limits, and
 the controller and actuation answering a lockstep resend without stepping again. Driven as in
 test_sim_runs.py: the handlers called directly in one process, on a loopback Zenoh session
-under a unique key prefix (its ``ctx`` fixture), on the default scenario's first frames."""
+under a unique key prefix (the ``ctx`` fixture), on the default scenario's first frames."""
 
 from __future__ import annotations
 
@@ -15,13 +15,7 @@ from common.config import load_scenario
 from common.messages import EndEffectorTwist, Header, JointState, JointVelocityCommand
 from common.runtime import parse_overrides
 from services.sim.motors import bounded_at_angles
-from tests.integration import test_sim_runs
-from tests.integration.test_sim_runs import RUN_A, in_run, published
-
-# test_sim_runs.py's fixtures: a loopback session under a key prefix of the test's own, and
-# the default run's first frames as the services exchange them.
-ctx = test_sim_runs.ctx
-pipeline_frames = test_sim_runs.pipeline_frames
+from tests.services_in_process import RUN_A, in_run, published
 
 LIMIT = kin.JOINT_VELOCITY_LIMIT_RAD_S
 

@@ -7,29 +7,18 @@ in-process pipeline computes for the default scenario's first frames."""
 
 from __future__ import annotations
 
-import threading
-import uuid
-from collections.abc import Iterator
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from common.config import load_scenario
-from common.keys import Keys
 from common.messages import (
     Header,
-    ImageData,
-    JointState,
     JointVelocityCommand,
-    RgbFrame,
 )
 from common.runs import REVIVE_AFTER, RunVerdict, RunWatch, new_run
-from common.session import free_tcp_endpoint, open_session
-from services.pipeline import Pipeline
-
-FRAMES = 6
-RUN_A, RUN_B = 11, 22
+from tests.services_in_process import RUN_A, RUN_B, in_run, published
 
 
 def test_runs_are_told_apart_and_a_replaced_one_stays_over() -> None:
@@ -63,53 +52,6 @@ def test_a_stray_message_of_a_run_never_seen_does_not_stop_the_live_run_for_good
     backlog.see(2)  # the sim restarted: run 1's messages still come in
     verdicts = [backlog.see(r) for _ in range(3 * REVIVE_AFTER) for r in (1, 2)]
     assert set(verdicts[0::2]) == {RunVerdict.OVER} and backlog.current == 2
-
-
-@pytest.fixture(scope="module")
-def pipeline_frames() -> list[SimpleNamespace]:
-    """The default run's first frames as the services exchange them (run 0)."""
-    out = []
-    with Pipeline(load_scenario()) as pipeline:
-        for _ in range(FRAMES):
-            f = pipeline.step()
-            joints = JointState(
-                header=f.features.header,
-                position_rad=f.q_rad.tolist(),
-                velocity_rad_s=f.qdot_rad_s.tolist(),
-            )
-            rgb = RgbFrame(
-                header=f.features.header,
-                intrinsics=f.features.intrinsics,
-                rgb=ImageData.view_of(f.rgb),
-                depth_frame_seq=-1,  # measured without depth: no wait for a depth image
-            )
-            out.append(SimpleNamespace(features=f.features, joints=joints, twist=f.twist, rgb=rgb))
-    return out
-
-
-def in_run(message, run: int):
-    return message.model_copy(update={"header": message.header.model_copy(update={"run": run})})
-
-
-@pytest.fixture()
-def ctx() -> Iterator[SimpleNamespace]:
-    endpoint = free_tcp_endpoint()
-    session = open_session(connect=[], listen=[endpoint])
-    yield SimpleNamespace(
-        scenario=load_scenario(),
-        keys=Keys(f"test/{uuid.uuid4().hex[:12]}"),
-        session=session,
-        stop=threading.Event(),
-    )
-    session.close()
-
-
-def published(service) -> list:
-    """What the service puts from now on (and still sends)."""
-    sent: list = []
-    put = service.pub.put
-    service.pub.put = lambda message: (sent.append(message), put(message))
-    return sent
 
 
 def test_the_controller_starts_a_new_run_afresh_and_drops_the_old_one_s_leftovers(
@@ -267,7 +209,14 @@ def test_the_sim_s_watchdog_stops_motors_its_commands_stopped_reaching(ctx) -> N
     from common.runtime import parse_overrides
     from services.sim.node import SimService
 
-    ctx.scenario = load_scenario(None, parse_overrides(["run.clock='realtime'"]))
+    # A watchdog of seconds, so that "fresh" holds however slowly a loaded host runs the test
+    # (the test moves the clock back itself to expire it).
+    longer = [
+        "run.clock='realtime'",
+        "sim.command_watchdog_s=5.0",
+        "actuation.deadman_timeout_s=4.0",
+    ]
+    ctx.scenario = load_scenario(None, parse_overrides(longer))
     sim = SimService(ctx)  # type: ignore[arg-type]
     try:
         header = Header(seq=0, sim_time_s=0.0, send_time_s=1.0, frame_seq=0, run=sim.run_id)

@@ -1,5 +1,6 @@
-"""The supervisor's stop with children that ignore or honour SIGTERM: small real processes in
-place of the services (the supervisor needs no Zenoh session to start and stop them)."""
+"""Processes ending, with small real processes in place of the services: the supervisor's stop
+with children that ignore or honour SIGTERM (it needs no Zenoh session to start and stop them),
+and a service seeing its supervisor end."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from common.processes import ProcessEnd
 from deploy.service_process import exec_command
 from deploy.supervisor import Supervisor
 
@@ -34,11 +36,17 @@ def started(
     sup = Supervisor(None, "test/x", "tcp/127.0.0.1:1", tmp_path, services=tuple(codes))
     sup.start()
     deadline = time.monotonic() + 60
-    for child in sup.children.values():
-        while "ready" not in child.log_path.read_text():  # its SIGTERM disposition is set
-            assert child.process.poll() is None, child.log_path.read_text()
-            assert time.monotonic() < deadline, f"{child.name} never started"
-            time.sleep(0.05)
+    try:
+        for child in sup.children.values():
+            while "ready" not in child.log_path.read_text():  # its SIGTERM disposition is set
+                assert child.process.poll() is None, child.log_path.read_text()
+                assert time.monotonic() < deadline, f"{child.name} never started"
+                time.sleep(0.05)
+    except BaseException:  # none left behind for the test that never gets them
+        for process in processes:
+            process.kill()
+            process.wait(10)
+        raise
     return sup, processes
 
 
@@ -85,3 +93,16 @@ def test_stop_waits_no_grace_for_children_that_honour_sigterm(
             if process.poll() is None:
                 process.kill()
                 process.wait(10)
+
+
+def test_a_watched_process_is_seen_to_end() -> None:
+    """How a service notices its supervisor gone (a forked service is not its child)."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE
+    )
+    ended = ProcessEnd(process.pid)
+    assert not ended() and not ended(0.05)
+    process.stdin.close()  # it reads EOF and exits
+    assert ended(10)
+    process.wait(10)
+    assert ProcessEnd(process.pid)()  # reaped: no such process any more

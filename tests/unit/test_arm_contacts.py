@@ -119,18 +119,6 @@ def test_a_world_and_a_pre_launch_check_print_nothing(capfd: pytest.CaptureFixtu
     assert captured.out == "" and captured.err == ""
 
 
-def test_importing_the_simulator_prints_no_pybullet_banner() -> None:
-    """pybullet's "build time" line (on standard error) is not the first line of every sim
-    log and of ``umay run``'s output (services.sim.bullet)."""
-    import subprocess
-    import sys
-
-    code = "import services.sim.world, pybullet; print('imported', pybullet.DIRECT == 2)"
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 0, proc.stderr
-    assert (proc.stdout, proc.stderr) == ("imported True\n", "")
-
-
 def test_a_target_in_the_table_or_a_goal_out_of_view_is_refused_before_launch() -> None:
     """Each was accepted and then left the run acquiring or stuck to its timeout."""
     in_table = load_scenario(None, {"target": {"position": [0.28, -0.42, 0.04]}})

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import struct
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -212,9 +211,8 @@ def test_close_unlinks_and_a_killed_writer_s_segments_can_be_removed(tmp_path: P
 def test_a_new_writer_removes_the_segments_of_processes_that_ended(tmp_path: Path) -> None:
     """A sim killed together with its supervisor leaves its segments to no one: the next
     writer removes those whose pid no longer exists, and only those."""
-    ended = subprocess.Popen(["true"])
-    ended.wait()  # its pid now names no process
-    dead = tmp_path / f"{SEGMENT_PREFIX}{ended.pid}-0123456789abcdef"
+    ended_pid = 4_194_305  # above Linux's PID_MAX_LIMIT: names no process
+    dead = tmp_path / f"{SEGMENT_PREFIX}{ended_pid}-0123456789abcdef"
     alive = tmp_path / f"{SEGMENT_PREFIX}{os.getppid()}-fedcba9876543210"
     unrelated = tmp_path / "not-a-ring"
     for path in (dead, alive, unrelated):

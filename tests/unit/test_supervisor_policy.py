@@ -3,14 +3,11 @@ hung, and which supervisor PID a service trusts."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from common.config import RestartPolicy, SupervisorConfig
-from common.processes import ProcessEnd
 from common.runtime import ENV_SUPERVISOR_PID, supervisor_pid
 from deploy.supervisor import Child, Heard, Supervisor, backoff_s, hang_reason, wants_restart
 
@@ -44,19 +41,6 @@ def test_supervisor_pid_is_read_only_when_it_is_a_pid() -> None:
     for value in ("", "abc", "-5", "1", "0"):  # 1: init, never a supervisor
         assert supervisor_pid({ENV_SUPERVISOR_PID: value}) is None
     assert supervisor_pid({}) is None
-
-
-def test_a_watched_process_is_seen_to_end() -> None:
-    """How a service notices its supervisor gone (a forked service is not its child)."""
-    process = subprocess.Popen(
-        [sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE
-    )
-    ended = ProcessEnd(process.pid)
-    assert not ended() and not ended(0.05)
-    process.stdin.close()  # it reads EOF and exits
-    assert ended(10)
-    process.wait(10)
-    assert ProcessEnd(process.pid)()  # reaped: no such process any more
 
 
 def test_a_child_that_never_answers_is_judged_after_the_start_timeout() -> None:

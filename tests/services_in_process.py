@@ -1,0 +1,75 @@
+"""Helpers for tests that drive the services' event handlers directly, in one process, on a
+loopback Zenoh session under a unique key prefix (the ``ctx`` and ``pipeline_frames`` fixtures of
+tests/conftest.py are made of them): the default run's first frames as the services exchange
+them, a message moved into another run of the sim, and what a service publishes."""
+
+from __future__ import annotations
+
+import threading
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from types import SimpleNamespace
+from typing import Any
+
+from common.config import load_scenario
+from common.keys import Keys
+from common.messages import ImageData, JointState, RgbFrame
+from common.session import free_tcp_endpoint, open_session
+
+FRAMES = 6  # of the default run, for the tests to feed the services
+RUN_A, RUN_B = 11, 22  # two runs of the sim (common/runs.py), as a restart makes them
+
+
+def first_frames(n: int = FRAMES) -> list[SimpleNamespace]:
+    """The default run's first ``n`` frames as the services exchange them (run 0): each its
+    features, joint state, twist and colour frame (measured without depth)."""
+    from services.pipeline import Pipeline
+
+    out = []
+    with Pipeline(load_scenario()) as pipeline:
+        for _ in range(n):
+            f = pipeline.step()
+            joints = JointState(
+                header=f.features.header,
+                position_rad=f.q_rad.tolist(),
+                velocity_rad_s=f.qdot_rad_s.tolist(),
+            )
+            rgb = RgbFrame(
+                header=f.features.header,
+                intrinsics=f.features.intrinsics,
+                rgb=ImageData.view_of(f.rgb),
+                depth_frame_seq=-1,  # measured without depth: no wait for a depth image
+            )
+            out.append(SimpleNamespace(features=f.features, joints=joints, twist=f.twist, rgb=rgb))
+    return out
+
+
+@contextmanager
+def service_context() -> Iterator[SimpleNamespace]:
+    """What a service is built from (a ``ServiceContext``'s fields): the default scenario, a
+    key prefix of its own, a loopback session listening on a free port, a stop event."""
+    endpoint = free_tcp_endpoint()
+    session = open_session(connect=[], listen=[endpoint])
+    try:
+        yield SimpleNamespace(
+            scenario=load_scenario(),
+            keys=Keys(f"test/{uuid.uuid4().hex[:12]}"),
+            session=session,
+            stop=threading.Event(),
+        )
+    finally:
+        session.close()
+
+
+def in_run(message: Any, run: int) -> Any:
+    """``message`` as the sim's run ``run`` sent it."""
+    return message.model_copy(update={"header": message.header.model_copy(update={"run": run})})
+
+
+def published(service: Any) -> list:
+    """What the service puts from now on (and still sends)."""
+    sent: list = []
+    put = service.pub.put
+    service.pub.put = lambda message: (sent.append(message), put(message))
+    return sent
