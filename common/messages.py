@@ -466,7 +466,8 @@ class ServiceStatus(Message):
     last_rejection: str = ""
     processing_ms_p50: float | None = None
     processing_ms_p99: float | None = None
-    # Seconds the event loop has been busy since it last waited for an event (0 while it
-    # waits; None before it first waits): what tells a stuck service from an idle one.
+    # Seconds the service has been in its current step (an event, or its idle work) since it
+    # last waited (0 while it waits; None before it first does): what tells a stuck service
+    # from an idle one.
     loop_busy_s: float | None = None
     fields: dict[str, Any] = {}

@@ -1,9 +1,20 @@
 """A small node base for the services: typed publishers and subscribers, one event inbox,
 status, liveliness and published stamps.
 
-A node declares typed publishers and subscribers; subscriber callbacks (Zenoh threads) only
-decode and validate, then hand the message to the node's single event loop through
-:meth:`Node.next_event`, so service state is touched by one thread only (as in dora-rs nodes).
+A node declares typed publishers and subscribers; subscriber callbacks (run on the Zenoh thread
+that receives the sample) decode and validate, then put the message in the node's inbox. Its
+events are handled one at a time, so service state is touched by one thread at a time (as in
+dora-rs nodes), in one of two ways:
+
+- :meth:`Node.spin` with no latest-only input: by the thread that delivers the event, at once,
+  when no other is handling one (else the event waits in the inbox for that one); the node's
+  own thread does the idle work between. No thread is woken to hand an event over: on a host
+  whose idle CPUs sleep, that wake-up is a good part of a hop (docs/performance.md).
+- :meth:`Node.spin` with a latest-only input (vision's camera frames), and a loop of its own
+  around :meth:`Node.next_event` (the sim's clock): by the node's own thread, which the event
+  wakes. A slow consumer then finds only the newest frame waiting, which the thread that
+  received it could not, being the one busy with the frame before.
+
 A payload that fails validation is counted, its reason kept and logged at a limited rate; it
 never reaches the service and never kills it.
 
@@ -69,7 +80,8 @@ class Node:
         self.processing = DurationMeter()
         self._started = time.monotonic()
         self._seq = 0
-        self._cond = threading.Condition()
+        self._lock = threading.RLock()  # the inbox, the counters, whose turn it is
+        self._cond = threading.Condition(self._lock)  # an event for the node's own thread
         # Held while the status answer is built (on a Zenoh thread) and by every put of the
         # node's publishers, so that one answer never shows half of a put (a camera frame
         # counted by its publisher but not yet by its ring, say).
@@ -87,6 +99,13 @@ class Node:
         self.last_rejection = ""
         self._last_reject_log = 0.0
         self._closed = False
+        # spin()'s handler when events are handled by the thread that delivers them, whether
+        # a thread is handling events (or the idle work) now, and what a handler raised on a
+        # Zenoh thread, for spin() to raise in the node's own.
+        self._handler: Callable[[str, Any], None] | None = None
+        self._turn_taken = False
+        self._turn_free = threading.Condition(self._lock)
+        self._failure: BaseException | None = None
         self._fields_broken = False  # its status fields failed once (logged then)
         # When the event loop last left next_event (None: it has not called it yet) and
         # whether it is inside it now: the status's loop_busy_s, read by the supervisor.
@@ -191,7 +210,13 @@ class Node:
                             meter.dropped += 1
                             break
                 self._inbox.append((key, message, received))
-                self._cond.notify()
+                if self._handler is None:  # the node's own thread handles it: wake it
+                    self._cond.notify()
+                    return
+                if self._turn_taken or self._failure is not None:
+                    return  # the thread handling events now takes this one after its own
+                self._take_turn()
+            self._handle_inbox()
 
         def on_sample(sample: zenoh.Sample) -> None:
             received = time.time()  # before the copy and decode: those count as processing
@@ -214,7 +239,7 @@ class Node:
                 rings,
             )
 
-        self._subscribers.append(self.session.declare_subscriber(key, on_sample))
+        self._subscribers.append(self.session.declare_subscriber(key, direct(on_sample)))
 
     def next_event(self, timeout_s: float | None) -> tuple[str, Any] | None:
         """The next ``(key, message)``, or None after ``timeout_s`` or when closed."""
@@ -340,32 +365,123 @@ class Node:
         timeout_s: float = 0.1,
         on_idle: Callable[[], None] | None = None,
     ) -> None:
-        """The node's one event loop: announce readiness, handle events until ``stop``, close.
+        """The node's events handled until ``stop``, then the node closed: by the threads that
+        deliver them, or with a latest-only input by this one (the module's docstring).
 
-        ``on_idle`` runs after every wake-up (an event or ``timeout_s`` without one).
+        ``on_idle`` runs every ``timeout_s``, and in the second way also after every event. An
+        exception from ``on_event`` or ``on_idle`` ends the node, raised here.
         """
         self.ready()
         try:
-            while not stop.is_set():
-                event = self.next_event(timeout_s)
-                if event is not None:
-                    started = time.perf_counter()
-                    self._handling_recv_time_s = self.event_recv_time_s
-                    try:
-                        on_event(*event)
-                    finally:
-                        self._handling_recv_time_s = 0.0
-                    self.processing.add(1000.0 * (time.perf_counter() - started))
-                if on_idle is not None:
-                    on_idle()
+            if self._latest_only:
+                self._spin_here(stop, on_event, timeout_s, on_idle)
+            else:
+                self._spin_where_delivered(stop, on_event, timeout_s, on_idle)
         finally:
             self.close()
 
-    def close(self) -> None:
-        self.state = "stopping"
+    def _spin_here(
+        self,
+        stop: threading.Event,
+        on_event: Callable[[str, Any], None],
+        timeout_s: float,
+        on_idle: Callable[[], None] | None,
+    ) -> None:
+        while not stop.is_set():
+            event = self.next_event(timeout_s)
+            if event is not None:
+                self._handle(on_event, *event)
+            if on_idle is not None:
+                on_idle()
+
+    def _spin_where_delivered(
+        self,
+        stop: threading.Event,
+        on_event: Callable[[str, Any], None],
+        timeout_s: float,
+        on_idle: Callable[[], None] | None,
+    ) -> None:
         with self._cond:
+            self._handler = on_event
+            self._loop_waiting = True  # started: loop_busy_s counts a turn from here on
+            waiting = bool(self._inbox) and not self._turn_taken  # came before the handler
+            if waiting:
+                self._take_turn()
+        if waiting:
+            self._handle_inbox()
+        try:
+            while not stop.wait(timeout_s):
+                with self._cond:
+                    self._turn_free.wait_for(lambda: not self._turn_taken)
+                    if self._failure is not None:
+                        raise self._failure
+                    self._take_turn()
+                try:
+                    if on_idle is not None:
+                        on_idle()
+                except BaseException:
+                    with self._cond:
+                        self._give_turn_back()
+                    raise
+                self._handle_inbox()  # what came during the idle work; gives the turn back
+            with self._cond:
+                if self._failure is not None:
+                    raise self._failure
+        finally:
+            with self._cond:  # none handled from now on, the one being handled finished
+                self._handler = None
+                self._turn_free.wait_for(lambda: not self._turn_taken, timeout=5.0)
+
+    def _take_turn(self) -> None:
+        """This thread handles the node's events now (the lock held)."""
+        self._turn_taken = True
+        self._loop_waiting = False
+        self._loop_left_s = time.monotonic()
+
+    def _give_turn_back(self) -> None:
+        """No thread handles events now (the lock held)."""
+        self._turn_taken = False
+        self._loop_waiting = True
+        self._turn_free.notify_all()
+
+    def _handle_inbox(self) -> None:
+        """The inbox's events, handled in this thread, which has the turn, until none is left
+        (also those that came meanwhile); then the turn given back. What a handler raises is
+        kept for :meth:`spin` to raise: this may be a Zenoh thread, which would only log it."""
+        while True:
+            with self._cond:
+                handler = self._handler
+                if not self._inbox or handler is None or self._failure is not None:
+                    self._give_turn_back()
+                    return
+                key, message, self.event_recv_time_s = self._inbox.popleft()
+                self._loop_left_s = time.monotonic()
+            try:
+                self._handle(handler, key, message)
+            except BaseException as exc:
+                with self._cond:
+                    self._failure = exc
+                    self._give_turn_back()
+                return
+
+    def _handle(self, on_event: Callable[[str, Any], None], key: str, message: Any) -> None:
+        """One event, timed; what it publishes carries the time it was received."""
+        started = time.perf_counter()
+        self._handling_recv_time_s = self.event_recv_time_s
+        try:
+            on_event(key, message)
+        finally:
+            self._handling_recv_time_s = 0.0
+        self.processing.add(1000.0 * (time.perf_counter() - started))
+
+    def close(self) -> None:
+        """Undeclare everything and close the session; once (a second call does nothing)."""
+        with self._cond:
+            if self._closed:
+                return
             self._closed = True
             self._cond.notify_all()
+        self.state = "stopping"
         try:
             for s in self._subscribers:
                 s.undeclare()
@@ -378,6 +494,16 @@ class Node:
                 self._token.undeclare()
         finally:  # whatever failed above, the session's threads must not outlive the node
             self.session.close()
+
+
+def direct(callback: Callable[[zenoh.Sample], None]) -> Any:
+    """``callback`` run on the Zenoh thread that receives the sample rather than on a thread of
+    its own that Zenoh hands it to: one thread wake-up less per message (docs/performance.md).
+    As given where this Zenoh lacks that option (``indirect``, marked unstable)."""
+    try:
+        return zenoh.handlers.Callback(callback, indirect=False)
+    except (AttributeError, TypeError):
+        return callback
 
 
 def setup_logging(service: str) -> None:
