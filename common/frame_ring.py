@@ -417,6 +417,18 @@ class RingReader:
             return False
         return SEQ.unpack_from(mapped.view, ref.offset - ALIGN)[0] == ref.seq
 
+    def superseded(self, ref: FrameRef) -> bool:
+        """Whether the writer has begun a later frame than ``ref`` in the slot after its: a
+        newer frame of the stream is drawn or sent, so a consumer that has fallen behind can
+        skip this one (frames are written slot after slot). False for a segment this reader
+        does not keep."""
+        with self._lock:
+            mapped = self._maps.get(ref.segment)
+        if mapped is None:
+            return False
+        following = (ref.slot + 1) % mapped.slots
+        return SEQ.unpack_from(mapped.view, ALIGN + following * mapped.stride)[0] > ref.seq
+
     def _segment(self, ref: FrameRef) -> _Mapped:
         if ref.host != self.host:
             raise RingUnreachable(f"frames of another host ({ref.host})")

@@ -156,6 +156,13 @@ class ImageData(ImageSpec):
         them when the answer is no."""
         return self._ring is None or self._ring[1].intact(self._ring[0])
 
+    def superseded(self) -> bool:
+        """Whether a later frame of the same stream is already being written (a view of a ring
+        slot whose publisher has begun the frame after it): a consumer that has fallen behind
+        skips to that one. Never for an image that owns its bytes or views a payload: nothing
+        tells, and the frame is used."""
+        return self._ring is not None and self._ring[1].superseded(self._ring[0])
+
 
 class RgbFrame(Message):
     """Colour image (uint8, H×W×3) from the torso camera.

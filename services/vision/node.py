@@ -31,6 +31,7 @@ from common.messages import DepthFrame, Features, RgbFrame
 from common.node import Node
 from common.runs import RunWatch
 from common.runtime import ServiceContext
+from common.session import shm_enabled
 from services.vision.depth_wait import DepthWait
 from services.vision.segmentation import MARKERS
 from services.vision.status import VisionStatus
@@ -55,7 +56,11 @@ class VisionService:
         self._warm_up()
         self.node = Node("vision", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.features)
-        self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=True)
+        # A vision slower than the camera works on the newest frame: a frame by reference is
+        # skipped when the sim has begun the next (on_event), one by copy replaced in the
+        # inbox by a newer one (latest only: handled then by the node's own thread).
+        by_copy = not shm_enabled()
+        self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=by_copy)
         self.node.subscribe(ctx.keys.depth, DepthFrame, FRAME_MAX_BYTES)
         self.runs = RunWatch()  # the sim's run the frames come from (common.runs)
         # Colour frames waiting for their depth image (counts: status's depth_waits/_missed).
@@ -179,6 +184,9 @@ class VisionService:
             return
         if self.answered is not None and self.answered[0] == msg.header.frame_seq:
             self.pub.put(self.answered[1])  # a lockstep resend of the frame measured last
+            return
+        if msg.rgb.superseded():  # fallen behind the camera: the next frame is on its way
+            self.node.count_dropped(key)
             return
         replaced = self.depth_wait.replaced
         newest_depth = max(self.depths, default=-1)

@@ -27,7 +27,7 @@ from common.codec import (
 )
 from common.frame_ring import RING_SLOTS, RingReader, RingWriter
 from common.keys import Keys
-from common.messages import DepthFrame, Header, ImageData, RgbFrame
+from common.messages import DepthFrame, Header, ImageData, ImageSpec, RgbFrame
 from common.node import Node
 from common.publishers import typed_publisher
 from common.session import ENV_SHM, free_tcp_endpoint, open_session
@@ -281,3 +281,41 @@ def test_vision_drops_a_measurement_whose_frame_was_overwritten_while_read(
     finally:
         colour_ring.close()
         depth_ring.close()
+
+
+def test_vision_behind_the_camera_skips_to_the_newest_frame(ctx, pipeline_frames, tmp_path) -> None:
+    """A vision that has fallen behind the camera works on the newest frame: a colour frame by
+    reference whose successor the sim has already begun (its ring's next slot reserved) is
+    dropped, counted, not measured; the frame before and the successor are measured."""
+    from services.vision.node import VisionService
+    from tests.services_in_process import published
+
+    host = "test-host/boot"
+    writer, reader = RingWriter(4, tmp_path, host), RingReader(tmp_path, host)
+
+    def by_reference(seq: int, ref) -> RgbFrame:
+        base = pipeline_frames[seq].rgb
+        spec = ImageSpec(shape=base.rgb.shape, dtype=base.rgb.dtype)
+        image = ImageData.from_view(spec, reader.view(ref))
+        image.in_ring(ref, reader)
+        return base.model_copy(update={"rgb": image})
+
+    def written(seq: int):
+        pixels = pipeline_frames[seq].rgb.rgb.to_array()
+        return writer.write(memoryview(pixels).cast("B"), pixels.shape, str(pixels.dtype))
+
+    service = VisionService(ctx)  # type: ignore[arg-type]
+    try:
+        sent = published(service)
+        service.on_event(ctx.keys.rgb, by_reference(0, written(0)))
+        behind = by_reference(1, written(1))
+        lease = writer.reserve(behind.rgb.shape, behind.rgb.dtype)  # the sim draws frame 2
+        assert behind.rgb.superseded()
+        service.on_event(ctx.keys.rgb, behind)
+        lease.pixels[...] = pipeline_frames[2].rgb.rgb.to_array()
+        service.on_event(ctx.keys.rgb, by_reference(2, writer.commit(lease)))
+        assert [f.header.frame_seq for f in sent] == [0, 2]
+        assert service.node.received[ctx.keys.rgb].dropped == 1
+    finally:
+        service.node.close()
+        writer.close()

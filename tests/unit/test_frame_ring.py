@@ -94,6 +94,21 @@ def test_a_view_whose_slot_is_overwritten_while_in_use_is_no_longer_intact(ring)
     np.testing.assert_array_equal(as_array(view, ref), image(10 + SLOTS - 1))  # what it shows now
 
 
+def test_a_frame_is_superseded_once_the_writer_begins_the_next(ring) -> None:
+    """A reader that has fallen behind skips to the newest frame: one is superseded from the
+    moment the writer begins the frame after it (reserved: being drawn), never before, also
+    where the ring wraps; the newest frame never is."""
+    writer, reader = ring
+    refs = [write(writer, image(i)) for i in range(SLOTS)]  # the last one in slot 0
+    reader.view(refs[-1])  # mapped
+    assert not reader.superseded(refs[-1])
+    assert all(reader.superseded(r) for r in refs[:-1])
+    lease = writer.reserve((48, 64, 3), "uint8")  # the next frame begun, not yet committed
+    assert reader.superseded(refs[-1])
+    writer.commit(lease)
+    assert not reader.superseded(lease.ref) and reader.superseded(refs[-1])
+
+
 def _poke_seq(directory: Path, ref: FrameRef, begin: int | None, end: int | None) -> None:
     """Change a slot's sequence numbers as a writer would, in the segment's file."""
     with open(directory / ref.segment, "r+b") as f:
