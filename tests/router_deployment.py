@@ -7,12 +7,17 @@ import json
 import subprocess
 import sys
 import time
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import zenoh
 
 from common.codec import DEFAULT_MAX_BYTES, decode
+from common.keys import Keys
 from common.messages import JointState
+from common.session import free_tcp_endpoint
 
 REPO = Path(__file__).resolve().parent.parent
 ACL_DIR = REPO / "deploy" / "zenoh" / "acl"
@@ -85,3 +90,23 @@ def _spawn(argv: list[str], log_path: Path) -> subprocess.Popen:
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("ab") as out:
         return subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
+
+
+@contextmanager
+def router_and_tool(
+    log_dir: Path,
+) -> Iterator[tuple[str, Keys, zenoh.Session, list[zenoh.Session]]]:
+    """A router with access control on a free port, a key prefix of the test's own and a tool
+    session on it; yields those and a list the test adds its own sessions to, all closed after
+    it (and the router stopped)."""
+    endpoint = free_tcp_endpoint()
+    router = start_router(endpoint, log_dir)
+    sessions: list[zenoh.Session] = []
+    try:
+        tool = wait_for_router(endpoint)
+        sessions.append(tool)
+        yield endpoint, Keys(f"test/{uuid.uuid4().hex[:12]}"), tool, sessions
+    finally:
+        for session in sessions:
+            session.close()
+        stop_all([router])

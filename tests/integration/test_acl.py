@@ -24,6 +24,7 @@ from tests.router_deployment import (
     SMALL_IMAGE,
     client_session,
     joint_state_decoder,
+    router_and_tool,
     start_router,
     start_service,
     stop_all,
@@ -153,12 +154,7 @@ def test_each_data_key_takes_puts_from_its_own_service_only(tmp_path: Path) -> N
     """Behind the router every key of the loop's data is one service's alone: what another
     service or a tool puts there never reaches a subscriber (a forged twist, say, would move the
     arm through actuation), while the owner's put does, which shows the path was open."""
-    endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
-    procs = [start_router(endpoint, tmp_path)]
-    monitor = wait_for_router(endpoint)
-    sessions: list[zenoh.Session] = []
-    try:
+    with router_and_tool(tmp_path) as (endpoint, keys, monitor, sessions):
         received: dict[str, set[bytes]] = {name: set() for name in OWNERS}
         for name in OWNERS:
             monitor.declare_subscriber(
@@ -184,11 +180,6 @@ def test_each_data_key_takes_puts_from_its_own_service_only(tmp_path: Path) -> N
         for _ in range(5):  # every user's put has had time to arrive, had it been let through
             put_all()
         assert received == {name: {owner.encode()} for name, owner in OWNERS.items()}
-    finally:
-        for session in sessions:
-            session.close()
-        monitor.close()
-        stop_all(procs[::-1])
 
 
 def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(
@@ -198,12 +189,7 @@ def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(
     liveliness token for every service: only the service's own answers and tokens reach a
     tool (another user's status answer could keep a hung service from being found hung, its
     token pass for a service that is not there), and only the sim's timing does."""
-    endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
-    procs = [start_router(endpoint, tmp_path)]
-    monitor = wait_for_router(endpoint)
-    sessions: list[zenoh.Session] = []
-    try:
+    with router_and_tool(tmp_path) as (endpoint, keys, monitor, sessions):
         timings: set[bytes] = set()
         monitor.declare_subscriber(keys.timing, lambda s: timings.add(s.payload.to_bytes()))
         held = []  # queryables and tokens, alive until the sessions close
@@ -245,11 +231,6 @@ def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(
                 publisher.put(payload)
             time.sleep(0.05)
         assert timings == {b"sim"}
-    finally:
-        for session in sessions:
-            session.close()
-        monitor.close()
-        stop_all(procs[::-1])
 
 
 @pytest.mark.parametrize("content", [None, "{ mode: 'peer', listen: { endpoints: [1, 2] } }"])
