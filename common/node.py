@@ -4,16 +4,18 @@ status, liveliness and published stamps.
 A node declares typed publishers and subscribers; subscriber callbacks (run on the Zenoh thread
 that receives the sample) decode and validate, then put the message in the node's inbox. Its
 events are handled one at a time, so service state is touched by one thread at a time (as in
-dora-rs nodes), in one of two ways:
+dora-rs nodes):
 
-- :meth:`Node.spin` with no latest-only input: by the thread that delivers the event, at once,
-  when no other is handling one (else the event waits in the inbox for that one); the node's
-  own thread does the idle work between. No thread is woken to hand an event over: on a host
-  whose idle CPUs sleep, that wake-up is a good part of a hop (docs/performance.md).
-- :meth:`Node.spin` with a latest-only input (vision's camera frames), and a loop of its own
-  around :meth:`Node.next_event` (the sim's clock): by the node's own thread, which the event
-  wakes. A slow consumer then finds only the newest frame waiting, which the thread that
-  received it could not, being the one busy with the frame before.
+- under :meth:`Node.spin`, by the thread that delivers the event, at once when no other is
+  handling one (else the event waits in the inbox for that one), the idle work done by
+  whichever thread has the turn when it is due, or by the node's own thread when none has. No
+  thread is woken to hand an event over: on a host whose idle CPUs sleep, that wake-up is a
+  good part of a hop (docs/performance.md). Only a latest-only input's message that came whole
+  goes to the node's own thread, so that a slow consumer finds only the newest one waiting:
+  the next one may come on the very thread that would be busy with it (a frame sent by
+  reference is the consumer's to skip when it is superseded: vision does);
+- under a loop of the service's own around :meth:`Node.next_event` (the sim's clock), by the
+  node's own thread, which each event wakes.
 
 A payload that fails validation is counted, its reason kept and logged at a limited rate; it
 never reaches the service and never kills it.
@@ -45,6 +47,9 @@ from common.publishers import TypedPublisher, decode_or_fetch, typed_publisher
 
 M = TypeVar("M", bound=BaseModel)
 log = logging.getLogger("umay")
+
+# How often a waiting spin() looks at its stop event, which cannot wake it.
+STOP_POLL_S = 0.1
 
 # The longest reason a status carries: a rejection's reason quotes what the sender chose (a
 # field name, say), and a status too large to decode would have the service taken for hung.
@@ -103,6 +108,9 @@ class Node:
         # a thread is handling events (or the idle work) now, and what a handler raised on a
         # Zenoh thread, for spin() to raise in the node's own.
         self._handler: Callable[[str, Any], None] | None = None
+        self._on_idle: Callable[[], None] | None = None  # spin()'s, due every _idle_every_s
+        self._idle_every_s = 0.1
+        self._last_idle_s = 0.0
         self._turn_taken = False
         self._turn_free = threading.Condition(self._lock)
         self._failure: BaseException | None = None
@@ -210,7 +218,9 @@ class Node:
                             meter.dropped += 1
                             break
                 self._inbox.append((key, message, received))
-                if self._handler is None:  # the node's own thread handles it: wake it
+                # The node's own thread takes it: outside spin(), and a latest-only input's
+                # message that came whole, whose thread may be the one the next would come on.
+                if self._handler is None or (key in self._latest_only and not by_ref):
                     self._cond.notify()
                     return
                 if self._turn_taken or self._failure is not None:
@@ -365,36 +375,17 @@ class Node:
         timeout_s: float = 0.1,
         on_idle: Callable[[], None] | None = None,
     ) -> None:
-        """The node's events handled until ``stop``, then the node closed: by the threads that
-        deliver them, or with a latest-only input by this one (the module's docstring).
-
-        ``on_idle`` runs every ``timeout_s``, and in the second way also after every event. An
-        exception from ``on_event`` or ``on_idle`` ends the node, raised here.
-        """
+        """The node's events handled until ``stop``, then the node closed (the module's
+        docstring says by which threads); ``on_idle`` run at least every ``timeout_s``, by
+        the thread handling events then or by this one. An exception from either ends the
+        node, raised here."""
         self.ready()
         try:
-            if self._latest_only:
-                self._spin_here(stop, on_event, timeout_s, on_idle)
-            else:
-                self._spin_where_delivered(stop, on_event, timeout_s, on_idle)
+            self._spin(stop, on_event, timeout_s, on_idle)
         finally:
             self.close()
 
-    def _spin_here(
-        self,
-        stop: threading.Event,
-        on_event: Callable[[str, Any], None],
-        timeout_s: float,
-        on_idle: Callable[[], None] | None,
-    ) -> None:
-        while not stop.is_set():
-            event = self.next_event(timeout_s)
-            if event is not None:
-                self._handle(on_event, *event)
-            if on_idle is not None:
-                on_idle()
-
-    def _spin_where_delivered(
+    def _spin(
         self,
         stop: threading.Event,
         on_event: Callable[[str, Any], None],
@@ -402,35 +393,29 @@ class Node:
         on_idle: Callable[[], None] | None,
     ) -> None:
         with self._cond:
-            self._handler = on_event
+            self._handler, self._on_idle, self._idle_every_s = on_event, on_idle, timeout_s
+            self._last_idle_s = time.monotonic()
             self._loop_waiting = True  # started: loop_busy_s counts a turn from here on
-            waiting = bool(self._inbox) and not self._turn_taken  # came before the handler
-            if waiting:
-                self._take_turn()
-        if waiting:
-            self._handle_inbox()
         try:
-            while not stop.wait(timeout_s):
+            while not stop.is_set():
                 with self._cond:
-                    self._turn_free.wait_for(lambda: not self._turn_taken)
-                    if self._failure is not None:
-                        raise self._failure
+                    # Until the idle work is due, an event is left to this thread, or stop.
+                    due = time.monotonic() + timeout_s
+                    while not self._inbox and not stop.is_set() and time.monotonic() < due:
+                        self._cond.wait(min(due - time.monotonic(), STOP_POLL_S))
+                    while self._turn_taken and self._failure is None and not stop.is_set():
+                        self._turn_free.wait(STOP_POLL_S)  # stop noticed, a hung handler or not
+                    if self._failure is not None or stop.is_set():
+                        break
                     self._take_turn()
-                try:
-                    if on_idle is not None:
-                        on_idle()
-                except BaseException:
-                    with self._cond:
-                        self._give_turn_back()
-                    raise
-                self._handle_inbox()  # what came during the idle work; gives the turn back
-            with self._cond:
-                if self._failure is not None:
-                    raise self._failure
+                self._handle_inbox()
         finally:
-            with self._cond:  # none handled from now on, the one being handled finished
-                self._handler = None
-                self._turn_free.wait_for(lambda: not self._turn_taken, timeout=5.0)
+            with self._cond:  # none handled from now on; the one being handled may finish
+                self._handler = self._on_idle = None
+                self._turn_free.wait_for(lambda: not self._turn_taken, timeout=timeout_s)
+                failure = self._failure
+        if failure is not None:
+            raise failure
 
     def _take_turn(self) -> None:
         """This thread handles the node's events now (the lock held)."""
@@ -445,24 +430,30 @@ class Node:
         self._turn_free.notify_all()
 
     def _handle_inbox(self) -> None:
-        """The inbox's events, handled in this thread, which has the turn, until none is left
-        (also those that came meanwhile); then the turn given back. What a handler raises is
-        kept for :meth:`spin` to raise: this may be a Zenoh thread, which would only log it."""
-        while True:
-            with self._cond:
-                handler = self._handler
-                if not self._inbox or handler is None or self._failure is not None:
-                    self._give_turn_back()
-                    return
-                key, message, self.event_recv_time_s = self._inbox.popleft()
-                self._loop_left_s = time.monotonic()
-            try:
-                self._handle(handler, key, message)
-            except BaseException as exc:
+        """The inbox's events handled in this thread, which has the turn, until none is left
+        (also those that came meanwhile), the idle work done whenever it is due; then the turn
+        given back. What they raise is kept for :meth:`spin` to raise: this may be a Zenoh
+        thread, which would only log it."""
+        try:
+            while True:
+                if self._on_idle is not None and self._idle_due():
+                    self._last_idle_s = time.monotonic()
+                    self._on_idle()
                 with self._cond:
-                    self._failure = exc
-                    self._give_turn_back()
-                return
+                    handler = self._handler
+                    if not self._inbox or handler is None or self._failure is not None:
+                        self._give_turn_back()
+                        return
+                    key, message, self.event_recv_time_s = self._inbox.popleft()
+                    self._loop_left_s = time.monotonic()
+                self._handle(handler, key, message)
+        except BaseException as exc:
+            with self._cond:
+                self._failure = exc
+                self._give_turn_back()
+
+    def _idle_due(self) -> bool:
+        return time.monotonic() - self._last_idle_s >= self._idle_every_s
 
     def _handle(self, on_event: Callable[[str, Any], None], key: str, message: Any) -> None:
         """One event, timed; what it publishes carries the time it was received."""

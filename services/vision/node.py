@@ -31,7 +31,6 @@ from common.messages import DepthFrame, Features, RgbFrame
 from common.node import Node
 from common.runs import RunWatch
 from common.runtime import ServiceContext
-from common.session import shm_enabled
 from services.vision.depth_wait import DepthWait
 from services.vision.segmentation import MARKERS
 from services.vision.status import VisionStatus
@@ -56,11 +55,10 @@ class VisionService:
         self._warm_up()
         self.node = Node("vision", ctx.keys, ctx.session, self.status_fields, self.degraded)
         self.pub = self.node.publisher(ctx.keys.features)
-        # A vision slower than the camera works on the newest frame: a frame by reference is
-        # skipped when the sim has begun the next (on_event), one by copy replaced in the
-        # inbox by a newer one (latest only: handled then by the node's own thread).
-        by_copy = not shm_enabled()
-        self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=by_copy)
+        # A vision slower than the camera works on the newest frame: one that came whole is
+        # replaced in the inbox by a newer one (latest only), one by reference, handled by the
+        # thread that received it, is skipped when the sim has begun the next (on_event).
+        self.node.subscribe(ctx.keys.rgb, RgbFrame, FRAME_MAX_BYTES, latest_only=True)
         self.node.subscribe(ctx.keys.depth, DepthFrame, FRAME_MAX_BYTES)
         self.runs = RunWatch()  # the sim's run the frames come from (common.runs)
         # Colour frames waiting for their depth image (counts: status's depth_waits/_missed).
