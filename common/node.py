@@ -180,10 +180,13 @@ class Node:
         latest_only: bool = False,
         rings: RingReader | None = None,
     ) -> None:
-        """Deliver validated ``model`` messages on ``key`` to :meth:`next_event`.
+        """Deliver validated ``model`` messages on ``key`` as the node's events (to
+        :meth:`spin`'s handler, or :meth:`next_event`: the module's docstring says by which
+        thread).
 
         ``latest_only``: an undelivered older message on the same key is replaced (and counted
-        as dropped), so a slow consumer always works on the newest data.
+        as dropped), so a slow consumer always works on the newest data; under :meth:`spin`,
+        such a message that came whole is handled by the node's own thread for that reason.
         ``rings``: what maps the publisher's ring for camera frames sent by reference
         (default: the process's :func:`~common.frame_ring.shared_reader`); a frame it cannot
         map is asked whole from the publisher (:func:`~common.publishers.decode_or_fetch`).
@@ -436,9 +439,10 @@ class Node:
         thread, which would only log it."""
         try:
             while True:
-                if self._on_idle is not None and self._idle_due():
+                on_idle = self._on_idle  # once: spin() may be ending and clear it meanwhile
+                if on_idle is not None and self._idle_due():
                     self._last_idle_s = time.monotonic()
-                    self._on_idle()
+                    on_idle()
                 with self._cond:
                     handler = self._handler
                     if not self._inbox or handler is None or self._failure is not None:
