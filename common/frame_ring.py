@@ -411,23 +411,24 @@ class RingReader:
         """Whether no write into the frame's slot has begun since the frame was written: a
         view of it taken before still shows that frame. False, to be safe, for a segment this
         reader no longer keeps (more than ``max_segments`` since)."""
-        with self._lock:
-            mapped = self._maps.get(ref.segment)
-        if mapped is None:
-            return False
-        return SEQ.unpack_from(mapped.view, ref.offset - ALIGN)[0] == ref.seq
+        mapped = self._kept(ref)
+        return mapped is not None and SEQ.unpack_from(mapped.view, ref.offset - ALIGN)[0] == ref.seq
 
     def superseded(self, ref: FrameRef) -> bool:
         """Whether the writer has begun a later frame than ``ref`` in the slot after its: a
         newer frame of the stream is drawn or sent, so a consumer that has fallen behind can
         skip this one (frames are written slot after slot). False for a segment this reader
         does not keep."""
-        with self._lock:
-            mapped = self._maps.get(ref.segment)
+        mapped = self._kept(ref)
         if mapped is None:
             return False
         following = (ref.slot + 1) % mapped.slots
         return SEQ.unpack_from(mapped.view, ALIGN + following * mapped.stride)[0] > ref.seq
+
+    def _kept(self, ref: FrameRef) -> _Mapped | None:
+        """The segment of ``ref`` if this reader keeps it mapped (never maps one)."""
+        with self._lock:
+            return self._maps.get(ref.segment)
 
     def _segment(self, ref: FrameRef) -> _Mapped:
         if ref.host != self.host:

@@ -96,7 +96,6 @@ class Node:
         self._inbox: deque[tuple[str, BaseModel, float]] = deque()
         self.event_recv_time_s = 0.0  # receive time of the event next_event returned last
         self._handling_recv_time_s = 0.0  # ... while spin() handles it, else 0
-        self._latest_only: set[str] = set()
         self._publishers: dict[str, TypedPublisher[Any]] = {}
         self._subscribers: list[Any] = []
         self.received: dict[str, TopicMeter] = {}
@@ -192,8 +191,6 @@ class Node:
         map is asked whole from the publisher (:func:`~common.publishers.decode_or_fetch`).
         """
         meter = self.received[key] = TopicMeter()
-        if latest_only:
-            self._latest_only.add(key)
         field = image_field(model)
         newest = (0, -1)  # header.run and .seq of the newest message delivered on this key
 
@@ -214,7 +211,7 @@ class Node:
                     meter.by_ref += by_ref
                     meter.by_copy += not by_ref
                     meter.fetched += fetched
-                if key in self._latest_only:
+                if latest_only:
                     for i, (k, _, _) in enumerate(self._inbox):
                         if k == key:
                             del self._inbox[i]
@@ -223,7 +220,7 @@ class Node:
                 self._inbox.append((key, message, received))
                 # The node's own thread takes it: outside spin(), and a latest-only input's
                 # message that came whole, whose thread may be the one the next would come on.
-                if self._handler is None or (key in self._latest_only and not by_ref):
+                if self._handler is None or (latest_only and not by_ref):
                     self._cond.notify()
                     return
                 if self._turn_taken or self._failure is not None:
@@ -410,6 +407,8 @@ class Node:
                         self._turn_free.wait(STOP_POLL_S)  # stop noticed, a hung handler or not
                     if self._failure is not None or stop.is_set():
                         break
+                    if not self._inbox and not (self._on_idle is not None and self._idle_due()):
+                        continue  # nothing to do: no empty turn (another thread did the idle)
                     self._take_turn()
                 self._handle_inbox()
         finally:

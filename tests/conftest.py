@@ -48,7 +48,7 @@ def ctx():
         yield context
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def pipeline_frames():
     """The default run's first frames as the services exchange them (run 0)."""
     from tests.services_in_process import first_frames

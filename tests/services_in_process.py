@@ -21,14 +21,14 @@ FRAMES = 6  # of the default run, for the tests to feed the services
 RUN_A, RUN_B = 11, 22  # two runs of the sim (common/runs.py), as a restart makes them
 
 
-def first_frames(n: int = FRAMES) -> list[SimpleNamespace]:
-    """The default run's first ``n`` frames as the services exchange them (run 0): each its
+def first_frames() -> list[SimpleNamespace]:
+    """The default run's first :data:`FRAMES` frames as the services exchange them (run 0): each its
     features, joint state, twist and colour frame (measured without depth)."""
     from services.pipeline import Pipeline
 
     out = []
     with Pipeline(load_scenario()) as pipeline:
-        for _ in range(n):
+        for _ in range(FRAMES):
             f = pipeline.step()
             joints = JointState(
                 header=f.features.header,
@@ -65,6 +65,14 @@ def service_context() -> Iterator[SimpleNamespace]:
 def in_run(message: Any, run: int) -> Any:
     """``message`` as the sim's run ``run`` sent it."""
     return message.model_copy(update={"header": message.header.model_copy(update={"run": run})})
+
+
+def feed(service: Any, ctx: Any, frames: list, other: str = "twist", run: int = RUN_A) -> None:
+    """Each frame's joint state, then its ``other`` input (``twist`` for actuation,
+    ``features`` for the controller), as the sim's run ``run`` sent them."""
+    for f in frames:
+        service.on_event(ctx.keys.joint_state, in_run(f.joints, run))
+        service.on_event(getattr(ctx.keys, other), in_run(getattr(f, other), run))
 
 
 def published(service: Any) -> list:

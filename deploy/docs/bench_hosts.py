@@ -15,8 +15,6 @@ from deploy.bench.goals import (
     LATENCY_P50_GOAL,
     LATENCY_P99_GOAL,
     REAL_TIME_GOAL,
-    frame_handoff_ms,
-    latency,
 )
 from deploy.docs.bench_cells import code_cell, load_cell, measured
 from deploy.docs.sources import BENCH_DIR, LOCKSTEP_RUN, BenchRun, DocsError, Inputs
@@ -39,16 +37,16 @@ HEADERS = [
 def _row(here: str, run: BenchRun) -> list[str]:
     d = run.data
     m = d["machine"]
-    lat, _ = latency(d)
+    rtf, handoff, p50, p99, adds = (f.goal.shown(f.of(d)) for f in HOST_FIGURES)
     return [
         f"[`{link(BENCH_DIR, run.path).removesuffix('.json')}`]({link(here, run.path)})",
         m.get("cpu_model") or "not recorded",
         code_cell(m),
         load_cell(m),
-        REAL_TIME_GOAL.shown(d["distributed"]["real_time_factor"]),
-        HANDOFF_GOAL.shown(frame_handoff_ms(d)),
-        f"{LATENCY_P50_GOAL.shown(lat['p50'])} / {LATENCY_P99_GOAL.shown(lat['p99'])}",
-        ADDS_GOAL.shown(d["distribution_adds_ms"]["p50"]),
+        rtf,
+        handoff,
+        f"{p50} / {p99}",
+        adds,
     ]
 
 

@@ -15,17 +15,9 @@ from common.config import load_scenario
 from common.messages import EndEffectorTwist, Header, JointState, JointVelocityCommand
 from common.runtime import parse_overrides
 from services.sim.motors import bounded_at_angles
-from tests.services_in_process import RUN_A, in_run, published
+from tests.services_in_process import RUN_A, feed, in_run, published
 
 LIMIT = kin.JOINT_VELOCITY_LIMIT_RAD_S
-
-
-def feed(service, ctx, frames, other: str = "twist") -> None:
-    """Each frame's joint state, then its ``other`` input (``twist`` for actuation,
-    ``features`` for the controller), in run A."""
-    for f in frames:
-        service.on_event(ctx.keys.joint_state, in_run(f.joints, RUN_A))
-        service.on_event(getattr(ctx.keys, other), in_run(getattr(f, other), RUN_A))
 
 
 # --- actuation's deadman --------------------------------------------------------------------

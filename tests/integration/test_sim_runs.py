@@ -18,7 +18,7 @@ from common.messages import (
     JointVelocityCommand,
 )
 from common.runs import REVIVE_AFTER, RunVerdict, RunWatch, new_run
-from tests.services_in_process import RUN_A, RUN_B, in_run, published
+from tests.services_in_process import RUN_A, RUN_B, feed, in_run, published
 
 
 def test_runs_are_told_apart_and_a_replaced_one_stays_over() -> None:
@@ -66,9 +66,7 @@ def test_the_controller_starts_a_new_run_afresh_and_drops_the_old_one_s_leftover
     try:
         twists = published(service)
         keys = ctx.keys
-        for f in pipeline_frames[:5]:
-            service.on_event(keys.joint_state, in_run(f.joints, RUN_A))
-            service.on_event(keys.features, in_run(f.features, RUN_A))
+        feed(service, ctx, pipeline_frames[:5], other="features")
         assert [t.header.frame_seq for t in twists] == [0, 1, 2, 3, 4]
         assert {t.header.run for t in twists} == {RUN_A}
         before = service.controller
@@ -178,9 +176,7 @@ def test_actuation_frozen_past_its_deadman_ramps_up_from_rest(ctx, pipeline_fram
     service = ActuationService(ctx)  # type: ignore[arg-type]
     try:
         sent = published(service)
-        for f in pipeline_frames[:5]:
-            service.on_event(ctx.keys.joint_state, in_run(f.joints, RUN_A))
-            service.on_event(ctx.keys.twist, in_run(f.twist, RUN_A))
+        feed(service, ctx, pipeline_frames[:5])
         assert np.any(sent[3].velocity_rad_s)  # moving
         assert service.last_valid_twist_s is not None
         service.last_valid_twist_s -= 1.0  # a second frozen: the deadman's time, unsent
