@@ -253,6 +253,12 @@ class TypedPublisher(Generic[M]):
     # whoever reads them under the same lock (Node.status, on a Zenoh thread).
     counting: threading.Lock = field(default_factory=threading.Lock)
 
+    @property
+    def matched(self) -> bool:
+        """Whether this session knows of a subscriber to the key (Zenoh's matching status):
+        until then a put reaches nobody."""
+        return bool(self.publisher.matching_status.matching)
+
     def reserve(self, shape: tuple[int, ...], dtype: str) -> np.ndarray | None:
         """Where to draw the next camera frame's image so that it goes by reference without a
         copy: a writable view of the ring's next slot (:meth:`RingPublisher.reserve`), or

@@ -54,6 +54,9 @@ from services.sim.world import World
 
 log = logging.getLogger("umay.sim")
 M = TypeVar("M", RgbFrame, DepthFrame)
+# Before the first lockstep frame: the longest wait for the peers' subscriptions to reach this
+# session once every peer has announced itself (their subscriptions come before the announcement).
+SUBSCRIBER_WAIT_S = 0.2
 
 
 def stamped(message: M) -> M:
@@ -315,10 +318,22 @@ class SimService:
         # never started for a start that hangs.
         while not self.ctx.stop.is_set() and time.monotonic() < deadline:
             if others <= alive_services(self.ctx.session, self.ctx.keys, 0.5):
-                self.node.wait_idle(0.2)  # let their subscriptions propagate too
+                self.wait_for_subscribers()
                 return
             self.node.wait_idle(0.1)
         log.warning("not all services announced themselves; starting anyway")
+
+    def wait_for_subscribers(self) -> None:
+        """Until the first frame and joint state have a subscriber here, at most
+        :data:`SUBSCRIBER_WAIT_S`: a service announces itself once its subscriptions are
+        declared, but they may reach this session a moment after its token did, and a first
+        frame put to nobody would be put again only after ``sim.lockstep_resend_s``."""
+        until = time.monotonic() + SUBSCRIBER_WAIT_S
+        first = (self.pub_rgb, self.pub_depth, self.pub_joints)
+        while not self.ctx.stop.is_set() and time.monotonic() < until:
+            if all(p.matched for p in first):
+                return
+            self.node.wait_idle(0.002)
 
     def run_lockstep(self) -> None:
         self.wait_for_peers()
