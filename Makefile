@@ -5,21 +5,39 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 COMPILED := $(VENV)/.compiled
 
-.PHONY: run test test-unit lint format docs clean
+.PHONY: run test test-unit lint format docs clean lock
 
-# uv installs the same versions as pip in a third of the time (wheels fetched in parallel). uv
-# comes from the machine's own pip into a folder of the venv, so the venv is made without a pip of
-# its own (ensurepip takes longer than fetching uv); uv is one binary with no dependencies and
-# nothing of it is imported, so pip neither resolves nor compiles anything for it. Should uv not
-# install or run here, the venv gets its pip after all and installs with it.
-$(STAMP): pyproject.toml
+# The packages come from uv.lock (versions and hashes, resolved once with `make lock`): uv then
+# installs them without asking the index anything, and CI gets the versions the suite passed with.
+# uv itself is fetched by the machine's own pip, as one pinned wheel named by its address, into a
+# folder of the venv: pip then neither reads uv's index page of thousands of files nor compiles
+# anything, and the venv is made without a pip of its own (ensurepip takes longer than fetching uv).
+# Where no pinned wheel fits the machine, pip picks uv by version; where uv cannot be had or does
+# not run, the venv gets its pip after all and installs the project's ranges (pyproject.toml).
+UV_VERSION := 0.13.9
+UV_WHEELS := https://files.pythonhosted.org/packages
+UV_WHEEL_x86_64 := $(UV_WHEELS)/3d/aa/26d64642d808de4a652579ef950d7cd2d37f080a8babf9c67c6b75fc4c3f/uv-0.13.9-py3-none-manylinux_2_17_x86_64.manylinux2014_x86_64.whl\#sha256=d7f459fe4fd247d830351c75686d3996ace3c6f3f728eb0e85a30b7ada0cef19
+UV_WHEEL_aarch64 := $(UV_WHEELS)/57/15/94b6cd62ac3ff6550288328e8035288875197cbc183f51554b266a69877b/uv-0.13.9-py3-none-manylinux_2_17_aarch64.manylinux2014_aarch64.musllinux_1_1_aarch64.whl\#sha256=5435c5ce14a56431208ca0996416d310f1598e8c2c8ba707688985a16bb82dbe
+UV_WHEEL := $(UV_WHEEL_$(shell uname -m))
+UV_REQUIREMENT := $(if $(UV_WHEEL),uv @ $(UV_WHEEL),uv==$(UV_VERSION))
+UV := $(VENV)/uv/bin/uv
+EXTRAS := --extra dev --extra cluster
+
+$(STAMP): pyproject.toml uv.lock
 	$(PYTHON) -m venv --without-pip $(VENV)
-	( PIP_ROOT_USER_ACTION=ignore $(PYTHON) -m pip install --quiet --disable-pip-version-check \
-	    --upgrade --no-deps --no-compile --target $(VENV)/uv uv && \
-	  $(VENV)/uv/bin/uv pip install --quiet --python $(BIN)/python -e '.[dev,cluster]' ) || \
-	( $(BIN)/python -m ensurepip --default-pip && \
-	  $(BIN)/python -m pip install --quiet -e '.[dev,cluster]' )
+	if PIP_ROOT_USER_ACTION=ignore $(PYTHON) -m pip install --quiet --disable-pip-version-check \
+	    --upgrade --no-deps --no-compile --target $(VENV)/uv "$(UV_REQUIREMENT)" && \
+	    $(UV) --version >/dev/null; then \
+	  UV_PROJECT_ENVIRONMENT=$(VENV) UV_PYTHON_DOWNLOADS=never $(UV) sync --quiet --locked $(EXTRAS); \
+	else \
+	  $(BIN)/python -m ensurepip --default-pip && \
+	  $(BIN)/python -m pip install --quiet -e '.[dev,cluster]'; \
+	fi
 	touch $(STAMP)
+
+# uv.lock again from pyproject.toml's ranges (after changing them; the install refuses a stale lock).
+lock: $(STAMP)
+	$(UV) lock
 
 # Byte-code for every process a run or the suite launches, compiled once up front: where
 # PYTHONDONTWRITEBYTECODE is set (CI's image sets it) each process would compile the project again.
