@@ -21,23 +21,29 @@ UV_WHEEL_aarch64 := $(UV_WHEELS)/57/15/94b6cd62ac3ff6550288328e8035288875197cbc1
 UV_WHEEL := $(UV_WHEEL_$(shell uname -m))
 UV_REQUIREMENT := $(if $(UV_WHEEL),uv @ $(UV_WHEEL),uv==$(UV_VERSION))
 UV := $(VENV)/uv/bin/uv
+# Succeeds once uv runs from .venv/uv at its pinned version, fetched now unless it was there.
+FETCH_UV := { $(UV) --version 2>/dev/null | grep -q '^uv $(UV_VERSION) ' || \
+	{ PIP_ROOT_USER_ACTION=ignore $(PYTHON) -m pip install --quiet --disable-pip-version-check \
+	  --upgrade --no-deps --no-compile --target $(VENV)/uv "$(UV_REQUIREMENT)" && \
+	  $(UV) --version >/dev/null; }; }
 EXTRAS := --extra dev --extra cluster
 
 $(STAMP): pyproject.toml uv.lock
 	$(PYTHON) -m venv --without-pip $(VENV)
-	if PIP_ROOT_USER_ACTION=ignore $(PYTHON) -m pip install --quiet --disable-pip-version-check \
-	    --upgrade --no-deps --no-compile --target $(VENV)/uv "$(UV_REQUIREMENT)" && \
-	    $(UV) --version >/dev/null; then \
-	  UV_PROJECT_ENVIRONMENT=$(VENV) UV_PYTHON_DOWNLOADS=never $(UV) sync --quiet --locked $(EXTRAS); \
+	if $(FETCH_UV); then \
+	  UV_PROJECT_ENVIRONMENT=$(VENV) UV_PYTHON_DOWNLOADS=never $(UV) sync --quiet --locked $(EXTRAS) || \
+	  { echo "make: installing from uv.lock failed (above); if pyproject.toml changed since the lock, run: make lock" >&2; exit 1; }; \
 	else \
 	  $(BIN)/python -m ensurepip --default-pip && \
 	  $(BIN)/python -m pip install --quiet -e '.[dev,cluster]'; \
 	fi
 	touch $(STAMP)
 
-# uv.lock again from pyproject.toml's ranges (after changing them; the install refuses a stale lock).
-lock: $(STAMP)
-	$(UV) lock
+# uv.lock again from pyproject.toml's ranges, after changing them (until then the install stops:
+# the lock needs updating). Needs only uv, not the install the stale lock refuses.
+lock:
+	$(FETCH_UV)
+	UV_PYTHON_DOWNLOADS=never $(UV) lock
 
 # Byte-code for every process a run or the suite launches, compiled once up front: where
 # PYTHONDONTWRITEBYTECODE is set (CI's image sets it) each process would compile the project again.
