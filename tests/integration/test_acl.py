@@ -1,12 +1,15 @@
 """Access control (deploy/zenoh/acl): behind the router, only the actuation service can move
 the arm, only the sim can publish camera frames, every key of the loop's data takes puts from
-its own service only, and each service alone answers for its status and stamps and holds its
-liveliness tokens; sessions without valid credentials are refused. The sim runs for
-real (realtime clock, small image) and its joint encoders tell whether a command reached the
-motors."""
+its own service only, and each service (and the live view) alone answers for its status and
+stamps and holds its liveliness tokens; sessions without valid credentials are refused. The sim
+runs for real (realtime clock, small image) and its joint encoders tell whether a command reached
+the motors."""
 
 from __future__ import annotations
 
+import os
+import signal
+import socket
 import subprocess
 import sys
 import time
@@ -16,11 +19,13 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from common.codec import encode
+from common.codec import DEFAULT_MAX_BYTES, decode, encode
 from common.keys import SERVICES, Keys, whole_frame_key
-from common.messages import Header, JointState, JointVelocityCommand
-from common.session import free_tcp_endpoint
+from common.messages import Header, JointState, JointVelocityCommand, ServiceStatus
+from common.session import ENV_CONFIG, free_tcp_endpoint
 from tests.router_deployment import (
+    ACL_DIR,
+    REPO,
     SMALL_IMAGE,
     client_session,
     joint_state_decoder,
@@ -147,7 +152,10 @@ OWNERS = {
     "twist": "controller",
     "joint_command": "actuation",
 }
-USERS = ("sim", "vision", "controller", "actuation", "tool")
+# Every user the router knows (a user added there is checked here too).
+USERS = tuple(line.split(":", 1)[0] for line in (ACL_DIR / "credentials.txt").read_text().split())
+# Who answers for a status and holds liveliness tokens: the services and the live view.
+NODES = (*SERVICES, "view")
 
 
 def test_each_data_key_takes_puts_from_its_own_service_only(tmp_path: Path) -> None:
@@ -182,11 +190,11 @@ def test_each_data_key_takes_puts_from_its_own_service_only(tmp_path: Path) -> N
         assert received == {name: {owner.encode()} for name, owner in OWNERS.items()}
 
 
-def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(
+def test_each_service_and_the_view_alone_answer_for_their_status_and_liveliness(
     tmp_path: Path,
 ) -> None:
-    """Every user answers queries on every service's status and stamps and declares a
-    liveliness token for every service: only the service's own answers and tokens reach a
+    """Every user answers queries on every service's (and the live view's) status and stamps
+    and declares a liveliness token for each: only the node's own answers and tokens reach a
     tool (another user's status answer could keep a hung service from being found hung, its
     token pass for a service that is not there), and only the sim's timing does."""
     with router_and_tool(tmp_path) as (endpoint, keys, monitor, sessions):
@@ -197,7 +205,7 @@ def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(
         for pid, user in enumerate(USERS, start=1000):
             session = client_session(user, endpoint)
             sessions.append(session)
-            for service in SERVICES:
+            for service in NODES:
                 for key in (keys.status(service), keys.stamps(service)):
                     reply = user.encode()
                     held.append(
@@ -205,7 +213,7 @@ def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(
                     )
                 held.append(session.liveliness().declare_token(keys.alive(service, pid)))
             timing_publishers.append((user.encode(), session.declare_publisher(keys.timing)))
-        owners = {service: 1000 + USERS.index(service) for service in SERVICES}
+        owners = {service: 1000 + USERS.index(service) for service in NODES}
 
         def answers(key: str) -> set[bytes]:
             """Every queryable's reply, not the best match's alone nor one per key."""
@@ -218,10 +226,10 @@ def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(
             return {r.ok.payload.to_bytes() for r in replies if r.ok}
 
         deadline = time.monotonic() + 30
-        while not all(answers(keys.status(s)) for s in SERVICES):
+        while not all(answers(keys.status(s)) for s in NODES):
             assert time.monotonic() < deadline, "a service's own status never answered"
             time.sleep(0.1)
-        for service in SERVICES:
+        for service in NODES:
             assert answers(keys.status(service)) == {service.encode()}, service
             assert answers(keys.stamps(service)) == {service.encode()}, service
         tokens = {str(r.ok.key_expr) for r in monitor.liveliness().get(keys.all_alive) if r.ok}
@@ -231,6 +239,39 @@ def test_each_service_alone_answers_for_its_status_and_holds_its_liveliness(
                 publisher.put(payload)
             time.sleep(0.05)
         assert timings == {b"sim"}
+
+
+def test_the_live_view_logs_in_as_its_own_user(tmp_path: Path) -> None:
+    """``umay view`` on deploy/zenoh/acl/view.json5 is the router's user "view": its status
+    answers a tool and its liveliness token is there, both of which the router lets that user
+    alone put (the test above)."""
+    with router_and_tool(tmp_path) as (endpoint, keys, tool, _sessions), socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+        s.close()  # free again for the view, a moment later
+        log = tmp_path / "view.log"
+        with log.open("wb") as out:
+            view = subprocess.Popen(
+                [sys.executable, "-m", "deploy", "view", "--port", str(port), "--prefix",
+                 keys.prefix, "--connect", endpoint],
+                stdout=out, stderr=subprocess.STDOUT, cwd=REPO,
+                env={**os.environ, ENV_CONFIG: str(ACL_DIR / "view.json5")},
+            )  # fmt: skip
+        try:
+            deadline = time.monotonic() + 60
+            while not (
+                answers := [r.ok for r in tool.get(keys.status("view"), timeout=2.0) if r.ok]
+            ):
+                assert view.poll() is None, log.read_text()
+                assert time.monotonic() < deadline, f"the view never answered: {log.read_text()}"
+                time.sleep(0.2)
+            status = decode(answers[0].payload.to_bytes(), ServiceStatus, DEFAULT_MAX_BYTES)
+            assert (status.service, status.pid) == ("view", view.pid)
+            tokens = {str(r.ok.key_expr) for r in tool.liveliness().get(keys.all_alive) if r.ok}
+            assert keys.alive("view", view.pid) in tokens
+        finally:
+            view.send_signal(signal.SIGTERM)
+            assert view.wait(30) == 0, log.read_text()
 
 
 @pytest.mark.parametrize("content", [None, "{ mode: 'peer', listen: { endpoints: [1, 2] } }"])
