@@ -9,22 +9,25 @@ COMPILED := $(VENV)/.compiled
 
 # The packages come from uv.lock (versions and hashes, resolved once with `make lock`): uv then
 # installs them without asking the index anything, and CI gets the versions the suite passed with.
-# uv itself is fetched by the machine's own pip, as one pinned wheel named by its address, into a
-# folder of the venv: pip then neither reads uv's index page of thousands of files nor compiles
-# anything, and the venv is made without a pip of its own (ensurepip takes longer than fetching uv).
-# Where no pinned wheel fits the machine, pip picks uv by version; where uv cannot be had or does
-# not run, the venv gets its pip after all and installs the project's ranges (pyproject.toml).
+# uv sync makes the venv exactly the lock: a package installed into it by hand goes at the next
+# install. uv itself is fetched by the machine's own pip, on Linux as one pinned wheel named by
+# its address, into a folder of the venv: pip then neither reads uv's index page of thousands of
+# files nor compiles anything, and the venv is made without a pip of its own (ensurepip takes
+# longer than fetching uv). Where that wheel does not fit (another OS or libc), pip picks uv by
+# version; where uv cannot be had or does not run, the venv gets its pip after all and installs
+# the project's ranges (pyproject.toml), not the lock, and says so (pip fetches uv's build backend
+# for the project then).
 UV_VERSION := 0.13.9
 UV_WHEELS := https://files.pythonhosted.org/packages
 UV_WHEEL_x86_64 := $(UV_WHEELS)/3d/aa/26d64642d808de4a652579ef950d7cd2d37f080a8babf9c67c6b75fc4c3f/uv-0.13.9-py3-none-manylinux_2_17_x86_64.manylinux2014_x86_64.whl\#sha256=d7f459fe4fd247d830351c75686d3996ace3c6f3f728eb0e85a30b7ada0cef19
 UV_WHEEL_aarch64 := $(UV_WHEELS)/57/15/94b6cd62ac3ff6550288328e8035288875197cbc183f51554b266a69877b/uv-0.13.9-py3-none-manylinux_2_17_aarch64.manylinux2014_aarch64.musllinux_1_1_aarch64.whl\#sha256=5435c5ce14a56431208ca0996416d310f1598e8c2c8ba707688985a16bb82dbe
-UV_WHEEL := $(UV_WHEEL_$(shell uname -m))
-UV_REQUIREMENT := $(if $(UV_WHEEL),uv @ $(UV_WHEEL),uv==$(UV_VERSION))
+UV_WHEEL := $(if $(filter Linux,$(shell uname -s)),$(UV_WHEEL_$(shell uname -m)))
 UV := $(VENV)/uv/bin/uv
+PIP_UV := PIP_ROOT_USER_ACTION=ignore $(PYTHON) -m pip install --quiet --disable-pip-version-check \
+	--upgrade --no-deps --no-compile --target $(VENV)/uv
 # Succeeds once uv runs from .venv/uv at its pinned version, fetched now unless it was there.
-FETCH_UV := { $(UV) --version 2>/dev/null | grep -q '^uv $(UV_VERSION) ' || \
-	{ PIP_ROOT_USER_ACTION=ignore $(PYTHON) -m pip install --quiet --disable-pip-version-check \
-	  --upgrade --no-deps --no-compile --target $(VENV)/uv "$(UV_REQUIREMENT)" && \
+FETCH_UV := { $(UV) --version 2>/dev/null | grep -q '^uv $(subst .,\.,$(UV_VERSION)) ' || \
+	{ { $(if $(UV_WHEEL),$(PIP_UV) "uv @ $(UV_WHEEL)" ||) $(PIP_UV) uv==$(UV_VERSION); } && \
 	  $(UV) --version >/dev/null; }; }
 EXTRAS := --extra dev --extra cluster
 
@@ -34,6 +37,7 @@ $(STAMP): pyproject.toml uv.lock
 	  UV_PROJECT_ENVIRONMENT=$(VENV) UV_PYTHON_DOWNLOADS=never $(UV) sync --quiet --locked $(EXTRAS) || \
 	  { echo "make: installing from uv.lock failed (above); if pyproject.toml changed since the lock, run: make lock" >&2; exit 1; }; \
 	else \
+	  echo "make: no uv here; pip installs pyproject.toml's ranges instead of uv.lock" >&2; \
 	  $(BIN)/python -m ensurepip --default-pip && \
 	  $(BIN)/python -m pip install --quiet -e '.[dev,cluster]'; \
 	fi

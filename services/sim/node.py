@@ -54,8 +54,8 @@ from services.sim.world import World
 
 log = logging.getLogger("umay.sim")
 M = TypeVar("M", RgbFrame, DepthFrame)
-# Before the first lockstep frame: the longest wait for the peers' subscriptions to reach this
-# session once every peer has announced itself (their subscriptions come before the announcement).
+# Before the first lockstep frame, once every peer has announced itself: the longest wait for
+# the first frame's keys to have subscribers here (SimService.wait_for_subscribers).
 SUBSCRIBER_WAIT_S = 0.2
 
 
@@ -324,10 +324,14 @@ class SimService:
         log.warning("not all services announced themselves; starting anyway")
 
     def wait_for_subscribers(self) -> None:
-        """Until the first frame and joint state have a subscriber here, at most
-        :data:`SUBSCRIBER_WAIT_S`: a service announces itself once its subscriptions are
-        declared, but they may reach this session a moment after its token did, and a first
-        frame put to nobody would be put again only after ``sim.lockstep_resend_s``."""
+        """Until the colour and depth frames and the joint state each have a subscriber here,
+        at most :data:`SUBSCRIBER_WAIT_S`. What the start relies on is the order of the peers'
+        declarations: each service declares its subscriptions before the token it announces
+        itself with, and both reach this session over the same link. This wait is the check
+        that they did: a first frame put to nobody would be put again only after
+        ``sim.lockstep_resend_s``. It asks for a subscriber per key, not each peer's (two read
+        the joint state), and a recorder of every key (``umay run --record``) satisfies it at
+        once."""
         until = time.monotonic() + SUBSCRIBER_WAIT_S
         first = (self.pub_rgb, self.pub_depth, self.pub_joints)
         while not self.ctx.stop.is_set() and time.monotonic() < until:

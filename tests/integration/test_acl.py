@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -245,15 +244,12 @@ def test_the_live_view_logs_in_as_its_own_user(tmp_path: Path) -> None:
     """``umay view`` on deploy/zenoh/acl/view.json5 is the router's user "view": its status
     answers a tool and its liveliness token is there, both of which the router lets that user
     alone put (the test above)."""
-    with router_and_tool(tmp_path) as (endpoint, keys, tool, _sessions), socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-        s.close()  # free again for the view, a moment later
+    with router_and_tool(tmp_path) as (endpoint, keys, tool, _sessions):
         log = tmp_path / "view.log"
         with log.open("wb") as out:
             view = subprocess.Popen(
-                [sys.executable, "-m", "deploy", "view", "--port", str(port), "--prefix",
-                 keys.prefix, "--connect", endpoint],
+                [sys.executable, "-m", "deploy", "view", "--port", "0", "--prefix", keys.prefix,
+                 "--connect", endpoint],
                 stdout=out, stderr=subprocess.STDOUT, cwd=REPO,
                 env={**os.environ, ENV_CONFIG: str(ACL_DIR / "view.json5")},
             )  # fmt: skip
@@ -271,7 +267,13 @@ def test_the_live_view_logs_in_as_its_own_user(tmp_path: Path) -> None:
             assert keys.alive("view", view.pid) in tokens
         finally:
             view.send_signal(signal.SIGTERM)
-            assert view.wait(30) == 0, log.read_text()
+            try:
+                code = view.wait(30)
+            except subprocess.TimeoutExpired:
+                view.kill()
+                view.wait()
+                raise
+        assert code == 0, log.read_text()
 
 
 @pytest.mark.parametrize("content", [None, "{ mode: 'peer', listen: { endpoints: [1, 2] } }"])
