@@ -447,9 +447,9 @@ class Node:
                     if not self._inbox or handler is None or self._failure is not None:
                         self._give_turn_back()
                         return
-                    key, message, self.event_recv_time_s = self._inbox.popleft()
+                    key, message, received = self._inbox.popleft()
                     self._loop_left_s = time.monotonic()
-                self._handle(handler, key, message)
+                self._handle(handler, key, message, received)
         except BaseException as exc:
             with self._cond:
                 self._failure = exc
@@ -458,10 +458,12 @@ class Node:
     def _idle_due(self) -> bool:
         return time.monotonic() - self._last_idle_s >= self._idle_every_s
 
-    def _handle(self, on_event: Callable[[str, Any], None], key: str, message: Any) -> None:
-        """One event, timed; what it publishes carries the time it was received."""
+    def _handle(
+        self, on_event: Callable[[str, Any], None], key: str, message: Any, received_s: float
+    ) -> None:
+        """One event, timed; what it publishes carries ``received_s``, when it was received."""
         started = time.perf_counter()
-        self._handling_recv_time_s = self.event_recv_time_s
+        self._handling_recv_time_s = received_s
         try:
             on_event(key, message)
         finally:

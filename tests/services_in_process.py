@@ -1,7 +1,8 @@
 """Helpers for tests that drive the services' event handlers directly, in one process, on a
 loopback Zenoh session under a unique key prefix (the ``ctx`` and ``pipeline_frames`` fixtures of
 tests/conftest.py are made of them): the default run's first frames as the services exchange
-them, a message moved into another run of the sim, and what a service publishes."""
+them, a message moved into another run of the sim, what a service publishes, and the sim on the
+realtime clock with commands applied to it."""
 
 from __future__ import annotations
 
@@ -14,11 +15,15 @@ from typing import Any
 
 from common.config import load_scenario
 from common.keys import Keys
-from common.messages import ImageData, JointState, RgbFrame
+from common.messages import Header, ImageData, JointState, JointVelocityCommand, RgbFrame
+from common.runtime import parse_overrides
 from common.session import free_tcp_endpoint, open_session
 
 FRAMES = 6  # of the default run, for the tests to feed the services
 RUN_A, RUN_B = 11, 22  # two runs of the sim (common/runs.py), as a restart makes them
+# A deadman and a watchdog of seconds, so that "fresh" holds however slowly a loaded host runs a
+# test (the tests move the clock back themselves to expire them).
+LONG_TIMEOUTS = ("sim.command_watchdog_s=5.0", "actuation.deadman_timeout_s=4.0")
 
 
 def first_frames() -> list[SimpleNamespace]:
@@ -81,3 +86,25 @@ def published(service: Any) -> list:
     put = service.pub.put
     service.pub.put = lambda message: (sent.append(message), put(message))
     return sent
+
+
+@contextmanager
+def realtime_sim(ctx: Any, *overrides: str) -> Iterator[Any]:
+    """The sim service on the realtime clock (a command stays in force until the next one),
+    the scenario's ``overrides`` applied, closed afterwards."""
+    from services.sim.node import SimService
+
+    ctx.scenario = load_scenario(None, parse_overrides(["run.clock='realtime'", *overrides]))
+    sim = SimService(ctx)
+    try:
+        yield sim
+    finally:
+        sim.node.close()
+        sim.world.close()
+
+
+def command(sim: Any, velocity_rad_s: list[float]) -> None:
+    """``velocity_rad_s`` applied by the sim as the command answering frame 0 of its run."""
+    header = Header(seq=0, sim_time_s=0.0, send_time_s=1.0, frame_seq=0, run=sim.run_id)
+    message = JointVelocityCommand(header=header, velocity_rad_s=velocity_rad_s, reason="track")
+    sim.apply(message, 1.0)

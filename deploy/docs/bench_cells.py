@@ -9,13 +9,14 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from deploy.docs.sources import BenchRun
-from deploy.markdown import link
+from deploy.markdown import format_cell, link
 
 
 # --- formatting ------------------------------------------------------------------------------
-def num(v: float | int | None, fmt: str = ".2f") -> str:
-    """``v`` in ``fmt``; a dash for a figure not measured."""
-    return "–" if v is None else format(v, fmt)
+def num(v: float | None, fmt: str = ".2f") -> str:
+    """:func:`~deploy.markdown.format_cell` at the tables' two decimals: ``v`` in ``fmt``; a
+    dash for a figure not measured."""
+    return format_cell(v, fmt=fmt)
 
 
 def load_cell(machine: Mapping[str, Any]) -> str:

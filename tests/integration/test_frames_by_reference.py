@@ -27,7 +27,7 @@ from common.codec import (
 )
 from common.frame_ring import RING_SLOTS, RingReader, RingWriter
 from common.keys import Keys
-from common.messages import DepthFrame, Header, ImageData, ImageSpec, RgbFrame
+from common.messages import DepthFrame, Header, ImageData, RgbFrame
 from common.node import Node
 from common.publishers import typed_publisher
 from common.session import ENV_SHM, free_tcp_endpoint, open_session
@@ -293,12 +293,10 @@ def test_vision_behind_the_camera_skips_to_the_newest_frame(ctx, pipeline_frames
     host = "test-host/boot"
     writer, reader = RingWriter(4, tmp_path, host), RingReader(tmp_path, host)
 
-    def by_reference(seq: int, ref) -> RgbFrame:
-        base = pipeline_frames[seq].rgb
-        spec = ImageSpec(shape=base.rgb.shape, dtype=base.rgb.dtype)
-        image = ImageData.from_view(spec, reader.view(ref))
-        image.in_ring(ref, reader)
-        return base.model_copy(update={"rgb": image})
+    def referring(seq: int, ref) -> RgbFrame:
+        """Frame ``seq`` as vision decodes it when its pixels are at ``ref`` in the ring."""
+        head, _ = frame_parts(pipeline_frames[seq].rgb)
+        return decode(by_reference(head, ref), RgbFrame, FRAME_MAX_BYTES, reader)
 
     def written(seq: int):
         pixels = pipeline_frames[seq].rgb.rgb.to_array()
@@ -307,13 +305,13 @@ def test_vision_behind_the_camera_skips_to_the_newest_frame(ctx, pipeline_frames
     service = VisionService(ctx)  # type: ignore[arg-type]
     try:
         sent = published(service)
-        service.on_event(ctx.keys.rgb, by_reference(0, written(0)))
-        behind = by_reference(1, written(1))
+        service.on_event(ctx.keys.rgb, referring(0, written(0)))
+        behind = referring(1, written(1))
         lease = writer.reserve(behind.rgb.shape, behind.rgb.dtype)  # the sim draws frame 2
         assert behind.rgb.superseded()
         service.on_event(ctx.keys.rgb, behind)
         lease.pixels[...] = pipeline_frames[2].rgb.rgb.to_array()
-        service.on_event(ctx.keys.rgb, by_reference(2, writer.commit(lease)))
+        service.on_event(ctx.keys.rgb, referring(2, writer.commit(lease)))
         assert [f.header.frame_seq for f in sent] == [0, 2]
         assert service.node.received[ctx.keys.rgb].dropped == 1
     finally:

@@ -4,22 +4,12 @@ states have a subscriber, not into the void (services/sim/node.py, ``wait_for_su
 
 from __future__ import annotations
 
-import time
 import uuid
-from collections.abc import Callable
 
 from common.keys import Keys
 from common.node import Node
 from common.session import free_tcp_endpoint, open_session
-
-
-def becomes(predicate: Callable[[], bool], timeout_s: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.005)
-    return True
+from tests.integration.test_supervisor import wait_for
 
 
 def test_matched_follows_a_subscriber_on_another_session() -> None:
@@ -32,10 +22,12 @@ def test_matched_follows_a_subscriber_on_another_session() -> None:
         frames = node.publisher(keys.rgb, frames=True)
         assert not joints.matched and not frames.matched  # nobody subscribes yet
         subscriber = other.declare_subscriber(keys.joint_state, lambda _sample: None)
-        assert becomes(lambda: joints.matched), "the subscriber never reached the publisher"
+        reached = wait_for(lambda: joints.matched, 10.0, 0.005)
+        assert reached, "the subscriber never reached the publisher"
         assert not frames.matched  # another key's subscriber is not this one's
         subscriber.undeclare()
-        assert becomes(lambda: not joints.matched), "the undeclared subscriber still matched"
+        gone = wait_for(lambda: not joints.matched, 10.0, 0.005)
+        assert gone, "the undeclared subscriber still matched"
     finally:
         other.close()
         node.close()

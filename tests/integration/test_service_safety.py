@@ -1,9 +1,10 @@
 """The safety behaviours of the service shells, beyond their pure rules: actuation's deadman as
 the service runs it (stops sent, counted, reported, never taken for a frame's answer), its
-hold and position-limit counters, the sim's motors holding their speed and angle limits, and
-the controller and actuation answering a lockstep resend without stepping again. Driven as in
-test_sim_runs.py: the handlers called directly in one process, on a loopback Zenoh session
-under a unique key prefix (the ``ctx`` fixture), on the default scenario's first frames."""
+hold and position-limit counters, the sim's motors holding their speed and angle limits and its
+watchdog stopping them, and the controller and actuation answering a lockstep resend without
+stepping again. Driven as in test_sim_runs.py: the handlers called directly in one process, on
+a loopback Zenoh session under a unique key prefix (the ``ctx`` fixture), on the default
+scenario's first frames."""
 
 from __future__ import annotations
 
@@ -12,10 +13,18 @@ import pytest
 
 from common import kinematics as kin
 from common.config import load_scenario
-from common.messages import EndEffectorTwist, Header, JointState, JointVelocityCommand
+from common.messages import EndEffectorTwist, Header, JointState
 from common.runtime import parse_overrides
 from services.sim.motors import bounded_at_angles
-from tests.services_in_process import RUN_A, feed, in_run, published
+from tests.services_in_process import (
+    LONG_TIMEOUTS,
+    RUN_A,
+    command,
+    feed,
+    in_run,
+    published,
+    realtime_sim,
+)
 
 LIMIT = kin.JOINT_VELOCITY_LIMIT_RAD_S
 
@@ -33,10 +42,7 @@ def test_actuation_s_deadman_sends_one_counted_stop_that_never_answers_a_resend(
     command), nor reset the limiter (in lockstep it never reaches the motors)."""
     from services.actuation.node import ActuationService
 
-    # A deadman of seconds, so that "fresh" holds however slowly a loaded host runs the test
-    # (the test moves the clock back itself to expire it).
-    longer = ["sim.command_watchdog_s=5.0", "actuation.deadman_timeout_s=4.0"]
-    ctx.scenario = load_scenario(None, parse_overrides(longer))
+    ctx.scenario = load_scenario(None, parse_overrides(LONG_TIMEOUTS))
     service = ActuationService(ctx)  # type: ignore[arg-type]
     try:
         service.node.ready()  # running: its status reports a degradation
@@ -204,21 +210,11 @@ def test_the_sim_s_motors_hold_their_speed_limit_and_slow_down_near_a_joint_limi
     the angles the joints have now (``hold_joint_limits``), a joint driven towards a limit
     slows down as it nears it and stops short of it, while the command is kept and the other
     joints, and motion away from the limit, are left alone."""
-    from services.sim.node import SimService
-
-    ctx.scenario = load_scenario(None, parse_overrides(["run.clock='realtime'"]))
-    sim = SimService(ctx)  # type: ignore[arg-type]
-    try:
-        header = Header(seq=0, sim_time_s=0.0, send_time_s=1.0, frame_seq=0, run=sim.run_id)
-
-        def apply(velocity: list[float]) -> None:
-            command = JointVelocityCommand(header=header, velocity_rad_s=velocity, reason="track")
-            sim.apply(command, 1.0)
-
-        apply([0.0, 0.0, 2.0, 0.0, 0.0, -3.0])  # two joints beyond the limit: one command
+    with realtime_sim(ctx) as sim:
+        command(sim, [0.0, 0.0, 2.0, 0.0, 0.0, -3.0])  # two joints beyond the limit: one command
         assert np.array_equal(sim.following, [0.0, 0.0, LIMIT[2], 0.0, 0.0, -LIMIT[5]])
         assert sim.motor_clamps == 1 and sim.status_fields().motor_clamps == 1
-        apply([0.0, 0.0, 1.0, 0.0, 0.0, -1.0])  # within it: followed as it is, not counted
+        command(sim, [0.0, 0.0, 1.0, 0.0, 0.0, -1.0])  # within it: followed as it is, not counted
         assert np.array_equal(sim.following, [0.0, 0.0, 1.0, 0.0, 0.0, -1.0])
         assert sim.motor_clamps == 1
 
@@ -226,15 +222,15 @@ def test_the_sim_s_motors_hold_their_speed_limit_and_slow_down_near_a_joint_limi
         upper = kin.JOINT_UPPER_RAD[2]
         q[2] = upper - np.deg2rad(2.0)  # a fifth of the slow-down zone left
         sim.world.reset(q)
-        command = np.array([0.0, 0.3, 1.0, 0.0, 0.0, 0.0])  # joint 3 towards its upper limit
-        apply(command.tolist())
-        assert np.array_equal(sim.following, command)  # applied as it came
+        towards = np.array([0.0, 0.3, 1.0, 0.0, 0.0, 0.0])  # joint 3 towards its upper limit
+        command(sim, towards.tolist())
+        assert np.array_equal(sim.following, towards)  # applied as it came
         sim.hold_joint_limits()
-        expected = bounded_at_angles(command, sim.world.joint_state()[0])
+        expected = bounded_at_angles(towards, sim.world.joint_state()[0])
         assert np.array_equal(sim.following, expected)
         assert sim.following[2] == pytest.approx(LIMIT[2] * 0.2, rel=1e-3)  # slowed
         assert sim.following[1] == 0.3  # far from its limits: as commanded
-        assert np.array_equal(sim.last_command, command)  # the command itself is kept
+        assert np.array_equal(sim.last_command, towards)  # the command itself is kept
         for _ in range(30):  # a second of physics on that one command, as run_realtime does
             sim.hold_joint_limits()
             sim.world.step(sim.substeps)
@@ -243,12 +239,31 @@ def test_the_sim_s_motors_hold_their_speed_limit_and_slow_down_near_a_joint_limi
         assert 0 <= sim.following[2] < 0.1 * LIMIT[2]  # slower still, near the limit
         assert sim.motor_clamps == 1  # bounding at angles is not a speed clamp
 
-        apply([0.0, 0.0, -1.0, 0.0, 0.0, 0.0])  # away from the limit: not slowed
+        command(sim, [0.0, 0.0, -1.0, 0.0, 0.0, 0.0])  # away from the limit: not slowed
         sim.hold_joint_limits()
         assert np.array_equal(sim.following, [0.0, 0.0, -1.0, 0.0, 0.0, 0.0])
-    finally:
-        sim.node.close()
-        sim.world.close()
+
+
+def test_the_sim_s_watchdog_stops_motors_its_commands_stopped_reaching(ctx) -> None:
+    """Realtime: a command stays in force until the next one; when none comes for longer than
+    ``sim.command_watchdog_s`` (actuation dead or frozen before it could send the stop), the
+    sim stops the motors itself, counts it in its status, and the arm comes to rest."""
+    with realtime_sim(ctx, *LONG_TIMEOUTS) as sim:
+        moving = [0.0, 0.0, 0.3, 0.0, 0.0, 0.0]
+        command(sim, moving)
+        sim.world.step(24)
+        assert sim.world.joint_state()[1][2] == pytest.approx(0.3, abs=0.02)
+        sim.check_watchdog()  # the command is fresh: left alone
+        assert sim.watchdog_stops == 0 and np.array_equal(sim.following, moving)
+        assert sim.last_command_s is not None
+        sim.last_command_s -= ctx.scenario.sim.command_watchdog_s + 0.01  # then silence
+        sim.check_watchdog()
+        assert sim.watchdog_stops == 1 and not np.any(sim.following)
+        assert sim.status_fields().watchdog_stops == 1
+        sim.world.step(24)
+        assert np.abs(sim.world.joint_state()[1]).max() < 1e-3  # at rest
+        sim.check_watchdog()  # at rest: nothing more to stop
+        assert sim.watchdog_stops == 1
 
 
 # --- lockstep resends -----------------------------------------------------------------------

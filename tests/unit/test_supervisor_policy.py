@@ -67,11 +67,16 @@ def test_a_child_whose_loop_never_starts_is_judged_after_the_start_timeout() -> 
     assert hang_reason(started, None, 99.0, 5.0, started_s=1.0, start_timeout_s=20.0) is None
 
 
-class _Silent:
-    """A child's process that runs and never exits (nor answers: nothing answers here)."""
+class _Process:
+    """A child's process, running until the test or a kill ends it (``returncode`` set), and
+    answering nothing (nothing answers here); its pid one no process can have (above Linux's
+    PID_MAX_LIMIT), so no real process's leftovers are touched."""
 
-    pid = 4242
-    returncode = None
+    pids = iter(range(5_000_000, 6_000_000))
+
+    def __init__(self) -> None:
+        self.pid = next(self.pids)
+        self.returncode: int | None = None
 
     def poll(self) -> int | None:
         return self.returncode
@@ -96,7 +101,7 @@ def test_a_child_silent_for_a_long_hang_timeout_is_still_killed(tmp_path) -> Non
         session=_Session(),
     )  # fmt: skip
     child = sup.children["vision"]
-    process = child.process = _Silent()
+    process = child.process = _Process()
     sup._heard[("vision", process.pid)] = Heard(process.pid, at_s=0.5, loop_busy_s=0.0)
     killed_at = None
     for now in range(400):
@@ -107,20 +112,6 @@ def test_a_child_silent_for_a_long_hang_timeout_is_still_killed(tmp_path) -> Non
     assert len(sup._queries_s) <= 153
 
 
-class _Ends:
-    """A child's process, running until the test ends it (``returncode`` set); its pid one no
-    process can have (above Linux's PID_MAX_LIMIT), so no real process's leftovers are touched."""
-
-    pids = iter(range(5_000_000, 6_000_000))
-
-    def __init__(self) -> None:
-        self.pid = next(self.pids)
-        self.returncode: int | None = None
-
-    def poll(self) -> int | None:
-        return self.returncode
-
-
 def _deaths(
     deaths_s: list[float], log_dir: Path, monkeypatch: pytest.MonkeyPatch
 ) -> tuple[Child, list[str]]:
@@ -128,8 +119,8 @@ def _deaths(
     sleeps), its supervisor ticking at each death and at the restart it then schedules
     (at most 3 restarts in 60 s; backoff 0.5 s, doubled per recent restart); the child and
     what the supervisor said."""
-    monkeypatch.setattr("deploy.supervisor.fork_service", lambda *_args: _Ends())
-    monkeypatch.setattr("deploy.supervisor.exec_service", lambda *_args: _Ends())
+    monkeypatch.setattr("deploy.supervisor.fork_service", lambda *_args: _Process())
+    monkeypatch.setattr("deploy.supervisor.exec_service", lambda *_args: _Process())
     cfg = SupervisorConfig(
         max_restarts=3, restart_window_s=60.0, backoff_initial_s=0.5, backoff_max_s=5.0
     )
