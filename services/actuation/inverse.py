@@ -169,24 +169,34 @@ def twist_to_joint_velocities(
     dt_s: float = 0.0,
 ) -> JointCommand:
     """``q̇ = J⁺_δ(q) · V_e`` (thesis eq. 5.36) with the joints held back by a near limit
-    leaving their share of the twist to the others (:func:`redistribute_at_limits`), a
-    finite-value guard on that (a zero command instead), then the safety limits in order of
-    authority: acceleration (soft: shapes the motion), then joint position and speed limits
-    (hard: always hold, even if that means a sharper change)."""
-    jac = kin.geometric_jacobian(q_rad)
-    w = kin.manipulability(jac)
-    delta = damping_for(w, damping_max, threshold)
-    with np.errstate(invalid="ignore", over="ignore"):  # a non-finite result is handled next
+    leaving their share of the twist to the others (:func:`redistribute_at_limits`), then the
+    safety limits in order of authority: acceleration (soft: shapes the motion), then joint
+    position and speed limits (hard: always hold, even if that means a sharper change); last,
+    a finite-value guard on the command (a zero command instead)."""
+    # A non-finite input anywhere (the twist, a joint angle, the previous command, the time
+    # step) is caught once, on what would reach the motors: a NaN angle of the last joint
+    # leaves the Jacobian finite and enters only through the limits' bounds.
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        jac = kin.geometric_jacobian(q_rad)
+        w = kin.manipulability(jac)
+        delta = damping_for(w, damping_max, threshold)
         qdot = damped_pinv(jac, delta) @ np.asarray(twist_base_ee, dtype=float)
+        if not np.isfinite(qdot).all():  # nothing the limits could make finite
+            return _nonfinite(w, delta)
         qdot, held = redistribute_at_limits(jac, twist_base_ee, qdot, q_rad, delta)
+        accelerated = False
+        if previous_rad_s is not None and np.isfinite(max_accel_rad_s2):
+            qdot, accelerated = limit_acceleration(qdot, previous_rad_s, max_accel_rad_s2, dt_s)
+        qdot, slowed, over = limit_joint_velocities(qdot, q_rad)
     if not np.isfinite(qdot).all():  # never let NaN/Inf reach the motors
-        return JointCommand(np.zeros(kin.N_JOINTS), Clamps(nonfinite=True), w, delta)
-    accelerated = False
-    if previous_rad_s is not None and np.isfinite(max_accel_rad_s2):
-        qdot, accelerated = limit_acceleration(qdot, previous_rad_s, max_accel_rad_s2, dt_s)
-    qdot, slowed, over = limit_joint_velocities(qdot, q_rad)
+        return _nonfinite(w, delta)
     position = sorted(set(held) | set(slowed))
     return JointCommand(qdot, Clamps(position, over, accelerated), w, delta)
+
+
+def _nonfinite(manipulability: float, damping: float) -> JointCommand:
+    """The zero command the finite-value guard sends instead of a non-finite one."""
+    return JointCommand(np.zeros(kin.N_JOINTS), Clamps(nonfinite=True), manipulability, damping)
 
 
 def deadman_expired(now_s: float, last_twist_s: float | None, timeout_s: float) -> bool:

@@ -25,7 +25,8 @@ class ActuationStatus(StatusFields):
         description="commands whose change from the previous one was bounded"
     )
     nonfinite_guards: int = Field(
-        description="commands where the inverse gave NaN or Inf: zero was sent instead"
+        description="commands that came out NaN or Inf (from the twist, a joint angle or the "
+        "previous command): zero was sent instead"
     )
     damped_commands: int = Field(
         description="commands through the damped inverse near a singularity"

@@ -124,6 +124,37 @@ def test_nonfinite_inverse_is_flagged() -> None:
     np.testing.assert_array_equal(cmd.velocity_rad_s, np.zeros(6))
 
 
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("joint", range(6))
+def test_a_nonfinite_joint_angle_gives_a_zero_command(joint: int) -> None:
+    """A NaN angle of any joint, the last one included (which leaves the Jacobian at the
+    end effector's origin finite and enters only through the limits' bounds), never reaches
+    the motors: a zero command, flagged, whatever the previous command."""
+    q = np.array([-1.559, 0.952, -1.832, 1.487, 0.600, -0.070])
+    q[joint] = np.nan
+    twist = np.array([0.01, 0.0, 0.0, 0.0, 0.0, 0.1])
+    for previous in (None, np.zeros(6), np.full(6, 0.2)):
+        cmd = twist_to_joint_velocities(
+            twist, q, 0.02, 0.002, previous_rad_s=previous, max_accel_rad_s2=10.0, dt_s=1 / 30
+        )
+        assert cmd.clamps.nonfinite
+        np.testing.assert_array_equal(cmd.velocity_rad_s, np.zeros(6))
+
+
+@pytest.mark.filterwarnings("error")
+def test_a_nonfinite_previous_command_is_not_passed_on() -> None:
+    """The acceleration limit hands back the previous command when the change cannot be
+    judged: a NaN there must not become the next command (it would then stick)."""
+    q = np.array([-1.559, 0.952, -1.832, 1.487, 0.600, -0.070])
+    twist = np.array([0.01, 0.0, 0.0, 0.0, 0.0, 0.1])
+    previous = np.array([0.1, np.nan, 0.0, 0.0, 0.0, 0.0])
+    cmd = twist_to_joint_velocities(
+        twist, q, 0.02, 0.002, previous_rad_s=previous, max_accel_rad_s2=10.0, dt_s=1 / 30
+    )
+    assert cmd.clamps.nonfinite
+    np.testing.assert_array_equal(cmd.velocity_rad_s, np.zeros(6))
+
+
 def test_a_joint_held_at_its_limit_leaves_its_share_of_the_twist_to_the_others() -> None:
     """Joint 2 two degrees from its upper limit and asked to move towards it: held at its
     bound, the other joints give the twist's rest, and the hand's twist is closer to the one
