@@ -50,9 +50,10 @@ UMAY_DH: tuple[DHRow, ...] = (
     DHRow(np.pi / 2, 0.0, 0.0),
 )
 
-# Human-like joint limits (rad). The thesis gives none; these follow a child's right arm
-# mapped onto the DH joints (shoulder pitch/roll/yaw, elbow, forearm twist, wrist),
-# kept a little wider than the ranges the default scenarios use.
+# Joint limits (rad). The thesis gives none; these follow a child's right arm mapped onto the
+# DH joints (shoulder pitch/roll/yaw, elbow, forearm twist, wrist), kept a little wider than
+# the ranges the default scenarios use. The elbow's is not a human's: folded at 0, straight at
+# ±180°, it bends either way here (docs/architecture.md, "Joint limits").
 JOINT_LOWER_RAD: FloatArray = np.deg2rad([-150.0, -100.0, -150.0, -150.0, -150.0, -100.0])
 JOINT_UPPER_RAD: FloatArray = np.deg2rad([150.0, 100.0, 150.0, 150.0, 150.0, 100.0])
 # Joint speed limits (rad/s), servo-class values for a child-sized arm.

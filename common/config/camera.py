@@ -21,7 +21,12 @@ class KinectConfig(Strict):
         "(docs/vision.md); off: perfect images",
     )
     seed: int = Field(0, ge=0, description="noisy runs stay reproducible")
-    min_range_m: float = Field(0.4, ge=0.0, description="near mode; 0.5 m in default mode")
+    min_range_m: float = Field(
+        0.4,
+        ge=0.0,
+        description="near mode's floor (the brief's 0.5 m would blank the markers, about "
+        "0.45 m away)",
+    )
     max_range_m: float = Field(4.0, gt=0.0, description="farther surfaces give no depth (m)")
     edge_threshold_m: float = Field(0.03, gt=0.0, description="a jump this large is an edge")
     edge_dropout_px: int = Field(2, ge=0, le=10, description="invalid band along edges")
@@ -29,7 +34,8 @@ class KinectConfig(Strict):
         0.8,
         ge=0.0,
         le=5.0,
-        description="spread of the pixel shift each depth is read from (σ, px; clipped)",
+        description="spread of the pixel shift each depth is read from (σ, in the depth "
+        "image's pixels; clipped)",
     )
     quantise: bool = Field(
         True, description="depths in the disparity's 1/8 px steps, coarser with distance"
