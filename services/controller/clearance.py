@@ -62,6 +62,9 @@ def plane_of_corners(points: FloatArray, origin: FloatArray) -> Plane:
     the camera's optical centre ``origin`` (up, out of the object)."""
     centre = kin.centroid(points)
     normal = kin.cross(points[1] - points[0], points[3] - points[0])
+    diagonals = kin.cross(points[2] - points[0], points[3] - points[1])
+    if kin.norm(normal) < 1e-3 * kin.norm(diagonals):  # corners 0, 1, 3 (nearly) in a line:
+        normal = diagonals  # the diagonals, which the wire checks, do cross
     normal = normal / kin.norm(normal)
     if normal @ (origin - centre) < 0:
         normal = -normal

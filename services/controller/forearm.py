@@ -79,6 +79,9 @@ def top_face(plane: Plane, corners_base_m: FloatArray, side_m: float) -> TopFace
     n = plane.normal
     u = corners_base_m[1] - corners_base_m[0]
     u = u - (u @ n) * n
+    if kin.norm(u) < 1e-9:  # corners 0 and 1 as one: along the diagonals' difference, which
+        d = (corners_base_m[2] - corners_base_m[0]) - (corners_base_m[3] - corners_base_m[1])
+        u = d - (d @ n) * n  # runs 0 → 1 too, and is not nil when they cross (the wire's check)
     u = u / kin.norm(u)
     return TopFace(plane.point_m, u, kin.cross(n, u), n, side_m / 2)
 

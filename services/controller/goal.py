@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 from common.camera import CameraIntrinsics, project
 from common.kinematics import centroid, cross, norm
 from common.marker import Marker
+from common.messages import MIN_USABLE_DEPTH_M
 from common.motion import MarkerMotion
 
 FloatArray = NDArray[np.float64]
@@ -33,6 +34,16 @@ def desired_observation(target: Marker, approach_height_m: float, k: CameraIntri
     raised = p + approach_height_m * normal
     # Its depths come from the target's, moved by a known height: the same uncertainty.
     return Marker.seen_at(raised, k, target.depth_sigma_m)
+
+
+GOAL_BEHIND_CAMERA = "goal not in front of the camera"
+
+
+def in_front_of_camera(goal: Marker) -> bool:
+    """Every corner of ``goal`` at least :data:`~common.messages.MIN_USABLE_DEPTH_M` in front
+    of the camera, as a usable marker's: a target (or the prediction of a hidden one) too near
+    the camera, raised by the approach height, projects nowhere, or from behind it."""
+    return bool(np.all(np.asarray(goal.points_m)[:, 2] >= MIN_USABLE_DEPTH_M))
 
 
 def carried(last: Marker, shift_m: FloatArray, k: CameraIntrinsics) -> Marker:

@@ -25,8 +25,10 @@ from services.controller import acquisition as acq
 from services.controller.arm import ArmReading
 from services.controller.convergence import ConvergenceWindow
 from services.controller.goal import (
+    GOAL_BEHIND_CAMERA,
     TargetMemory,
     desired_observation,
+    in_front_of_camera,
     may_be_behind_the_hand,
 )
 from services.controller.hand import HandMemory
@@ -219,8 +221,10 @@ class IbvsController:
             self.reach_stale = self.reachable is not None
         if not (hand.usable and target.usable):
             return self._hold(hand, target, seen, k, arm, t_s)
-        self.hold_since_s = None
         goal = self._goal(target, k)
+        if not in_front_of_camera(goal):
+            return self._hold_for(GOAL_BEHIND_CAMERA, t_s)
+        self.hold_since_s = None
         q, t_base_ee = arm.q_rad, arm.t_base_ee
         if q is not None and t_base_ee is not None and self._pairing_open() and not hand_predicted:
             self._check_reach(hand, goal, q, t_base_ee)
@@ -363,6 +367,13 @@ class IbvsController:
                 if started is not None:
                     return started
                 reason = self.acquisition_failed
+        return self._hold_for(reason, t_s)
+
+    def _hold_for(self, reason: str, t_s: float) -> ControlOutput:
+        """A zero twist, for ``reason``, the hold's start kept from its first frame."""
+        self.window.clear()
+        if self.hold_since_s is None:
+            self.hold_since_s = t_s
         return ControlOutput(
             self._zero.copy(), False, 0.0, False, False, reason, "holding", self.hold_since_s
         )

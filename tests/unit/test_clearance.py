@@ -21,6 +21,7 @@ from services.controller.clearance import (
     lift_then_nearest,
     plane_of_corners,
 )
+from services.controller.forearm import top_face
 from services.controller.ibvs import ControlOutput, IbvsController
 from services.controller.step import above_the_target, twist_message
 from services.controller.twist import camera_points_to_base, twist_matrix_base_ee_to_cam
@@ -118,6 +119,24 @@ def test_the_top_face_plane_comes_from_the_marker_corners_and_faces_the_camera()
         plane = plane_of_corners(camera_points_to_base(corners, t_base_cam), t_base_cam[:3, 3])
         np.testing.assert_allclose(plane.normal, [0.0, 1.0, 0.0], atol=1e-12)
         np.testing.assert_allclose(plane.point_m, [0.15, 0.3, 0.35])
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("merged", [(1, 0), (3, 0), (1, 3)], ids=["1=0", "3=0", "0,1,3 in a line"])
+def test_the_plane_and_face_of_a_square_with_corners_merged_are_still_the_square_s(
+    merged: tuple[int, int],
+) -> None:
+    """Corners the wire lets through (its check is that the diagonals cross) with corner 1 or 3
+    on corner 0, or 0, 1 and 3 in a line: the plane's normal and the face's axes come from the
+    diagonals, finite and the square's own, not 0/0 (a NaN twist the wire then refused)."""
+    square = np.array([[0.1, -0.2, 0.3], [0.2, -0.2, 0.3], [0.2, -0.2, 0.4], [0.1, -0.2, 0.4]])
+    bent = square.copy()
+    i, j = merged
+    bent[i] = square[j] if merged != (1, 3) else (square[0] + square[3]) / 2 - [0.0, 0.0, 0.2]
+    plane = plane_of_corners(bent, np.array([0.0, 0.5, 0.0]))
+    np.testing.assert_allclose(plane.normal, [0.0, 1.0, 0.0], atol=1e-12)
+    face = top_face(plane, bent, 0.075)
+    assert np.all(np.isfinite(face.u)) and abs(face.u @ plane.normal) < 1e-12
 
 
 def arm_at(t_ee: np.ndarray) -> ArmReading:

@@ -11,11 +11,11 @@ from common import kinematics as kin
 from common.camera import CameraIntrinsics, pixel_to_normalized
 from common.config import ConstantDepth, ControllerConfig, JacobianMode
 from common.marker import Marker
-from common.messages import MAX_ANGULAR_RAD_S, MAX_LINEAR_M_S, MarkerState
+from common.messages import MAX_ANGULAR_RAD_S, MAX_LINEAR_M_S, Header, MarkerState
 from common.motion import MAX_SPEED_M_S, PREDICTION_HORIZON_S, STILL_SPEED_M_S, MarkerMotion
 from services.controller.arm import ArmReading
 from services.controller.convergence import settled_error_px_rms
-from services.controller.goal import desired_observation
+from services.controller.goal import GOAL_BEHIND_CAMERA, desired_observation
 from services.controller.ibvs import ControlOutput, IbvsController
 from services.controller.interaction import (
     USES_CURRENT,
@@ -26,6 +26,7 @@ from services.controller.interaction import (
     point_feature_jacobian,
 )
 from services.controller.pairing import choose_pairing, pairing_costs_px2
+from services.controller.step import twist_message
 from services.controller.twist import (
     camera_twist_to_base_ee,
     clamp_twist,
@@ -274,6 +275,48 @@ def test_hold_when_a_marker_is_missing_and_memory_when_the_hand_hides_the_target
     assert not out.valid and out.hold_reason == "hand partial"
     out = ctrl.step(hand_near, not_seen("no_depth"), K, ArmReading(np.zeros(3)))
     assert not out.valid and out.hold_reason == "target no_depth"
+
+
+def test_a_goal_not_in_front_of_the_camera_is_a_named_hold() -> None:
+    """A target so near the camera that the goal (raised 3 cm towards it) is not 1 cm in
+    front of it would project nowhere, or from behind: a hold saying so, a zero twist the wire
+    carries, and servoing again once the target is farther."""
+    hand = observe(square_points(np.array([0.05, 0.0, 0.3])))
+    ctrl = IbvsController(ControllerConfig(), np.eye(4), approach_height_m=0.03)
+    near = Marker.seen_at(square_points(np.array([0.0, 0.0, 0.035])), K)
+    for t_s in (0.0, 0.5):
+        out = ctrl.step(hand, near, K, ArmReading(np.zeros(3)), t_s)
+        assert not out.valid and out.hold_reason == GOAL_BEHIND_CAMERA
+        assert not np.any(out.twist_base_ee) and out.hold_since_s == 0.0
+    header = Header(seq=0, sim_time_s=0.5, send_time_s=0.0, frame_seq=0)
+    assert twist_message(out, header, "dynamic").hold_reason == GOAL_BEHIND_CAMERA
+    out = ctrl.step(
+        hand, observe(square_points(np.array([0.0, 0.0, 0.5]))), K, ArmReading(np.zeros(3)), 1.0
+    )
+    assert out.valid and out.hold_since_s is None
+
+
+def test_a_hidden_target_predicted_through_the_camera_plane_is_held_not_followed() -> None:
+    """A target seen coming towards the camera at 10 cm/s, then hidden by the hand: its
+    prediction is followed while its goal is in front of the camera, then held, never carried
+    behind it (the error grew without bound there, until the wire refused the twist)."""
+    ctrl = IbvsController(ControllerConfig(), np.eye(4), approach_height_m=0.03)
+    start, velocity = np.array([0.0, 0.05, 0.35]), np.array([0.0, 0.0, -0.1])
+    hand = observe(square_points(np.array([0.01, 0.05, 0.3])))
+    t_s = 0.0
+    for i in range(16):
+        t_s = i * FRAME_S
+        ctrl.step(
+            hand, observe(square_points(start + velocity * t_s)), K, ArmReading(np.zeros(3)), t_s
+        )
+    header = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
+    reasons = []
+    while t_s < 5.0:
+        t_s += FRAME_S
+        out = ctrl.step(hand, not_seen("partial", occluded=True), K, ArmReading(np.zeros(3)), t_s)
+        twist_message(out, header, "dynamic")  # the wire takes every one
+        reasons.append(out.hold_reason if not out.valid else "servoing")
+    assert reasons[0] == "servoing" and reasons[-1] == GOAL_BEHIND_CAMERA
 
 
 SLIDE_START_M = np.array([0.0, 0.05, 0.55])
