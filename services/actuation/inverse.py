@@ -144,7 +144,7 @@ class Clamps:
     position: list[int] = field(default_factory=list)  # joints slowed near a position limit
     velocity: list[int] = field(default_factory=list)  # joints over their speed limit
     acceleration: bool = False  # the change from the previous command was bounded
-    nonfinite: bool = False  # the inverse gave NaN/Inf: zero was commanded instead
+    nonfinite: bool = False  # the command came out NaN/Inf: zero was commanded instead
 
 
 @dataclass(frozen=True)
@@ -173,16 +173,15 @@ def twist_to_joint_velocities(
     safety limits in order of authority: acceleration (soft: shapes the motion), then joint
     position and speed limits (hard: always hold, even if that means a sharper change); last,
     a finite-value guard on the command (a zero command instead)."""
-    # A non-finite input anywhere (the twist, a joint angle, the previous command, the time
-    # step) is caught once, on what would reach the motors: a NaN angle of the last joint
-    # leaves the Jacobian finite and enters only through the limits' bounds.
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+    if not np.isfinite(q_rad).all():  # encoders' angles no kinematics can take
+        return _nonfinite(float("nan"), 0.0)
+    # A NaN or Inf in the twist or the previous command is caught once, on what would reach
+    # the motors (after every limit: the acceleration limit hands the previous command back).
+    with np.errstate(invalid="ignore", over="ignore"):
         jac = kin.geometric_jacobian(q_rad)
         w = kin.manipulability(jac)
         delta = damping_for(w, damping_max, threshold)
         qdot = damped_pinv(jac, delta) @ np.asarray(twist_base_ee, dtype=float)
-        if not np.isfinite(qdot).all():  # nothing the limits could make finite
-            return _nonfinite(w, delta)
         qdot, held = redistribute_at_limits(jac, twist_base_ee, qdot, q_rad, delta)
         accelerated = False
         if previous_rad_s is not None and np.isfinite(max_accel_rad_s2):

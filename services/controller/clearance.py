@@ -57,14 +57,21 @@ def hand_box_corners_ee() -> FloatArray:
     return corners
 
 
+# A square's first edge (and the product of its first two) is half of what its diagonals give
+# (see plane_of_corners): under this share of it the edges are taken as degenerate.
+DEGENERATE_SHARE = 0.1
+
+
 def plane_of_corners(points: FloatArray, origin: FloatArray) -> Plane:
     """The plane of the red marker's four corners (base frame, m), its normal turned towards
     the camera's optical centre ``origin`` (up, out of the object)."""
     centre = kin.centroid(points)
     normal = kin.cross(points[1] - points[0], points[3] - points[0])
     diagonals = kin.cross(points[2] - points[0], points[3] - points[1])
-    if kin.norm(normal) < 1e-3 * kin.norm(diagonals):  # corners 0, 1, 3 (nearly) in a line:
-        normal = diagonals  # the diagonals, which the wire checks, do cross
+    # A square's edge product is half its diagonals'; far less, corners 0, 1, 3 are (nearly)
+    # in a line or merged, and the diagonals, which the wire checks, do cross.
+    if kin.norm(normal) < DEGENERATE_SHARE * kin.norm(diagonals):
+        normal = diagonals
     normal = normal / kin.norm(normal)
     if normal @ (origin - centre) < 0:
         normal = -normal

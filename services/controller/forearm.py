@@ -41,7 +41,7 @@ import numpy as np
 from common import kinematics as kin
 from common.kinematics import FloatArray
 from services.controller.arm import ELBOW_FRAME  # where the forearm starts
-from services.controller.clearance import Plane
+from services.controller.clearance import DEGENERATE_SHARE, Plane
 
 WRIST_FRAME = 4  # kinematics.frame_transforms index: DH frame 5, where the forearm ends
 FOREARM_JOINTS = 4  # the joints that move it: the shoulder's three and the elbow
@@ -79,9 +79,12 @@ def top_face(plane: Plane, corners_base_m: FloatArray, side_m: float) -> TopFace
     n = plane.normal
     u = corners_base_m[1] - corners_base_m[0]
     u = u - (u @ n) * n
-    if kin.norm(u) < 1e-9:  # corners 0 and 1 as one: along the diagonals' difference, which
-        d = (corners_base_m[2] - corners_base_m[0]) - (corners_base_m[3] - corners_base_m[1])
-        u = d - (d @ n) * n  # runs 0 → 1 too, and is not nil when they cross (the wire's check)
+    # The diagonals' difference runs 0 → 1 as well, twice as long on a square, and is not nil
+    # when they cross (the wire's check): the axis when corners 0 and 1 (nearly) merge.
+    d = (corners_base_m[2] - corners_base_m[0]) - (corners_base_m[3] - corners_base_m[1])
+    d = d - (d @ n) * n
+    if kin.norm(u) < DEGENERATE_SHARE * kin.norm(d):
+        u = d
     u = u / kin.norm(u)
     return TopFace(plane.point_m, u, kin.cross(n, u), n, side_m / 2)
 

@@ -39,11 +39,11 @@ def desired_observation(target: Marker, approach_height_m: float, k: CameraIntri
 GOAL_BEHIND_CAMERA = "goal not in front of the camera"
 
 
-def in_front_of_camera(goal: Marker) -> bool:
-    """Every corner of ``goal`` at least :data:`~common.messages.MIN_USABLE_DEPTH_M` in front
-    of the camera, as a usable marker's: a target (or the prediction of a hidden one) too near
-    the camera, raised by the approach height, projects nowhere, or from behind it."""
-    return bool(np.all(np.asarray(goal.points_m)[:, 2] >= MIN_USABLE_DEPTH_M))
+def in_front_of_camera(marker: Marker) -> bool:
+    """Every corner of ``marker`` at least :data:`~common.messages.MIN_USABLE_DEPTH_M` in front
+    of the camera, as a usable marker's: a target carried there by its prediction, or a goal
+    raised by the approach height from a target that near, projects nowhere, or from behind."""
+    return bool(np.all(np.asarray(marker.points_m)[:, 2] >= MIN_USABLE_DEPTH_M))
 
 
 def carried(last: Marker, shift_m: FloatArray, k: CameraIntrinsics) -> Marker:

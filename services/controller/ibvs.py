@@ -221,7 +221,11 @@ class IbvsController:
             self.reach_stale = self.reachable is not None
         if not (hand.usable and target.usable):
             return self._hold(hand, target, seen, k, arm, t_s)
-        goal = self._goal(target, k)
+        # The target first: raised towards the camera from behind it, its goal could be in front.
+        if not in_front_of_camera(target):
+            return self._hold_for(GOAL_BEHIND_CAMERA, t_s)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a goal at 0 depth: held next
+            goal = self._goal(target, k)
         if not in_front_of_camera(goal):
             return self._hold_for(GOAL_BEHIND_CAMERA, t_s)
         self.hold_since_s = None

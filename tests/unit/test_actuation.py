@@ -125,13 +125,15 @@ def test_nonfinite_inverse_is_flagged() -> None:
 
 
 @pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("angle", [np.nan, np.inf, -np.inf])
 @pytest.mark.parametrize("joint", range(6))
-def test_a_nonfinite_joint_angle_gives_a_zero_command(joint: int) -> None:
-    """A NaN angle of any joint, the last one included (which leaves the Jacobian at the
-    end effector's origin finite and enters only through the limits' bounds), never reaches
-    the motors: a zero command, flagged, whatever the previous command."""
+def test_a_nonfinite_joint_angle_gives_a_zero_command(joint: int, angle: float) -> None:
+    """A NaN or infinite angle of any joint, the last one included (a NaN there leaves the
+    Jacobian at the end effector's origin finite and entered only through the limits' bounds),
+    never reaches the motors nor raises: a zero command, flagged, whatever the previous
+    command."""
     q = np.array([-1.559, 0.952, -1.832, 1.487, 0.600, -0.070])
-    q[joint] = np.nan
+    q[joint] = angle
     twist = np.array([0.01, 0.0, 0.0, 0.0, 0.0, 0.1])
     for previous in (None, np.zeros(6), np.full(6, 0.2)):
         cmd = twist_to_joint_velocities(
