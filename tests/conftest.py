@@ -16,6 +16,7 @@ import pytest
 from common.config import Scenario, load_scenario
 from common.keys import ENV_PREFIX, ENV_ROBOT_ID
 from common.session import ENV_CONFIG, ENV_CONNECT, ENV_SHM
+from tests.prefixes import unique_keys
 
 # The suite makes its own sessions: loopback, no multicast scouting, its own prefixes. A Zenoh
 # config, endpoints, shared-memory switch or prefix from the shell that runs it would reach
@@ -119,13 +120,11 @@ def launch_umay_up(log_dir, clock: str, *extra: str, wrapper: tuple[str, ...] = 
     ``wrapper``: a command that runs it (it must exec its arguments)."""
     import subprocess
     import sys
-    import uuid
 
-    from common.keys import Keys
     from common.session import free_tcp_endpoint
 
     endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     proc = subprocess.Popen(
         [*wrapper, sys.executable, "-m", "deploy", "up", "--clock", clock, "--prefix", keys.prefix,
          "--listen", endpoint, "--connect", endpoint, "--log-dir", str(log_dir), *extra],

@@ -7,7 +7,6 @@ import json
 import subprocess
 import sys
 import time
-import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -18,6 +17,7 @@ from common.codec import DEFAULT_MAX_BYTES, decode
 from common.keys import Keys
 from common.messages import JointState
 from common.session import free_tcp_endpoint
+from tests.prefixes import unique_keys
 
 REPO = Path(__file__).resolve().parent.parent
 ACL_DIR = REPO / "deploy" / "zenoh" / "acl"
@@ -105,7 +105,7 @@ def router_and_tool(
     try:
         tool = wait_for_router(endpoint)
         sessions.append(tool)
-        yield endpoint, Keys(f"test/{uuid.uuid4().hex[:12]}"), tool, sessions
+        yield endpoint, unique_keys(), tool, sessions
     finally:
         for session in sessions:
             session.close()

@@ -7,17 +7,16 @@ realtime clock with commands applied to it."""
 from __future__ import annotations
 
 import threading
-import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import SimpleNamespace
 from typing import Any
 
 from common.config import load_scenario
-from common.keys import Keys
 from common.messages import Header, ImageData, JointState, JointVelocityCommand, RgbFrame
 from common.runtime import parse_overrides
 from common.session import free_tcp_endpoint, open_session
+from tests.prefixes import unique_keys
 
 FRAMES = 6  # of the default run, for the tests to feed the services
 RUN_A, RUN_B = 11, 22  # two runs of the sim (common/runs.py), as a restart makes them
@@ -59,7 +58,7 @@ def service_context() -> Iterator[SimpleNamespace]:
     try:
         yield SimpleNamespace(
             scenario=load_scenario(),
-            keys=Keys(f"test/{uuid.uuid4().hex[:12]}"),
+            keys=unique_keys(),
             session=session,
             stop=threading.Event(),
         )

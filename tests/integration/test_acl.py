@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import time
-import uuid
 from pathlib import Path
 
 import pytest
@@ -22,6 +21,7 @@ from common.codec import DEFAULT_MAX_BYTES, decode, encode
 from common.keys import SERVICES, Keys, whole_frame_key
 from common.messages import Header, JointState, JointVelocityCommand, ServiceStatus
 from common.session import ENV_CONFIG, free_tcp_endpoint
+from tests.prefixes import unique_keys
 from tests.router_deployment import (
     ACL_DIR,
     REPO,
@@ -64,7 +64,7 @@ def push_commands_as(user: str, endpoint: str, keys: Keys, states: list[JointSta
 
 def test_only_the_actuation_service_can_move_the_arm(tmp_path: Path) -> None:
     endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     procs = [start_router(endpoint, tmp_path)]
     monitor = wait_for_router(endpoint)
     try:
@@ -95,7 +95,7 @@ def test_only_the_actuation_service_can_move_the_arm(tmp_path: Path) -> None:
 
 def test_only_the_sim_can_publish_frames_and_strangers_are_refused(tmp_path: Path) -> None:
     endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     procs = [start_router(endpoint, tmp_path)]
     monitor = wait_for_router(endpoint)
     try:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import threading
 import time
-import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +32,7 @@ from common.publishers import typed_publisher
 from common.session import ENV_SHM, free_tcp_endpoint, open_session
 from deploy.recording.read import iter_messages
 from deploy.recording.record import Recorder
+from tests.prefixes import unique_keys
 
 K = CameraIntrinsics.from_fov(64, 48, 57.0)
 ELSEWHERE = RingReader(host="another-host/boot")  # as a subscriber on another machine maps
@@ -62,7 +62,7 @@ class Loopback:
 @pytest.fixture()
 def net() -> Iterator[Loopback]:
     endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     loopback = Loopback(endpoint, keys, open_session(connect=[], listen=[endpoint]))
     yield loopback
     for n in loopback.nodes:

@@ -18,7 +18,6 @@ import math
 import socket
 import threading
 import time
-import uuid
 from pathlib import Path
 
 import msgpack
@@ -55,6 +54,7 @@ from common.runtime import parse_overrides
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.run import run_once
 from deploy.launch.status import collect
+from tests.prefixes import unique_keys
 
 H = Header(seq=0, sim_time_s=0.0, send_time_s=0.0, frame_seq=0)
 K = CameraIntrinsics.from_fov(32, 24, 57.0)
@@ -236,7 +236,7 @@ def wait_until_listening(endpoint: str, timeout_s: float = 20.0) -> None:
 
 def test_fuzzing_every_input_while_servoing(tmp_path: Path) -> None:
     endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     overrides = ["controller.gain=0.25"]
     scenario = load_scenario(None, parse_overrides(overrides))
     results = []

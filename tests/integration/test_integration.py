@@ -27,13 +27,10 @@ from deploy.launch.evaluate import RunResult
 from deploy.launch.run_inprocess import run_scenario_inprocess
 from deploy.queries import query_status
 from tests.conftest import launch_umay_up, views_once_controller
+from tests.prefixes import unique_prefix
 
 UMAY = [sys.executable, "-m", "deploy"]
 RUN_TIMEOUT_S = 900
-
-
-def unique_prefix() -> str:
-    return f"test/{uuid.uuid4().hex[:12]}"
 
 
 def umay_run(

@@ -10,7 +10,6 @@ from __future__ import annotations
 import itertools
 import threading
 import time
-import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -23,6 +22,7 @@ from common.keys import Keys
 from common.messages import Header, JointState
 from common.node import Node
 from common.session import free_tcp_endpoint, open_session
+from tests.prefixes import unique_keys
 
 KEYS = ("in/a", "in/b")
 
@@ -66,7 +66,7 @@ def rig() -> Iterator[Callable[[bool], Rig]]:
 
     def make(latest_only: bool) -> Rig:
         endpoint = free_tcp_endpoint()
-        keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+        keys = unique_keys()
         node = Node("events", keys, open_session(connect=[], listen=[endpoint]))
         for key in KEYS:
             node.subscribe(f"{keys.prefix}/{key}", JointState, latest_only=latest_only)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import uuid
 from pathlib import Path
 
 import pytest
@@ -14,6 +13,7 @@ import pytest
 from common.session import free_tcp_endpoint
 from deploy.launch.evaluate import RunResult
 from deploy.launch.run_inprocess import run_scenario_inprocess
+from tests.prefixes import unique_prefix
 from tests.unit.test_pipeline import short
 
 REPO = Path(__file__).resolve().parents[2]
@@ -31,7 +31,7 @@ def distributed(tmp_path: Path, name: str, *options: str) -> RunResult:
     out = tmp_path / f"{name}.json"
     argv = [sys.executable, "-m", "deploy", "run", "--clock", "lockstep", "--quiet"]
     # Its own prefix and port: parallel tests, or a `umay up` on this host, never cross it.
-    argv += ["--prefix", f"test/{uuid.uuid4().hex[:12]}", "--listen", free_tcp_endpoint()]
+    argv += ["--prefix", unique_prefix(), "--listen", free_tcp_endpoint()]
     argv += [*options, "--result", str(out), "--log-dir", str(tmp_path / "logs")]
     proc = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert proc.returncode in (0, 1), proc.stderr

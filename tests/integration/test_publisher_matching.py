@@ -4,17 +4,15 @@ states have a subscriber, not into the void (services/sim/node.py, ``wait_for_su
 
 from __future__ import annotations
 
-import uuid
-
-from common.keys import Keys
 from common.node import Node
 from common.session import free_tcp_endpoint, open_session
 from tests.integration.test_supervisor import wait_for
+from tests.prefixes import unique_keys
 
 
 def test_matched_follows_a_subscriber_on_another_session() -> None:
     endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     node = Node("sim", keys, open_session(connect=[], listen=[endpoint]))
     other = open_session(connect=[endpoint])
     try:

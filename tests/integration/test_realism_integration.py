@@ -7,20 +7,19 @@ from __future__ import annotations
 
 import threading
 import time
-import uuid
 from pathlib import Path
 
 import numpy as np
 
 from common.codec import FRAME_MAX_BYTES, decode
 from common.config import load_scenario
-from common.keys import Keys
 from common.messages import EndEffectorTwist, Features, JointState, JointVelocityCommand
 from common.runtime import parse_overrides
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.run import run_once
 from deploy.launch.status import collect
 from deploy.recording.read import iter_messages
+from tests.prefixes import unique_keys
 
 HIDE_AT_S, HIDE_FOR_S = 1.5, 1.0
 
@@ -42,7 +41,7 @@ def test_hiding_the_target_stops_the_arm_and_the_run_resumes(tmp_path: Path) -> 
         f"events=[{{at_s = {HIDE_AT_S}, action = 'hide_target', duration_s = {HIDE_FOR_S}}}]"
     ]
     scenario = load_scenario(None, parse_overrides(overrides))
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     endpoint = free_tcp_endpoint()
     record = tmp_path / "hide.mcap"
     results = []

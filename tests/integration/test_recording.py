@@ -15,7 +15,6 @@ import subprocess
 import sys
 import threading
 import time
-import uuid
 from collections.abc import Callable
 from pathlib import Path
 
@@ -31,16 +30,13 @@ from deploy.recording.channels import model_for_key
 from deploy.recording.read import iter_messages, read_info
 from deploy.recording.record import Recorder
 from deploy.recording.replay import frame_seq_of
+from tests.prefixes import unique_prefix
 
 UMAY = [sys.executable, "-m", "deploy"]
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "reference.mcap"
 # 480×360: the smallest common size at which vision sees both markers from the start, so the
 # controller servos (at 320×240 the red marker is reported occluded and the controller holds).
 SMALL_RUN = ["camera.width_px=480", "camera.height_px=360", "run.timeout_s=0.5"]
-
-
-def unique_prefix() -> str:
-    return f"test/{uuid.uuid4().hex[:12]}"
 
 
 def umay(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:

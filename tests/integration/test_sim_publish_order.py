@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-import uuid
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,6 +20,7 @@ from common.node import Node
 from common.publishers import TypedPublisher
 from common.session import free_tcp_endpoint, open_session
 from deploy.supervisor import Supervisor
+from tests.prefixes import unique_keys
 
 FRAMES = 6
 
@@ -62,7 +62,7 @@ def answer(commands: TypedPublisher, frame_seq: int, run: int) -> None:
 def test_the_joint_state_and_truth_go_before_the_frame_and_its_timing_after_its_command(
     tmp_path: Path,
 ) -> None:
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     arrivals: list[tuple[str, int]] = []  # (key suffix, frame_seq) in arrival order
     runs: set[int] = set()  # the sim's run, on every message (a command must carry it)
     timings: dict[int, SimTiming] = {}
@@ -128,7 +128,7 @@ def test_a_resend_puts_again_the_depth_image_its_frame_names(tmp_path: Path) -> 
     """Depth at 1 Hz: frame 1 carries no depth image of its own but names frame 0's. Left
     unanswered, frame 1 is sent again with that depth image before it, so a vision started
     since frame 0 measures it at once instead of waiting for the next depth tick."""
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     arrivals: list[tuple[str, int]] = []
     runs: set[int] = set()
     lock = threading.Condition()

@@ -4,16 +4,14 @@ without listening to every hop while it runs."""
 
 from __future__ import annotations
 
-import uuid
-
 import pytest
 
-from common.keys import Keys
 from common.messages import Header, JointVelocityCommand, ServiceStatus
 from common.node import Node
 from common.publishers import STAMPS_KEPT
 from common.session import free_tcp_endpoint, open_session
 from deploy.queries import query_stamps
+from tests.prefixes import unique_keys
 
 
 def command(frame_seq: int, send_s: float, recv_s: float) -> JointVelocityCommand:
@@ -25,7 +23,7 @@ def command(frame_seq: int, send_s: float, recv_s: float) -> JointVelocityComman
 
 def test_a_service_answers_for_the_stamps_of_what_it_published_last() -> None:
     endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     service_session = open_session(connect=[], listen=[endpoint])
     node = Node("actuation", keys, service_session)
     pub = node.publisher(keys.joint_command)
@@ -62,7 +60,7 @@ def test_a_status_whose_fields_fail_still_answers_degraded_saying_why() -> None:
         return ActuationStatus(deadman="perhaps")  # type: ignore[call-arg]
 
     endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     service_session = open_session(connect=[], listen=[endpoint])
     node = Node("actuation", keys, service_session, broken)
     node.ready()

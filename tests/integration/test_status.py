@@ -8,21 +8,21 @@ import signal
 import subprocess
 import sys
 import time
-import uuid
 from pathlib import Path
 
 import pytest
 
-from common.keys import SERVICES, Keys
+from common.keys import SERVICES
 from common.session import free_tcp_endpoint, open_session
 from deploy.launch.status import collect
 from deploy.supervisor import Supervisor
 from tests.conftest import launch_umay_up
+from tests.prefixes import unique_keys, unique_prefix
 
 
 def test_status_lists_all_services_and_sees_a_killed_one_go(tmp_path: Path) -> None:
     endpoint = free_tcp_endpoint()
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     session = open_session(connect=[], listen=[endpoint])
     sup = Supervisor(None, keys.prefix, endpoint, tmp_path / "logs")
     sup.start()
@@ -156,7 +156,7 @@ def test_without_room_for_shared_memory_frames_go_whole(tmp_path: Path, shm_moun
 
 def test_status_with_nothing_running_exits_1_saying_where_it_looked() -> None:
     endpoint = free_tcp_endpoint()  # nobody listens there
-    prefix = f"test/{uuid.uuid4().hex[:12]}"
+    prefix = unique_prefix()
     proc = subprocess.run(
         [sys.executable, "-m", "deploy", "status", "--prefix", prefix, "--connect", endpoint,
          "--timeout", "0.3"],

@@ -27,6 +27,7 @@ from deploy.launch.status import collect
 from deploy.service_process import exec_command
 from deploy.supervisor import Supervisor
 from tests.conftest import launch_umay_up, processes_mentioning
+from tests.prefixes import unique_prefix
 
 
 def stand_in(monkeypatch: pytest.MonkeyPatch, command: list[str]) -> None:
@@ -499,7 +500,7 @@ def test_a_run_whose_services_cannot_start_ends_and_closes_its_session(tmp_path:
     the error comes out and the process ends. It used to hang at exit, its Zenoh session
     left open because the supervisor failed before the try that closes it."""
     (tmp_path / "file").write_text("x")
-    prefix = f"test/{uuid.uuid4().hex[:12]}"  # another suite's run of this test: not this one
+    prefix = unique_prefix()  # another suite's run of this test: not this one
     code = (
         "from pathlib import Path\n"
         "from common.config import load_scenario\n"

@@ -22,9 +22,9 @@ from pathlib import Path
 import pytest
 
 from common.codec import DEFAULT_MAX_BYTES, decode
-from common.keys import Keys
 from common.messages import EndEffectorTwist
 from deploy.queries import query_status
+from tests.prefixes import unique_keys
 from tests.router_deployment import (
     SMALL_IMAGE,
     start_router,
@@ -77,7 +77,7 @@ def test_sim_on_another_host_through_a_router_converges(
     tmp_path: Path, second_host: NetnsHost
 ) -> None:
     router = f"tcp/{second_host.host_ip}:{free_port(second_host.host_ip)}"
-    keys = Keys(f"test/{uuid.uuid4().hex[:12]}")
+    keys = unique_keys()
     procs = [start_router(router, tmp_path)]
     monitor = wait_for_router(router)
     twists: list[EndEffectorTwist] = []
